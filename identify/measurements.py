@@ -1,0 +1,128 @@
+"""Measurements: what the instrument saw at each pose, in execution order (SI units).
+
+This is the in-memory form of a measurement file (CSV v1, CONTRACTS.md).  Reading and
+writing the file, with its mm/deg units and its one-line errors, happens in
+``quickhealth.station.formats``; everything here is SI and already validated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .transforms import rpy_to_R
+
+F = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class Measurements:
+    """Measured poses of the target, one row per pose, in the order the robot visited them.
+
+    Attributes
+    ----------
+    q : ndarray, shape (n, nj), rad
+        Joint readings.
+    pos : ndarray, shape (n, 3), m
+        Target point in the instrument frame.
+    rpy : ndarray, shape (n, 3), rad, or None
+        (pitch, yaw, roll) with ``R = Rz(roll) · Ry(yaw) · Rx(pitch)``; None = position only.
+    time : ndarray, shape (n,), s, or None
+    temp : ndarray, shape (n,), °C, or None
+    pan : ndarray, shape (n,), rad, or None
+        Smart-target pan angle.
+    sigma_pos : ndarray, shape (n, 3), m, or None
+        Per-row standard uncertainty of the position.
+    sigma_rpy : ndarray, shape (n, 3), rad, or None
+        Per-row standard uncertainty of the angles.
+    pose_id : tuple of str, or None
+    meta : dict of str to str
+        ``# key: value`` metadata (robot serial, instrument, run id …).
+    """
+
+    q: F
+    pos: F
+    rpy: F | None = None
+    time: F | None = None
+    temp: F | None = None
+    pan: F | None = None
+    sigma_pos: F | None = None
+    sigma_rpy: F | None = None
+    pose_id: tuple[str, ...] | None = None
+    meta: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = self.q.shape[0]
+        if self.q.ndim != 2 or self.pos.shape != (n, 3):
+            raise ValueError(
+                f"q must be (n, nj) and pos (n, 3); got {self.q.shape}, {self.pos.shape}"
+            )
+        for name in ("rpy", "sigma_pos", "sigma_rpy"):
+            v = getattr(self, name)
+            if v is not None and v.shape != (n, 3):
+                raise ValueError(f"{name} must have shape ({n}, 3), got {v.shape}")
+        for name in ("time", "temp", "pan"):
+            v = getattr(self, name)
+            if v is not None and v.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},), got {v.shape}")
+        if self.pose_id is not None and len(self.pose_id) != n:
+            raise ValueError("pose_id needs one entry per row")
+
+    @property
+    def n_poses(self) -> int:
+        """Number of measured poses."""
+        return int(self.q.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints."""
+        return int(self.q.shape[1])
+
+    @property
+    def has_orientation(self) -> bool:
+        """True for full-pose (7D) data, False for position-only data."""
+        return self.rpy is not None
+
+    @property
+    def R(self) -> F:
+        """Measured orientations, shape (n, 3, 3)."""
+        if self.rpy is None:
+            raise ValueError("position-only measurements have no orientation")
+        return rpy_to_R(self.rpy[:, 0], self.rpy[:, 1], self.rpy[:, 2])
+
+    def approach_sign(self) -> F:
+        """Approach direction of every joint, from the previous row: +1, −1 (shape (n, nj)).
+
+        The first row, and joints that did not move, take the direction of the last move
+        of that joint (the first row counts as approached from below, +1).
+        """
+        d = np.diff(self.q, axis=0, prepend=self.q[:1])
+        s = np.sign(d)
+        out = np.empty_like(s)
+        last = np.ones(self.n_joints)
+        for i in range(self.n_poses):  # carry the last direction forward
+            last = np.where(s[i] != 0, s[i], last)
+            out[i] = last
+        return out
+
+    def subset(self, idx: NDArray[np.int64] | slice) -> Measurements:
+        """Rows ``idx`` (execution order is kept as given)."""
+
+        def take(v):  # type: ignore[no-untyped-def]
+            return None if v is None else v[idx]
+
+        pid = None if self.pose_id is None else tuple(np.asarray(self.pose_id, dtype=object)[idx])
+        return replace(
+            self,
+            q=self.q[idx],
+            pos=self.pos[idx],
+            rpy=take(self.rpy),
+            time=take(self.time),
+            temp=take(self.temp),
+            pan=take(self.pan),
+            sigma_pos=take(self.sigma_pos),
+            sigma_rpy=take(self.sigma_rpy),
+            pose_id=pid,
+        )
