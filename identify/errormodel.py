@@ -202,6 +202,7 @@ def loop_pose(
     q: ArrayLike,
     dq: F | None = None,
     link_scale: F | None = None,
+    base_twist: F | None = None,
 ) -> F:
     """Model pose of the target in the instrument frame, ``T_instr_target`` (Eq. 4).
 
@@ -210,7 +211,10 @@ def loop_pose(
     q : array, shape (n, nj), rad
         Joint readings.
     dq, link_scale : optional
-        Physical-effect perturbations, passed to :func:`quickhealth.identify.robot.chain`.
+        Physical-effect perturbations, passed to :func:`quickhealth.identify.robot.chain`
+        (``link_scale`` is the factor, e.g. ``1 + growth``).
+    base_twist : ndarray, shape (n, 6), optional
+        Small per-pose motion of the base, applied as ``E0 · E(δ, ε)``.
 
     Returns
     -------
@@ -224,5 +228,7 @@ def loop_pose(
     b = constant_motions(spec, coeffs, 0)
     t = constant_motions(spec, coeffs, -1)
     E0 = np.asarray(T_instr_base0, float) @ small_error_transform(b[:3], b[3:])
+    if base_twist is not None:
+        E0 = E0 @ small_error_transform(base_twist[:, :3], base_twist[:, 3:])
     Et = np.asarray(T_flange_target0, float) @ small_error_transform(t[:3], t[3:])
     return E0 @ T_bf @ Et
