@@ -1,0 +1,1 @@
+"""The technician's terminal application (``quickhealth tui``): see ``app`` and ``facade``."""

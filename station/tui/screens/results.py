@@ -1,0 +1,152 @@
+"""Screen 4, Results: workspace error, change against baseline, verdict, joint curves, worst regions.
+
+``j`` / ``J`` step through the joints, ``m`` through the six error motions of the curve plot;
+``f`` fits the last run (in the background) when it has not been fitted yet.
+"""
+
+from __future__ import annotations
+
+from textual import work
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.reactive import reactive
+from textual.screen import Screen
+from textual.widgets import Footer, Static
+from textual_plotext import PlotextPlot
+
+from ..views import Health
+from ..widgets.nav import NavBar
+from ..widgets.textplot import spark
+
+MOTIONS = ("dx", "dy", "dz", "ex", "ey", "ez")
+
+
+class ResultsScreen(Screen[None]):
+    """How healthy is the robot, and where is it worst?"""
+
+    BINDINGS = [
+        Binding("f", "fit", "Fit run"),
+        Binding("j", "joint(1)", "Next joint"),
+        Binding("J", "joint(-1)", "Prev joint", show=False),
+        Binding("m", "motion", "Motion"),
+    ]
+
+    health: reactive[Health | None] = reactive(None)
+    joint = reactive(0)
+    motion = reactive(5)
+
+    def compose(self) -> ComposeResult:
+        yield NavBar("results")
+        with Horizontal(id="results-body"):
+            with Vertical(id="results-left"):
+                yield Static(
+                    "No results yet: finish a run, then press [b]f[/b].",
+                    id="summary",
+                    classes="panel",
+                )
+                yield Static("", id="worst", classes="panel")
+            yield PlotextPlot(id="curve")
+        yield Footer(compact=True)
+
+    def on_mount(self) -> None:
+        self.action_fit(quiet=True)
+
+    def on_screen_resume(self) -> None:
+        if self.health is None or self.app.station.results_stale():  # type: ignore[attr-defined]
+            self.action_fit(quiet=True)
+
+    def action_fit(self, quiet: bool = False) -> None:
+        if not self.app.station.has_measurements():  # type: ignore[attr-defined]
+            if not quiet:
+                self.notify("No measurements yet: run the plan first (3, r).", severity="warning")
+            return
+        self.query_one("#summary", Static).update(
+            "Fitting the model to the run… (the UI stays live)"
+        )
+        self._fit()
+
+    @work(thread=True, exclusive=True, group="fit")
+    def _fit(self) -> None:
+        try:
+            h = self.app.station.results()  # type: ignore[attr-defined]
+        except Exception as exc:
+            self.app.call_from_thread(
+                self.query_one("#summary", Static).update, f"[red]Fit failed: {exc}[/]"
+            )
+            return
+        self.app.call_from_thread(self.set_health, h)
+
+    def set_health(self, h: Health) -> None:
+        self.health = h
+
+    def watch_health(self, h: Health | None) -> None:
+        if h is None:
+            return
+        ok = h.verdict == "healthy"
+        verdict = "[b green]HEALTHY[/]" if ok else "[b red]DEGRADED[/]"
+        if h.change_mm is None:
+            change = "no baseline yet (this run can become it)"
+        else:
+            change = f"{h.change_mm:+.3f} mm vs baseline {h.baseline_mean_mm:.3f}"
+        lines = [
+            f"{verdict}  threshold {h.threshold_mm:.3f} mm on the mean",
+            f"run {h.run_id} · {h.robot} · {h.n_poses} poses",
+            "",
+            "[b]Workspace TCP error[/b] (model, whole range)",
+            f"  mean {h.mean_mm:7.3f} mm",
+            f"  std  {h.std_mm:7.3f} mm",
+            f"  max  {h.max_mm:7.3f} mm",
+            f"  change {change}",
+            f"  fit residual {h.rms_pos_mm:.3f} mm rms",
+            f"  {spark(h.hist_counts, 24)}",
+            f"  {h.hist_edges_mm[0]:<.2f}{'':>14}{h.hist_edges_mm[-1]:>.2f} mm",
+        ]
+        self.query_one("#summary", Static).update("\n".join(lines))
+        worst = ["[b]Worst regions[/b]"] + [f"  {r.err_mm:6.3f} mm  {r.where}" for r in h.worst[:5]]
+        if h.pngs:
+            worst.append(f"[dim]plots: {h.pngs[0].rsplit('/', 2)[-2]}/*.png[/]")
+        self.query_one("#worst", Static).update("\n".join(worst))
+        self._plot()
+
+    def action_joint(self, step: int) -> None:
+        h = self.health
+        if h is None:
+            return
+        joints = sorted({c.joint for c in h.curves}, key=lambda s: int(s[1:]))
+        self.joint = (self.joint + step) % max(1, len(joints))
+
+    def action_motion(self) -> None:
+        self.motion = (self.motion + 1) % 6
+
+    def watch_joint(self) -> None:
+        self._plot()
+
+    def watch_motion(self) -> None:
+        self._plot()
+
+    def _plot(self) -> None:
+        h = self.health
+        if h is None:
+            return
+        joints = sorted({c.joint for c in h.curves}, key=lambda s: int(s[1:]))
+        if not joints:
+            return
+        jn = joints[self.joint % len(joints)]
+        mo = MOTIONS[self.motion]
+        curve = next((c for c in h.curves if c.joint == jn and c.motion == mo), None)
+        widget = self.query_one("#curve", PlotextPlot)
+        plt = widget.plt
+        plt.clear_data()
+        plt.clear_figure()
+        if curve is None:
+            plt.title(f"{jn} {mo}: not in the model")
+            widget.refresh()
+            return
+        x = curve.q_deg.tolist()
+        plt.plot(x, (curve.value + curve.band).tolist(), color="gray", marker="dot")
+        plt.plot(x, (curve.value - curve.band).tolist(), color="gray", marker="dot")
+        plt.plot(x, curve.value.tolist(), color="cyan", marker="braille")
+        plt.title(f"{jn} {curve.words} ({curve.unit}) ±95% [j/m]")
+        plt.xlabel("joint angle (deg)")
+        widget.refresh()

@@ -1,0 +1,219 @@
+"""Screen 3, Run: progress with ETA, current pose, last measurement, per-pose table, control.
+
+``r`` starts (after pre-flight and a yes in the motion dialog), ``p`` pauses and resumes,
+``a`` aborts (the facade stops the robot before anything else), ``c`` reconnects after a
+lost connection or protective stop and continues the run where it stopped.
+"""
+
+from __future__ import annotations
+
+from textual import work
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.reactive import reactive
+from textual.screen import Screen
+from textual.widgets import DataTable, Footer, ProgressBar, Static
+
+from ..views import PoseStatus, RunProgress
+from ..widgets.nav import NavBar
+from ..widgets.textplot import fmt_duration
+from .confirm import ConfirmScreen
+
+STATUS_MARK = {
+    "pending": "[dim]·[/]",
+    "moving": "[cyan]moving[/]",
+    "measuring": "[cyan]measuring[/]",
+    "done": "[green]✓ done[/]",
+    "failed": "[red]✗ failed[/]",
+    "skipped": "[yellow]skipped[/]",
+}
+STATE_WORDS = {
+    "idle": "Ready: press [b]r[/b] to start the run.",
+    "running": "[cyan]Running[/]  [b]p[/b] pause · [b]a[/b] abort",
+    "paused": "[yellow]Paused[/] after this pose  [b]p[/b] resume · [b]a[/b] abort",
+    "aborted": "[red]Aborted[/]: robot stopped, measured poses kept. [b]r[/b] resumes the run.",
+    "fault": "[b red]Stopped by a fault[/] (below)",
+    "finished": "[green]Finished[/]: press [b]4[/b] for the results.",
+}
+
+
+def _pose_cells(ps: PoseStatus) -> tuple[str, str, str, str]:
+    markers = "–" if ps.markers is None else str(ps.markers)
+    reproj = "–" if ps.reproj_px is None else f"{ps.reproj_px:.2f}"
+    return STATUS_MARK.get(ps.status, ps.status), markers, reproj, ps.reason
+
+
+class RunScreen(Screen[None]):
+    """Run the frozen plan on the station and watch every pose."""
+
+    BINDINGS = [
+        Binding("r", "start", "Run"),
+        Binding("p", "pause", "Pause/resume"),
+        Binding("a", "abort", "Abort"),
+        Binding("c", "reconnect", "Reconnect"),
+    ]
+
+    progress: reactive[RunProgress | None] = reactive(None)
+
+    def compose(self) -> ComposeResult:
+        yield NavBar("run")
+        with Vertical(id="run-body"):
+            with Horizontal(id="run-top"):
+                yield ProgressBar(id="run-bar", show_eta=False)
+                yield Static("", id="run-eta")
+            yield Static(STATE_WORDS["idle"], id="run-state")
+            yield Static("", id="fault", classes="fault")
+            yield Static("Current pose: –", id="run-current")
+            yield Static("Last measurement: –", id="run-last")
+            yield DataTable(id="poses", cursor_type="row", zebra_stripes=True)
+        yield Footer(compact=True)
+
+    def on_mount(self) -> None:
+        table = self.query_one("#poses", DataTable)
+        table.add_column("#", key="n")
+        table.add_column("Pose", key="pose")
+        table.add_column("Status", key="status")
+        table.add_column("Markers", key="markers")
+        table.add_column("Reproj px", key="reproj")
+        table.add_column("Note", key="note")
+        self.query_one("#fault").display = False
+        self._fill_table()
+
+    def _fill_table(self) -> None:
+        table = self.query_one("#poses", DataTable)
+        table.clear()
+        for ps in self.app.station.pose_table():  # type: ignore[attr-defined]
+            table.add_row(str(ps.index + 1), ps.pose_id, *_pose_cells(ps), key=str(ps.index))
+        self.query_one("#run-bar", ProgressBar).update(total=max(1, table.row_count), progress=0)
+
+    # ----- control ---------------------------------------------------------------------------
+    def action_start(self) -> None:
+        """Pre-flight, then ask before the arm moves, then run in a worker."""
+        station = self.app.station  # type: ignore[attr-defined]
+        if station.running:
+            self.notify("The run is already going.", severity="warning")
+            return
+        self._preflight_then_ask()
+
+    @work(thread=True, exclusive=True, group="run-preflight")
+    def _preflight_then_ask(self) -> None:
+        pf = self.app.station.preflight()  # type: ignore[attr-defined]
+        self.app.call_from_thread(self._ask, pf)
+
+    def _ask(self, pf) -> None:  # type: ignore[no-untyped-def]
+        if not pf.go:
+            self.notify("NO-GO: " + "; ".join(pf.reasons), severity="error", timeout=8)
+            return
+        n = self.app.station.n_remaining()  # type: ignore[attr-defined]
+        question = (
+            f"The arm will move through {n} poses.\nIs the cell clear and the e-stop in reach?"
+        )
+
+        def answer(yes: bool | None) -> None:
+            if yes:
+                self._run()
+
+        self.app.push_screen(ConfirmScreen(question), answer)
+
+    @work(thread=True, exclusive=True, group="run")
+    def _run(self) -> None:
+        def on_progress(p: RunProgress) -> None:
+            self.app.call_from_thread(self.set_progress, p)
+
+        final = self.app.station.run(on_progress)  # type: ignore[attr-defined]
+        self.app.call_from_thread(self.set_progress, final)
+
+    def action_pause(self) -> None:
+        station = self.app.station  # type: ignore[attr-defined]
+        if not station.running:
+            return
+        if station.paused:
+            station.resume()
+            self.notify("Resumed.")
+        else:
+            station.pause()
+            self.notify("Pausing after the current pose…")
+
+    def action_abort(self) -> None:
+        """Stop the robot first, then end the run (what was measured stays in the journal)."""
+        station = self.app.station  # type: ignore[attr-defined]
+        if not station.running:
+            return
+        station.abort()
+        self.notify("Abort: robot stopped.", severity="warning")
+
+    def action_reconnect(self) -> None:
+        p = self.progress
+        if p is None or p.state not in ("fault", "aborted"):
+            self.notify("Nothing to reconnect: the run is not stopped by a fault.")
+            return
+        self.query_one("#run-state", Static).update("Reconnecting…")
+        self._reconnect()
+
+    @work(thread=True, exclusive=True, group="run-preflight")
+    def _reconnect(self) -> None:
+        try:
+            self.app.station.reconnect()  # type: ignore[attr-defined]
+        except Exception as exc:
+            self.app.call_from_thread(self.notify, f"Still no connection: {exc}", severity="error")
+            self.app.call_from_thread(
+                self.query_one("#run-state", Static).update, STATE_WORDS["fault"]
+            )
+            return
+        self.app.call_from_thread(self._reconnected)
+
+    def _reconnected(self) -> None:
+        self.query_one("#fault").display = False
+        self.notify("Connection back. Press r to continue the run where it stopped.")
+        self.query_one("#run-state", Static).update(
+            "[green]Connected again[/]: press [b]r[/b] to continue where the run stopped."
+        )
+
+    # ----- display ---------------------------------------------------------------------------
+    def set_progress(self, p: RunProgress) -> None:
+        self.progress = p
+
+    def watch_progress(self, p: RunProgress | None) -> None:
+        if p is None:
+            return
+        bar = self.query_one("#run-bar", ProgressBar)
+        bar.update(total=max(1, p.total), progress=p.done)
+        eta = "" if p.state != "running" else f"ETA {fmt_duration(p.eta_s)}"
+        self.query_one("#run-eta", Static).update(f"{p.done}/{p.total}  {eta}")
+        self.query_one("#run-state", Static).update(STATE_WORDS.get(p.state, p.state))
+        fault = self.query_one("#fault", Static)
+        if p.fault is not None:
+            fault.update(
+                f"[b]{p.fault.message}[/b]\nWhat to do: {p.fault.what_to_do}\n"
+                "Then press [b]c[/b] to reconnect and [b]r[/b] to continue."
+            )
+            fault.display = True
+        else:
+            fault.display = False
+        if p.current is not None:
+            c = p.current
+            q = " ".join(f"{v:+7.1f}" for v in c.q_deg)
+            self.query_one("#run-current", Static).update(
+                f"Current pose {c.index + 1}/{p.total} [b]{c.pose_id}[/b] {c.status}  q° {q}"
+            )
+            self._update_row(c)
+        if p.last_measured is not None:
+            m = p.last_measured
+            quality = "[green]good[/]" if m.status == "done" else f"[red]{m.reason or 'failed'}[/]"
+            markers = "–" if m.markers is None else m.markers
+            reproj = "–" if m.reproj_px is None else f"{m.reproj_px:.2f} px"
+            self.query_one("#run-last", Static).update(
+                f"Last measurement [b]{m.pose_id}[/b]: markers {markers}, reprojection {reproj}, {quality}"
+            )
+            self._update_row(m)
+
+    def _update_row(self, ps: PoseStatus) -> None:
+        table = self.query_one("#poses", DataTable)
+        key = str(ps.index)
+        if key not in table.rows:
+            return
+        for col, val in zip(("status", "markers", "reproj", "note"), _pose_cells(ps), strict=True):
+            table.update_cell(key, col, val)
+        if ps.status in ("moving", "measuring"):
+            table.move_cursor(row=table.get_row_index(key), animate=False)
