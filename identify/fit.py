@@ -1,0 +1,931 @@
+"""Implicit-loop maximum-likelihood fit of the error model (METHOD.md Eq. 5–8).
+
+The loop base → robot → target → instrument → base closes on every measured pose.  With the
+measured target pose ``M_i`` and the model ``T_i(q_i, p)`` the loop residual is the small
+motion ``M_i · T_i⁻¹``: its translation part (``x̃`` of the measured point, m) and its rotation
+vector (rad, instrument frame).  Its covariance ``Σx,i`` is built from the instrument's
+uncertainty (per-row ``sx…`` columns or instrument defaults) and the encoders' uncertainty
+propagated through the loop (the implicit-loop "effective variance": joint readings are
+measured quantities too).  The estimate minimises Eq. 8,
+
+    χ² = Σ_i r_iᵀ Σx,i⁻¹ r_i + p̃ᵀ Σp⁻¹ p̃,
+
+by Levenberg–Marquardt on analytic Jacobians (effect parameters by central differences:
+they are few and linear).  SYNOPSIS::
+
+    from quickhealth.identify.fit import fit_model, InstrumentNoise
+    fitted = fit_model(robot, meas, spec, noise=InstrumentNoise(sigma_pos=3e-5, sigma_rot=1e-4))
+    print("\\n".join(fitted.summary()))
+    T = fitted.predict(q_new)            # (n, 4, 4) target pose in the instrument frame
+    err = fitted.tcp_error(q_new)        # (n,) m, model minus nominal kinematics
+
+Robust start: the instrument may be metres away and rotated.  A Kabsch fit of the nominal
+flange positions to the measured points, then alternating least squares for tool point, base
+pose and (7D) tool rotation, gives ``T_instr_base0`` and ``T_flange_target0``; the fit then
+only identifies small corrections ``E0``, ``Etool``.
+
+Rank deficiency: some coefficients cannot be told apart from others (a constant ``εz`` of
+joint 1 is a rotation of the base; every constant of the last joint is a tool offset; tool
+rotations are invisible to position-only data).  A QR factorisation of the column-normalised
+whitened Jacobian, taken in a fixed priority order (base, tool, joint constants, then higher
+orders, then effects), finds the columns that add less than ``rank_tol`` of new direction;
+those are held at zero and reported in ``FittedModel.unidentifiable``.  Their prior keeps
+the remaining weakly determined combinations from amplifying noise.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import cho_factor, cho_solve
+
+from .effects import Effect, EffectContext, Perturbation, total_perturbation
+from .errormodel import (
+    MOTIONS,
+    ErrorModelSpec,
+    chebyshev_basis,
+    chebyshev_u,
+    constant_motions,
+    joint_error_motions,
+)
+from .errors import InputError
+from .measurements import Measurements
+from .robot import RobotModel, chain, gravity_torques
+from .transforms import (
+    inv_T,
+    kabsch,
+    log_so3,
+    make_T,
+    rot_x,
+    rot_y,
+    rpy_to_R,
+    small_error_transform,
+)
+
+F = NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+@dataclass(frozen=True)
+class InstrumentNoise:
+    """Default standard uncertainties of a measured pose, used where the file has no ``s…`` columns.
+
+    Attributes
+    ----------
+    sigma_pos : float, m
+        Per axis of the measured point.
+    sigma_rot : float, rad
+        Per measured angle (pitch, yaw, roll).
+    sigma_q : float, rad
+        Joint encoder reading (propagated through the loop; 0 = exact readings).
+    """
+
+    sigma_pos: float = 3e-5
+    sigma_rot: float = 1e-4
+    sigma_q: float = 0.0
+
+    def scaled(self, factor: float) -> InstrumentNoise:
+        """The same instrument with every uncertainty multiplied by ``factor``."""
+        return InstrumentNoise(
+            self.sigma_pos * factor, self.sigma_rot * factor, self.sigma_q * factor
+        )
+
+
+@dataclass(frozen=True)
+class ParameterPrior:
+    """Prior standard deviations ``Σp`` of the parameter deviations (Eq. 8), nominal = 0.
+
+    ``joint_*`` applies to every Chebyshev coefficient of a joint's error motions,
+    ``setup_*`` to the base and tool corrections (the instrument set-up, nearly free).
+    Effects use their own ``prior_sigma``.
+    """
+
+    joint_pos: float = 0.01  # m
+    joint_rot: float = 0.01  # rad
+    setup_pos: float = 1.0  # m
+    setup_rot: float = 1.0  # rad
+
+    def sigmas(self, spec: ErrorModelSpec) -> F:
+        """Prior sigma of every Chebyshev coefficient, in the spec's layout."""
+        idx = spec.index()
+        setup = (idx[:, 0] == 0) | (idx[:, 0] == spec.n_joints + 1)
+        rot = idx[:, 1] >= 3
+        return np.where(
+            setup,
+            np.where(rot, self.setup_rot, self.setup_pos),
+            np.where(rot, self.joint_rot, self.joint_pos),
+        )
+
+
+# --------------------------------------------------------------------------- result
+
+
+@dataclass(frozen=True, eq=False)
+class FittedModel:
+    """An identified error model: estimate, covariance, residuals and fit statistics (SI).
+
+    Attributes
+    ----------
+    coeffs : ndarray, shape (spec.n_params,)
+        Chebyshev coefficients (m, rad) in ``spec.index()`` order.
+    cov : ndarray, shape (n_all, n_all)
+        Covariance of all parameters: Chebyshev coefficients, then each effect's parameters.
+        Rows/columns of unidentifiable parameters are zero (they are held at zero).
+    effect_params : list of ndarray
+        One parameter vector per effect.
+    residual_pos : ndarray, shape (n, 3), m
+        Measured minus model position of every pose (instrument frame).
+    residual_rot : ndarray, shape (n, 3), rad, or None
+        Measured minus model orientation as a rotation vector ``log(R_meas R_modelᵀ)``.
+    chi2 : float
+        Eq. 8 at the estimate (data part plus prior part).
+    chi2_data : float
+        Data part only; compare with ``dof``.
+    dof : int
+        Number of residual components minus number of estimated parameters.
+    bic : float
+        Eq. 9 with whitened residuals.
+    unidentifiable : tuple of str
+        Labels of parameters held at zero because the data cannot determine them.
+    """
+
+    robot: RobotModel
+    spec: ErrorModelSpec
+    coeffs: F
+    cov: F
+    effects: tuple[Effect, ...]
+    effect_params: list[F]
+    T_instr_base0: F
+    T_flange_target0: F
+    residual_pos: F
+    residual_rot: F | None
+    chi2: float
+    chi2_data: float
+    dof: int
+    bic: float
+    rms_pos: float
+    rms_rot: float | None
+    n_iter: int
+    converged: bool
+    unidentifiable: tuple[str, ...]
+    noise: InstrumentNoise = field(default_factory=InstrumentNoise)
+    prior: ParameterPrior = field(default_factory=ParameterPrior)
+    n_poses: int = 0
+
+    # ---- parameter bookkeeping
+    @property
+    def labels(self) -> list[str]:
+        """Names of all parameters, in the order of :attr:`cov`."""
+        return _labels(self.spec, self.effects)
+
+    @property
+    def params(self) -> F:
+        """All parameters in one vector (Chebyshev, then effects)."""
+        return np.concatenate([self.coeffs, *[np.asarray(p, float) for p in self.effect_params]])
+
+    @property
+    def sigma(self) -> F:
+        """Standard uncertainty of every parameter."""
+        return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+    @property
+    def n_free(self) -> int:
+        """Number of estimated (identifiable) parameters."""
+        return int(self.params.size - len(self.unidentifiable))
+
+    @property
+    def has_orientation(self) -> bool:
+        """True if fitted to full-pose (7D) data."""
+        return self.residual_rot is not None
+
+    # ---- model evaluation
+    def context(
+        self,
+        q: ArrayLike,
+        *,
+        time: ArrayLike | None = None,
+        temp: ArrayLike | None = None,
+        approach: ArrayLike | None = None,
+    ) -> EffectContext:
+        """Effect context for joint commands ``q`` (approach from the sequence if not given)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        return _context(self.robot, q, approach, time, temp)
+
+    def predict(
+        self,
+        q: ArrayLike,
+        *,
+        time: ArrayLike | None = None,
+        temp: ArrayLike | None = None,
+        approach: ArrayLike | None = None,
+    ) -> F:
+        """Model pose of the target in the instrument frame, ``T_instr_target``, shape (n, 4, 4).
+
+        ``q`` in rad, shape (n, nj); ``approach`` (+1/−1 per joint) defaults to the direction
+        each joint moved from the previous row (the first row counts as from below).
+        """
+        q = np.atleast_2d(np.asarray(q, float))
+        pert = self._perturbation(q, time, temp, approach)
+        T = _loop(
+            self.robot, self.spec, self.coeffs, self.T_instr_base0, self.T_flange_target0, q, pert
+        )
+        return T
+
+    def tcp_error(self, q: ArrayLike, **kwargs: ArrayLike | None) -> F:
+        """Predicted TCP position error (m), shape (n,): model minus nominal kinematics.
+
+        Both with the identified base and tool; instrument-side effects (depth scale, drift)
+        are not robot errors and are left out.
+        """
+        return np.linalg.norm(self.tcp_error_vector(q, **kwargs), axis=-1)
+
+    def tcp_error_vector(self, q: ArrayLike, **kwargs: ArrayLike | None) -> F:
+        """Model minus nominal target position (m, instrument frame), shape (n, 3)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        pert = self._perturbation(q, kwargs.get("time"), kwargs.get("temp"), kwargs.get("approach"))
+        robot_pert = Perturbation(dq=pert.dq, link_scale=pert.link_scale)
+        T = _loop(
+            self.robot,
+            self.spec,
+            self.coeffs,
+            self.T_instr_base0,
+            self.T_flange_target0,
+            q,
+            robot_pert,
+        )
+        nominal = self.nominal_pose(q)
+        return T[:, :3, 3] - nominal[:, :3, 3]
+
+    def nominal_pose(self, q: ArrayLike) -> F:
+        """Nominal kinematics with the identified base and tool, ``T_instr_target`` (n, 4, 4)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        c = np.zeros_like(self.coeffs)
+        idx = self.spec.index()
+        setup = (idx[:, 0] == 0) | (idx[:, 0] == self.spec.n_joints + 1)
+        c[setup] = self.coeffs[setup]
+        return _loop(
+            self.robot, self.spec, c, self.T_instr_base0, self.T_flange_target0, q, Perturbation()
+        )
+
+    def _perturbation(self, q: F, time, temp, approach) -> Perturbation:  # type: ignore[no-untyped-def]
+        if not self.effects:
+            return Perturbation()
+        ctx = _context(self.robot, q, approach, time, temp)
+        return total_perturbation(self.effects, self.effect_params, ctx)
+
+    def summary(self) -> list[str]:
+        """The lines the CLI, the TUI and report.json show."""
+        n = self.n_poses
+        lines = [
+            f"poses: {n} ({'full pose' if self.has_orientation else 'position only'}), "
+            f"parameters: {self.n_free} estimated of {self.params.size}",
+            f"rms position residual: {self.rms_pos * 1e3:.4f} mm"
+            + (
+                f", rms rotation residual: {np.degrees(self.rms_rot):.5f} deg"
+                if self.rms_rot is not None
+                else ""
+            ),
+            f"chi2 (data): {self.chi2_data:.1f} for {self.dof} degrees of freedom "
+            f"(ratio {self.chi2_data / max(self.dof, 1):.2f}); BIC {self.bic:.1f}",
+            f"converged: {'yes' if self.converged else 'NO'} after {self.n_iter} iterations",
+        ]
+        if self.effects:
+            lines.append("effects: " + ", ".join(e.name for e in self.effects))
+        if self.unidentifiable:
+            shown = ", ".join(self.unidentifiable[:12])
+            more = len(self.unidentifiable) - 12
+            lines.append(
+                f"not identifiable from this data (held at 0): {shown}"
+                + (f" and {more} more" if more > 0 else "")
+            )
+        return lines
+
+
+# --------------------------------------------------------------------------- public functions
+
+
+def fit_model(
+    robot: RobotModel,
+    meas: Measurements,
+    spec: ErrorModelSpec,
+    effects: Sequence[Effect] = (),
+    noise: InstrumentNoise = InstrumentNoise(),
+    prior: ParameterPrior = ParameterPrior(),
+    *,
+    init: FittedModel | None = None,
+    rank_tol: float = 1e-3,
+    max_iter: int = 50,
+    tol: float = 1e-9,
+) -> FittedModel:
+    """Maximum-likelihood estimate of the error model and effect parameters (Eq. 8).
+
+    Parameters
+    ----------
+    robot : RobotModel
+    meas : Measurements
+        Position-only or full-pose measurements in execution order.
+    spec : ErrorModelSpec
+        Orders of every error motion and the joint ranges of the Chebyshev mapping.
+    effects : sequence of Effect
+        Physical effects added to the Chebyshev model (fitted with their ``prior_sigma``).
+    noise : InstrumentNoise
+        Instrument defaults, used where ``meas`` has no per-row uncertainties.
+    prior : ParameterPrior
+        Prior standard deviations of the coefficients.
+    init : FittedModel, optional
+        Warm start: base/tool and every coefficient with the same label are taken from it.
+    rank_tol : float
+        Relative size below which a column of the normalised Jacobian counts as not adding
+        a new direction (unidentifiable).
+
+    Returns
+    -------
+    FittedModel
+
+    Raises
+    ------
+    InputError
+        Joint count mismatch, or fewer measured components than identifiable parameters.
+    """
+    effects = tuple(effects)
+    if meas.n_joints != robot.n_joints:
+        raise InputError(
+            f"measurements have {meas.n_joints} joints, robot {robot.name!r} has {robot.n_joints}"
+        )
+    if spec.n_joints != robot.n_joints:
+        raise InputError(f"error model has {spec.n_joints} joints, robot has {robot.n_joints}")
+    for e in effects:
+        for col in e.requires():
+            if getattr(meas, col, None) is None:
+                raise InputError(f"effect {e.name!r} needs the {col!r} column in the measurements")
+    prob = _Problem.build(robot, meas, spec, effects, noise, prior, init)
+    return prob.solve(rank_tol=rank_tol, max_iter=max_iter, tol=tol)
+
+
+def whitened_problem(fitted: FittedModel, meas: Measurements) -> tuple[F, F, list[str]]:
+    """Whitened residuals and their Jacobian w.r.t. all parameters at the estimate.
+
+    Returns
+    -------
+    r : ndarray, shape (m,)
+        ``Σx^{-1/2} (measured − model)`` stacked pose by pose (3 or 6 components each).
+    J : ndarray, shape (m, n_all)
+        ``∂r/∂p`` for every parameter of ``fitted.labels`` (SI units), data rows only
+        (the prior rows of Eq. 8 are not included).
+    labels : list of str
+    """
+    prob = _Problem.build(
+        fitted.robot,
+        meas,
+        fitted.spec,
+        fitted.effects,
+        fitted.noise,
+        fitted.prior,
+        fitted,
+    )
+    r, Jm = prob.residual_and_jacobian(fitted.params)
+    return r, -Jm, fitted.labels
+
+
+def initial_setup(robot: RobotModel, meas: Measurements, n_iter: int = 30) -> tuple[F, F]:
+    """Robust start for base and tool: ``(T_instr_base0, T_flange_target0)``.
+
+    Kabsch of the nominal flange positions onto the measured points, then alternating least
+    squares: tool point (linear), base pose (Kabsch with the tool), and for full-pose data
+    the tool rotation (polar decomposition of the mean ``R_bfᵀ R_ibᵀ R_meas``).
+    """
+    T_bf = robot.fk(meas.q)
+    if T_bf.ndim == 2:
+        T_bf = T_bf[None]
+    Rf, pf = T_bf[:, :3, :3], T_bf[:, :3, 3]
+    P = meas.pos
+    T_ib = kabsch(pf, P)
+    t = np.zeros(3)
+    for _ in range(n_iter):
+        Rb, pb = T_ib[:3, :3], T_ib[:3, 3]
+        # tool point: Rb Rf_i t = P_i - pb - Rb pf_i
+        A = (Rb[None] @ Rf).reshape(-1, 3)
+        b = (P - pb - pf @ Rb.T).reshape(-1)
+        t_new = np.linalg.lstsq(A, b, rcond=None)[0]
+        T_ib = kabsch(pf + (Rf @ t_new), P)
+        if np.linalg.norm(t_new - t) < 1e-9:
+            t = t_new
+            break
+        t = t_new
+    Rt = np.eye(3)
+    if meas.rpy is not None:
+        Rm = meas.R
+        M = (np.swapaxes(Rf, -1, -2) @ T_ib[:3, :3].T[None] @ Rm).mean(0)
+        U, _, Vt = np.linalg.svd(M)
+        Rt = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    return T_ib, make_T(Rt, t)
+
+
+# --------------------------------------------------------------------------- internals
+
+
+def _labels(spec: ErrorModelSpec, effects: Sequence[Effect]) -> list[str]:
+    out = spec.labels()
+    for e in effects:
+        out += [f"{e.name}.{n}" for n in e.param_names]
+    return out
+
+
+def _context(robot: RobotModel, q: F, approach, time, temp) -> EffectContext:  # type: ignore[no-untyped-def]
+    if approach is None:
+        d = np.sign(np.diff(q, axis=0, prepend=q[:1]))
+        out = np.empty_like(d)
+        last = np.ones(q.shape[1])
+        for i in range(q.shape[0]):
+            last = np.where(d[i] != 0, d[i], last)
+            out[i] = last
+        approach = out
+    tau = None
+    if robot.masses is not None and robot.coms is not None:
+        tau = gravity_torques(robot, q)
+    return EffectContext(
+        robot=robot,
+        q=q,
+        approach=np.asarray(approach, float),
+        gravity_torque=tau,
+        time=None if time is None else np.asarray(time, float),
+        temp=None if temp is None else np.asarray(temp, float),
+    )
+
+
+def _joint_motion_matrices(spec: ErrorModelSpec, coeffs: F, q: F) -> tuple[F, F, F]:
+    """Motions (n, nf, 6) and error transforms E (n, nf, 4, 4) of all frames."""
+    n, nj = q.shape
+    m = np.zeros((n, nj + 2, 6))
+    m[:, 1:-1] = joint_error_motions(spec, coeffs, q)
+    m[:, 0] = constant_motions(spec, coeffs, 0)
+    m[:, -1] = constant_motions(spec, coeffs, -1)
+    E = small_error_transform(m[..., :3], m[..., 3:])
+    return m, E, m[..., 3:]
+
+
+def _loop(
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    coeffs: F,
+    T_ib0: F,
+    T_ft0: F,
+    q: F,
+    pert: Perturbation,
+) -> F:
+    """Forward loop with a perturbation (measured-point scale applied to the translation)."""
+    T, _, _ = _forward(robot, spec, coeffs, T_ib0, T_ft0, q, pert, frames=False)
+    return T
+
+
+def _forward(
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    coeffs: F,
+    T_ib0: F,
+    T_ft0: F,
+    q: F,
+    pert: Perturbation,
+    frames: bool = True,
+) -> tuple[F, F | None, F | None]:
+    """Loop pose and, with ``frames``, the prefix transform ``A_f`` before every ``E_f``.
+
+    Returns ``T`` (n, 4, 4) with the instrument's z scale applied to the translation,
+    ``A`` (n, nf, 4, 4) and the motions (n, nf, 6).
+    """
+    n, nj = q.shape
+    mot, E, _ = _joint_motion_matrices(spec, coeffs, q)
+    theta = q + robot.q_offset
+    if pert.dq is not None:
+        theta = theta + pert.dq
+    links = np.broadcast_to(robot.links, (n, nj + 1, 4, 4))
+    if pert.link_scale is not None:
+        links = links.copy()
+        links[..., :3, 3] *= (1.0 + np.asarray(pert.link_scale, float))[:, None, None]
+    c, s = np.cos(theta), np.sin(theta)
+    Rz = np.zeros((n, nj, 4, 4))
+    Rz[..., 0, 0] = c
+    Rz[..., 0, 1] = -s
+    Rz[..., 1, 0] = s
+    Rz[..., 1, 1] = c
+    Rz[..., 2, 2] = 1.0
+    Rz[..., 3, 3] = 1.0
+    A = np.empty((n, nj + 2, 4, 4)) if frames else None
+    P = np.broadcast_to(np.asarray(T_ib0, float), (n, 4, 4))
+    if A is not None:
+        A[:, 0] = P
+    P = P @ E[:, 0]
+    if pert.base_twist is not None:
+        bt = np.asarray(pert.base_twist, float)
+        P = P @ small_error_transform(bt[:, :3], bt[:, 3:])
+    P = P @ links[:, 0]
+    for i in range(nj):
+        P = P @ Rz[:, i]
+        if A is not None:
+            A[:, i + 1] = P
+        P = P @ E[:, i + 1] @ links[:, i + 1]
+    P = P @ np.asarray(T_ft0, float)
+    if A is not None:
+        A[:, nj + 1] = P
+    T = P @ E[:, nj + 1]
+    if pert.instr_scale_z is not None:
+        T = T.copy()
+        T[:, 2, 3] *= 1.0 + np.asarray(pert.instr_scale_z, float)
+    return T, A, mot
+
+
+def _motion_jacobian(T: F, A: F, mot: F, scale_z: F | None) -> F:
+    """∂(position, rotation)/∂(six motions of every frame), shape (n, 6, nf, 6).
+
+    With ``E = Trans(δ) · Rx(εx) Ry(εy) Rz(εz)`` after the prefix ``A`` and the rest ``B``:
+    ``∂p/∂δ_k = A_R e_k``, ``∂p/∂ε_k = A_R (w_k × E_R b)``, ``∂ω/∂ε_k = A_R w_k`` with
+    ``w_x = x̂``, ``w_y = Rx ŷ``, ``w_z = Rx Ry ẑ`` and ``b`` the target in the frame after E.
+    """
+    n, nf = A.shape[:2]
+    AR = A[..., :3, :3]
+    At = A[..., :3, 3]
+    p = T[:, :3, 3]
+    if scale_z is not None:  # undo the instrument scale to get the geometric point
+        p = p.copy()
+        p[:, 2] /= 1.0 + scale_z
+    e = mot[..., 3:]
+    # E_R b = A_Rᵀ (p - A_t) - δ
+    ERb = np.einsum("nfji,nfj->nfi", AR, p[:, None, :] - At) - mot[..., :3]
+    Rx = rot_x(e[..., 0])
+    Ry = rot_y(e[..., 1])
+    wx = np.broadcast_to(np.array([1.0, 0.0, 0.0]), (n, nf, 3))
+    wy = Rx[..., :, 1]
+    wz = (Rx @ Ry)[..., :, 2]
+    W = np.stack([wx, wy, wz], axis=-1)  # (n, nf, 3, 3) columns w_k
+    J = np.zeros((n, 6, nf, 6))
+    J[:, :3, :, :3] = np.moveaxis(AR, 2, 1)  # (n, 3, nf, 3)
+    cross = np.cross(np.moveaxis(W, -1, -2), ERb[:, :, None, :])  # (n, nf, 3k, 3)
+    dp_rot = np.einsum("nfij,nfkj->nfik", AR, cross)  # (n, nf, 3, 3k)
+    J[:, :3, :, 3:] = np.moveaxis(dp_rot, 2, 1)
+    J[:, 3:, :, 3:] = np.moveaxis(AR @ W, 2, 1)
+    if scale_z is not None:
+        J[:, 2] *= (1.0 + scale_z)[:, None, None]
+    return J
+
+
+@dataclass(eq=False)
+class _Problem:
+    """The stacked, whitened least-squares problem of one fit (scratch, not a result)."""
+
+    robot: RobotModel
+    meas: Measurements
+    spec: ErrorModelSpec
+    effects: tuple[Effect, ...]
+    noise: InstrumentNoise
+    prior: ParameterPrior
+    T_ib0: F
+    T_ft0: F
+    p0: F
+    sigma_p: F
+    ctx: EffectContext | None
+    d: int
+    Rm: F | None
+    W: F | None = None  # (n, d, d) whitening matrices
+
+    @classmethod
+    def build(
+        cls,
+        robot: RobotModel,
+        meas: Measurements,
+        spec: ErrorModelSpec,
+        effects: tuple[Effect, ...],
+        noise: InstrumentNoise,
+        prior: ParameterPrior,
+        init: FittedModel | None,
+    ) -> _Problem:
+        labels = _labels(spec, effects)
+        p0 = np.zeros(len(labels))
+        if init is not None:
+            T_ib0, T_ft0 = init.T_instr_base0, init.T_flange_target0
+            old = dict(zip(init.labels, init.params, strict=True))
+            p0 = np.array([old.get(lb, 0.0) for lb in labels])
+        else:
+            T_ib0, T_ft0 = initial_setup(robot, meas)
+        sig = [prior.sigmas(spec)] + [np.asarray(e.prior_sigma, float) for e in effects]
+        ctx = (
+            _context(robot, meas.q, meas.approach_sign(), meas.time, meas.temp) if effects else None
+        )
+        d = 6 if meas.has_orientation else 3
+        prob = cls(
+            robot=robot,
+            meas=meas,
+            spec=spec,
+            effects=effects,
+            noise=noise,
+            prior=prior,
+            T_ib0=np.asarray(T_ib0, float),
+            T_ft0=np.asarray(T_ft0, float),
+            p0=p0,
+            sigma_p=np.concatenate(sig),
+            ctx=ctx,
+            d=d,
+            Rm=meas.R if meas.has_orientation else None,
+        )
+        return prob
+
+    # ---- model pieces
+    def _split(self, p: F) -> tuple[F, list[F]]:
+        nc = self.spec.n_params
+        out, pos = [], nc
+        for e in self.effects:
+            out.append(p[pos : pos + e.n_params])
+            pos += e.n_params
+        return p[:nc], out
+
+    def _pert(self, eparams: list[F]) -> Perturbation:
+        if not self.effects:
+            return Perturbation()
+        assert self.ctx is not None
+        return total_perturbation(self.effects, eparams, self.ctx)
+
+    def _raw_residual(self, T: F) -> F:
+        """Measured minus model, (n, d): position (m) then rotation vector (rad)."""
+        rp = self.meas.pos - T[:, :3, 3]
+        if self.Rm is None:
+            return rp
+        rr = log_so3(self.Rm @ np.swapaxes(T[:, :3, :3], -1, -2))
+        return np.concatenate([rp, rr], axis=1)
+
+    def _whitening(self, T: F, A: F) -> F:
+        """Per-pose ``L⁻¹`` with ``L Lᵀ = Σx,i`` (instrument plus propagated encoder noise)."""
+        n, d = self.meas.n_poses, self.d
+        cov = np.zeros((n, d, d))
+        sp = (
+            self.meas.sigma_pos
+            if self.meas.sigma_pos is not None
+            else np.full((n, 3), self.noise.sigma_pos)
+        )
+        cov[:, [0, 1, 2], [0, 1, 2]] = sp**2
+        if d == 6:
+            rpy = self.meas.rpy
+            assert rpy is not None
+            sr = (
+                self.meas.sigma_rpy
+                if self.meas.sigma_rpy is not None
+                else np.full((n, 3), self.noise.sigma_rot)
+            )
+            # spatial angular rate per rpy rate: ω = Rz(r)Ry(y) x̂ ṗ + Rz(r) ŷ ẏ + ẑ ṙ
+            Rzr = rpy_to_R(np.zeros(n), np.zeros(n), rpy[:, 2])
+            Rzy = rpy_to_R(np.zeros(n), rpy[:, 1], rpy[:, 2])
+            Emap = np.stack([Rzy[:, :, 0], Rzr[:, :, 1], np.tile([0.0, 0.0, 1.0], (n, 1))], -1)
+            cov[:, 3:, 3:] = Emap @ (sr[:, :, None] ** 2 * np.swapaxes(Emap, -1, -2))
+        if self.noise.sigma_q > 0:
+            nj = self.robot.n_joints
+            z = A[:, 1 : nj + 1, :3, 2]
+            o = A[:, 1 : nj + 1, :3, 3]
+            p = T[:, None, :3, 3]
+            Jq = np.concatenate([np.cross(z, p - o), z], axis=-1)[..., :d]  # (n, nj, d)
+            cov += self.noise.sigma_q**2 * np.einsum("nji,njk->nik", Jq, Jq)
+        cov += np.eye(d) * 1e-30
+        L = np.linalg.cholesky(cov)
+        return np.linalg.inv(L)
+
+    def residual_and_jacobian(self, p: F) -> tuple[F, F]:
+        """Whitened residual (m,) and Jacobian of the whitened *model* (m, n_all), SI units."""
+        coeffs, ep = self._split(p)
+        pert = self._pert(ep)
+        T, A, mot = _forward(
+            self.robot, self.spec, coeffs, self.T_ib0, self.T_ft0, self.meas.q, pert
+        )
+        assert A is not None and mot is not None
+        if self.W is None:
+            self.W = self._whitening(T, A)
+        n, d = self.meas.n_poses, self.d
+        raw = self._raw_residual(T)
+        r = np.einsum("nij,nj->ni", self.W, raw).reshape(-1)
+        Jmot = _motion_jacobian(T, A, mot, pert.instr_scale_z)[:, :d]  # (n, d, nf, 6)
+        Jc = self._coeff_columns(Jmot)  # (n, d, nc)
+        cols = [Jc]
+        if self.effects:
+            cols.append(self._effect_columns(coeffs, ep, T))
+        Jraw = np.concatenate(cols, axis=-1)
+        J = np.einsum("nij,njp->nip", self.W, Jraw).reshape(n * d, -1)
+        return r, J
+
+    def whitened_motion_jacobian(self, p: F) -> tuple[F, F, F]:
+        """Whitened residual (n, d), whitened model Jacobian of the joint motions
+        (n, d, nj, 6) and Chebyshev ``u`` of every joint (n, nj), for order search."""
+        coeffs, ep = self._split(p)
+        pert = self._pert(ep)
+        T, A, mot = _forward(
+            self.robot, self.spec, coeffs, self.T_ib0, self.T_ft0, self.meas.q, pert
+        )
+        assert A is not None and mot is not None
+        if self.W is None:
+            self.W = self._whitening(T, A)
+        raw = self._raw_residual(T)
+        r = np.einsum("nij,nj->ni", self.W, raw)
+        Jmot = _motion_jacobian(T, A, mot, pert.instr_scale_z)[:, : self.d, 1:-1]
+        Jw = np.einsum("nij,njfm->nifm", self.W, Jmot)
+        u = chebyshev_u(self.meas.q, self.spec.q_lo, self.spec.q_hi)
+        return r, Jw, u
+
+    def _coeff_columns(self, Jmot: F) -> F:
+        spec = self.spec
+        idx = spec.index()
+        q = self.meas.q
+        u = chebyshev_u(q, spec.q_lo, spec.q_hi)
+        kmax = int(max(spec.orders.max(), 0))
+        B = chebyshev_basis(u, kmax)  # (n, nj, K)
+        n = q.shape[0]
+        basis = np.ones((n, idx.shape[0]))
+        joint = (idx[:, 0] >= 1) & (idx[:, 0] <= spec.n_joints)
+        ji = idx[joint]
+        basis[:, joint] = B[:, ji[:, 0] - 1, ji[:, 2]]
+        return Jmot[:, :, idx[:, 0], idx[:, 1]] * basis[:, None, :]
+
+    def _effect_columns(self, coeffs: F, ep: list[F], T: F) -> F:
+        """Central differences in each effect parameter (they enter linearly, nearly exactly)."""
+        cols = []
+        for k, e in enumerate(self.effects):
+            h_all = np.maximum(np.asarray(e.prior_sigma, float) * 1e-2, 1e-12)
+            for j in range(e.n_params):
+                plus = [x.copy() for x in ep]
+                minus = [x.copy() for x in ep]
+                plus[k][j] += h_all[j]
+                minus[k][j] -= h_all[j]
+                Tp = _loop(
+                    self.robot,
+                    self.spec,
+                    coeffs,
+                    self.T_ib0,
+                    self.T_ft0,
+                    self.meas.q,
+                    self._pert(plus),
+                )
+                Tm = _loop(
+                    self.robot,
+                    self.spec,
+                    coeffs,
+                    self.T_ib0,
+                    self.T_ft0,
+                    self.meas.q,
+                    self._pert(minus),
+                )
+                dp = (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h_all[j])
+                if self.d == 6:
+                    dw = log_so3(Tp[:, :3, :3] @ np.swapaxes(Tm[:, :3, :3], -1, -2)) / (
+                        2 * h_all[j]
+                    )
+                    dp = np.concatenate([dp, dw], axis=1)
+                cols.append(dp)
+        return np.stack(cols, axis=-1)
+
+    # ---- identifiability
+    def identifiable(self, J: F, rank_tol: float) -> NDArray[np.bool_]:
+        """Mask of parameters that add a new direction, in the priority order of the module doc."""
+        spec = self.spec
+        idx = spec.index()
+        nc = spec.n_params
+        nall = J.shape[1]
+        setup_rank = np.where(idx[:, 0] == 0, 0, np.where(idx[:, 0] == spec.n_joints + 1, 1, 2))
+        key = np.zeros((nall, 4))
+        key[:nc] = np.stack([setup_rank, idx[:, 2], idx[:, 0], idx[:, 1]], 1)
+        key[nc:] = [3, 0, 0, 0]
+        order = np.lexsort((np.arange(nall), key[:, 3], key[:, 2], key[:, 1], key[:, 0]))
+        norms = np.linalg.norm(J, axis=0)
+        Jn = J[:, order] / np.where(norms[order] > 0, norms[order], 1.0)
+        R = np.linalg.qr(Jn, mode="r")
+        diag = (
+            np.abs(np.diag(R))
+            if R.shape[0] >= nall
+            else np.r_[np.abs(np.diag(R)), np.zeros(nall - R.shape[0])]
+        )
+        ok_sorted = (diag > rank_tol) & (norms[order] > 0)
+        ok = np.zeros(nall, bool)
+        ok[order] = ok_sorted
+        return ok
+
+    # ---- solve
+    def solve(self, rank_tol: float, max_iter: int, tol: float) -> FittedModel:
+        p = self.p0.copy()
+        r, J = self.residual_and_jacobian(p)
+        free = self.identifiable(J, rank_tol)
+        labels = _labels(self.spec, self.effects)
+        n_comp = r.size
+        n_free = int(free.sum())
+        if n_comp <= n_free:
+            raise InputError(
+                f"{self.meas.n_poses} poses give {n_comp} measured components, but the model "
+                f"has {n_free} identifiable parameters: measure more poses or lower the orders"
+            )
+        p[~free] = 0.0
+        D = self.sigma_p[free]
+        lam = 1e-3
+        converged = False
+        it = 0
+        r, J = self.residual_and_jacobian(p)
+
+        def cost(r_: F, p_: F) -> float:
+            return float(r_ @ r_ + np.sum((p_ / self.sigma_p)[free] ** 2))
+
+        c = cost(r, p)
+        for it in range(1, max_iter + 1):  # noqa: B007
+            Jf = J[:, free] * D  # normalised columns z = p / σp
+            z = p[free] / D
+            H = Jf.T @ Jf
+            g = Jf.T @ r - z
+            H[np.diag_indices_from(H)] += 1.0
+            accepted = False
+            for _ in range(12):
+                Hd = H.copy()
+                Hd[np.diag_indices_from(Hd)] += lam * np.diag(H)
+                dz = cho_solve(cho_factor(Hd), g)
+                p_try = p.copy()
+                p_try[free] += dz * D
+                r_try, J_try = self.residual_and_jacobian(p_try)
+                c_try = cost(r_try, p_try)
+                if c_try <= c:
+                    accepted = True
+                    break
+                lam *= 10.0
+            if not accepted:
+                converged = True  # no descent direction left: at the minimum to precision
+                break
+            rel = (c - c_try) / max(c, 1e-300)
+            p, r, J, c = p_try, r_try, J_try, c_try
+            lam = max(lam / 10.0, 1e-9)
+            if rel < tol or np.linalg.norm(dz) < 1e-10 * (1 + np.linalg.norm(z)):
+                converged = True
+                break
+        # covariance at the estimate
+        Jf = J[:, free] * D
+        H = Jf.T @ Jf
+        H[np.diag_indices_from(H)] += 1.0
+        Hinv = cho_solve(cho_factor(H), np.eye(H.shape[0]))
+        cov = np.zeros((p.size, p.size))
+        cov[np.ix_(free, free)] = D[:, None] * Hinv * D[None, :]
+        return self._result(p, r, cov, free, labels, it, converged)
+
+    def _result(
+        self,
+        p: F,
+        r: F,
+        cov: F,
+        free: NDArray[np.bool_],
+        labels: list[str],
+        n_iter: int,
+        converged: bool,
+    ) -> FittedModel:
+        coeffs, ep = self._split(p)
+        T = _loop(
+            self.robot, self.spec, coeffs, self.T_ib0, self.T_ft0, self.meas.q, self._pert(ep)
+        )
+        raw = self._raw_residual(T)
+        n, d = self.meas.n_poses, self.d
+        Rw = r.reshape(n, d)
+        chi2_data = float(r @ r)
+        chi2 = chi2_data + float(np.sum((p / self.sigma_p)[free] ** 2))
+        n_free = int(free.sum())
+        return FittedModel(
+            robot=self.robot,
+            spec=self.spec,
+            coeffs=coeffs.copy(),
+            cov=cov,
+            effects=self.effects,
+            effect_params=[x.copy() for x in ep],
+            T_instr_base0=self.T_ib0,
+            T_flange_target0=self.T_ft0,
+            residual_pos=raw[:, :3],
+            residual_rot=raw[:, 3:] if d == 6 else None,
+            chi2=chi2,
+            chi2_data=chi2_data,
+            dof=int(r.size - n_free),
+            bic=bic_value(Rw, n_free),
+            rms_pos=float(np.sqrt(np.mean(np.sum(raw[:, :3] ** 2, axis=1)))),
+            rms_rot=float(np.sqrt(np.mean(np.sum(raw[:, 3:] ** 2, axis=1)))) if d == 6 else None,
+            n_iter=n_iter,
+            converged=converged,
+            unidentifiable=tuple(lb for lb, f in zip(labels, free, strict=True) if not f),
+            noise=self.noise,
+            prior=self.prior,
+            n_poses=n,
+        )
+
+
+def bic_value(R: F, n_params: int) -> float:
+    """Eq. 9 on per-pose whitened residual vectors ``R`` (n, d).
+
+    ``BIC = n/2 · log det Cov(R) + RSS/2 + K/2 · log n`` with ``Cov(R) = RᵀR / n`` and
+    ``K = n_params + d``.
+    """
+    n, d = R.shape
+    C = R.T @ R / n
+    sign, logdet = np.linalg.slogdet(C + np.eye(d) * 1e-300)
+    rss = float(np.sum(R**2))
+    return float(n / 2 * logdet + rss / 2 + (n_params + d) / 2 * np.log(n))
+
+
+def motion_labels(spec: ErrorModelSpec) -> list[str]:
+    """``frame.motion`` names of every error motion, e.g. ``j1.ez``."""
+    return [f"{spec.frame_name(f)}.{m}" for f in range(spec.orders.shape[0]) for m in MOTIONS]

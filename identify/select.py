@@ -1,0 +1,489 @@
+"""Model-order selection by BIC (METHOD.md Eq. 9), with the paper's pruning rules and χ² check.
+
+The search (a greedy descent over the order vector that may *jump*):
+
+1. Start from the constant (geometric) model, every joint motion at order 0, and fit it.
+2. Score every move from the current orders, linearised at the current estimate:
+   raising any joint motion to **any** order up to ``max_order`` (not only +1: a
+   position-dependent error often shows as one higher-order term whose lower orders do not
+   lower the BIC), and lowering any motion to any lower order.  A move's new residual is the
+   current one with the new columns' component projected out (ridge-regularised by their
+   prior), so all ``nj·6·max_order`` moves cost one QR and a few matrix products.
+3. Refit the best moves by the full ML fit (warm start) until one lowers the exact BIC by more
+   than ``margin``; accept it, then apply the pruning rules; stop when no move is accepted.
+4. Pruning (paper): the highest coefficient of a series is dropped (the order lowered) while
+   it is below ``prune_fraction`` (8 %) of the largest non-constant coefficient of its
+   series, or below its own standard uncertainty; kept only if the exact BIC does not rise.
+5. χ² check: if χ² is above ``chi2_factor`` (5) times its median under the noise model,
+   either the instrument is worse than assumed or the prior is too tight.  Parameters pushed
+   beyond 3 prior sigmas point to the prior; otherwise to the instrument.  With
+   ``auto_rescale`` the search reruns once with the suspected uncertainty raised.
+
+``margin`` guards against the multiple comparisons a jump search makes: with M moves per
+step, the best of M noise-only moves lowers the BIC by about ``2 ln M`` by chance; the
+default margin is that value, so noise-only data stays at the constant model.
+
+Cost: one ML fit per accepted move plus one per rejected refit (typically 5–15 fits in all),
+and one linearised scoring of all moves per step (milliseconds).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2 as chi2_dist
+
+from .effects import Effect
+from .errormodel import MOTIONS, ErrorModelSpec, chebyshev_basis
+from .fit import (
+    FittedModel,
+    InstrumentNoise,
+    ParameterPrior,
+    _labels,
+    _Problem,
+    bic_value,
+    fit_model,
+)
+from .measurements import Measurements
+from .robot import RobotModel
+
+F = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SearchStep:
+    """One move the search tried."""
+
+    kind: str  # "start", "raise", "lower", "prune", "rescale"
+    motion: str  # e.g. "j1.ez" ("" for start/rescale)
+    from_order: int
+    to_order: int
+    bic_linear: float  # linearised prediction (nan where not applicable)
+    bic: float  # exact BIC after refit (nan if not refitted)
+    accepted: bool
+
+
+@dataclass(frozen=True)
+class Chi2Check:
+    """The χ² check after convergence and its diagnosis."""
+
+    chi2: float
+    dof: int
+    median: float
+    ratio_to_median: float
+    verdict: str  # "ok", "instrument", "prior"
+    message: str
+
+
+@dataclass(frozen=True, eq=False)
+class Selection:
+    """Result of the BIC search."""
+
+    fitted: FittedModel
+    trace: tuple[SearchStep, ...]
+    chi2_check: Chi2Check
+    n_fits: int
+    n_scored: int
+    margin: float
+    noise: InstrumentNoise
+    prior: ParameterPrior
+    rescaled: tuple[str, ...] = field(default=())
+
+    @property
+    def orders(self) -> NDArray[np.int64]:
+        """Selected orders, shape (nj + 2, 6)."""
+        return self.fitted.spec.orders
+
+    def summary(self) -> list[str]:
+        """Lines for the CLI and report.json."""
+        spec = self.fitted.spec
+        raised = [
+            f"{spec.frame_name(f)}.{MOTIONS[m]}={spec.orders[f, m]}"
+            for f in range(1, spec.n_joints + 1)
+            for m in range(6)
+            if spec.orders[f, m] > 0
+        ]
+        lines = [
+            "orders above 0: " + (", ".join(raised) if raised else "none (constant model)"),
+            f"search: {self.n_fits} ML fits, {self.n_scored} linearised moves scored, "
+            f"BIC margin {self.margin:.1f}",
+            self.chi2_check.message,
+        ]
+        lines += [f"rerun with raised uncertainty: {r}" for r in self.rescaled]
+        return lines
+
+
+def data_spec(
+    robot: RobotModel, meas: Measurements, order: int = 0, pad: float = 0.02
+) -> ErrorModelSpec:
+    """Constant model whose Chebyshev ranges span the measured joint range (padded by ``pad``).
+
+    The series are only trusted where data was taken; predictions outside are extrapolations.
+    """
+    lo, hi = meas.q.min(0), meas.q.max(0)
+    span = np.maximum(hi - lo, 1e-3)
+    lo = np.maximum(lo - pad * span, robot.q_min)
+    hi = np.minimum(hi + pad * span, robot.q_max)
+    hi = np.where(hi <= lo, lo + 1e-3, hi)
+    return ErrorModelSpec.uniform(robot.n_joints, order, lo, hi)
+
+
+def select_orders(
+    robot: RobotModel,
+    meas: Measurements,
+    effects: Sequence[Effect] = (),
+    *,
+    noise: InstrumentNoise = InstrumentNoise(),
+    prior: ParameterPrior = ParameterPrior(),
+    max_order: int = 6,
+    start: ErrorModelSpec | None = None,
+    margin: float | None = None,
+    prune_fraction: float = 0.08,
+    max_steps: int = 60,
+    refits_per_step: int = 3,
+    chi2_factor: float = 5.0,
+    auto_rescale: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> Selection:
+    """Choose the Chebyshev orders by BIC and return the final fit with the search trace.
+
+    Parameters
+    ----------
+    max_order : int
+        Cap of every joint motion's order (the search can jump to any order up to it).
+    start : ErrorModelSpec, optional
+        Initial orders and ranges; default :func:`data_spec` (constant model).
+    margin : float, optional
+        BIC drop a raise must achieve; default ``2 ln M`` for M moves per step.
+    auto_rescale : bool
+        Rerun once with the suspected uncertainty raised when the χ² check fails.
+    progress : callable, optional
+        Receives one line per accepted move.
+    """
+    say = progress or (lambda s: None)
+    spec0 = start if start is not None else data_spec(robot, meas)
+    sel = _search(
+        robot,
+        meas,
+        tuple(effects),
+        noise,
+        prior,
+        spec0,
+        max_order,
+        margin,
+        prune_fraction,
+        max_steps,
+        refits_per_step,
+        chi2_factor,
+        say,
+    )
+    if auto_rescale and sel.chi2_check.verdict != "ok":
+        ratio = sel.fitted.chi2_data / max(sel.fitted.dof, 1)
+        if sel.chi2_check.verdict == "instrument":
+            noise2, prior2 = noise.scaled(float(np.sqrt(ratio))), prior
+            note = f"instrument uncertainty × {np.sqrt(ratio):.2f}"
+        else:
+            noise2 = noise
+            prior2 = ParameterPrior(
+                prior.joint_pos * 10, prior.joint_rot * 10, prior.setup_pos, prior.setup_rot
+            )
+            note = "joint prior sigmas × 10"
+        say(f"χ² check failed ({sel.chi2_check.verdict}); rerunning with {note}")
+        sel2 = _search(
+            robot,
+            meas,
+            tuple(effects),
+            noise2,
+            prior2,
+            spec0,
+            max_order,
+            margin,
+            prune_fraction,
+            max_steps,
+            refits_per_step,
+            chi2_factor,
+            say,
+        )
+        return Selection(
+            fitted=sel2.fitted,
+            trace=sel.trace + (SearchStep("rescale", "", 0, 0, np.nan, np.nan, True),) + sel2.trace,
+            chi2_check=sel2.chi2_check,
+            n_fits=sel.n_fits + sel2.n_fits,
+            n_scored=sel.n_scored + sel2.n_scored,
+            margin=sel2.margin,
+            noise=noise2,
+            prior=prior2,
+            rescaled=(f"{note} (first pass: {sel.chi2_check.message})",),
+        )
+    return sel
+
+
+def chi2_check(fitted: FittedModel, factor: float = 5.0) -> Chi2Check:
+    """The paper's χ² check with its two diagnoses (instrument vs prior)."""
+    dof = max(fitted.dof, 1)
+    med = float(chi2_dist.median(dof))
+    ratio = fitted.chi2_data / med
+    if ratio <= factor:
+        return Chi2Check(
+            fitted.chi2_data,
+            dof,
+            med,
+            ratio,
+            "ok",
+            f"chi2 check: {fitted.chi2_data:.0f} is {ratio:.2f} x its median {med:.0f}: "
+            "consistent with the stated instrument uncertainty",
+        )
+    z = np.abs(fitted.params) / np.maximum(_prior_sigmas(fitted), 1e-300)
+    idx = fitted.spec.index()
+    joint = np.zeros(z.size, bool)
+    joint[: idx.shape[0]] = (idx[:, 0] >= 1) & (idx[:, 0] <= fitted.spec.n_joints)
+    joint[idx.shape[0] :] = True
+    pushed = [lb for lb, zz, j in zip(fitted.labels, z, joint, strict=True) if j and zz > 3.0]
+    if pushed:
+        verdict = "prior"
+        why = (
+            f"the prior uncertainties are too small: {len(pushed)} parameters sit beyond 3 prior "
+            f"sigmas (e.g. {', '.join(pushed[:3])}); raise the prior and rerun"
+        )
+    else:
+        verdict = "instrument"
+        why = (
+            "the instrument is worse than assumed (no parameter is held by its prior): check it "
+            f"against a calibration artifact, or raise its uncertainty by about x{np.sqrt(fitted.chi2_data / dof):.1f} "
+            "and rerun; a physical effect the model lacks also shows this way (run diagnose)"
+        )
+    return Chi2Check(
+        fitted.chi2_data,
+        dof,
+        med,
+        ratio,
+        verdict,
+        f"chi2 check FAILED: {fitted.chi2_data:.0f} is {ratio:.1f} x its median {med:.0f}: {why}",
+    )
+
+
+# --------------------------------------------------------------------------- internals
+
+
+def _prior_sigmas(fitted: FittedModel) -> F:
+    return np.concatenate(
+        [fitted.prior.sigmas(fitted.spec)]
+        + [np.asarray(e.prior_sigma, float) for e in fitted.effects]
+    )
+
+
+@dataclass
+class _Lin:
+    """Linearisation of the current fit for scoring moves."""
+
+    n: int
+    d: int
+    Q: F  # (m + P, P) orthonormal basis of the augmented normalised Jacobian
+    b: F  # (m + P,) augmented residual
+    Hinv: F  # (P, P) normalised
+    x: F  # (P,) normalised free parameters
+    A: F  # (m + P, P)
+    free_idx: NDArray[np.int64]  # indices (into all params) of the free ones
+    Jw: F  # (n, d, nj, 6) whitened motion Jacobian
+    u: F  # (n, nj)
+    n_free: int
+
+
+def _linearise(fitted: FittedModel, meas: Measurements) -> _Lin:
+    prob = _Problem.build(
+        fitted.robot, meas, fitted.spec, fitted.effects, fitted.noise, fitted.prior, fitted
+    )
+    p = fitted.params
+    r, J = prob.residual_and_jacobian(p)
+    _, Jw, u = prob.whitened_motion_jacobian(p)
+    labels = fitted.labels
+    unid = set(fitted.unidentifiable)
+    free = np.array([lb not in unid for lb in labels])
+    D = prob.sigma_p[free]
+    Jf = J[:, free] * D
+    P = Jf.shape[1]
+    A = np.vstack([Jf, np.eye(P)])
+    b = np.concatenate([r, -(p[free] / D)])  # r(δ) ≈ b − A δ (model Jacobian)
+    Q, _ = np.linalg.qr(A)
+    H = A.T @ A
+    Hinv = np.linalg.inv(H)
+    x = Hinv @ (A.T @ b)  # remaining step (≈ 0 at the optimum)
+    return _Lin(
+        meas.n_poses, prob.d, Q, b, Hinv, x, A, np.flatnonzero(free), Jw, u, int(free.sum())
+    )
+
+
+def _score_raise(lin: _Lin, j: int, m: int, cur: int, new: int, sigma: float) -> float:
+    """Linearised BIC after raising joint ``j`` motion ``m`` from ``cur`` to ``new``."""
+    B = chebyshev_basis(lin.u[:, j], new)[:, cur + 1 : new + 1]  # (n, k)
+    C = (lin.Jw[:, :, j, m][:, :, None] * B[:, None, :]).reshape(lin.n * lin.d, -1) * sigma
+    k = C.shape[1]
+    Caug = np.vstack([C, np.zeros((lin.A.shape[0] - C.shape[0], k))])
+    Cp = Caug - lin.Q @ (lin.Q.T @ Caug)
+    bp = lin.b - lin.Q @ (lin.Q.T @ lin.b)
+    G = Cp.T @ Cp + np.eye(k)
+    delta = np.linalg.solve(G, Cp.T @ bp)
+    res = (bp - Cp @ delta)[: lin.n * lin.d].reshape(lin.n, lin.d)
+    return bic_value(res, lin.n_free + k)
+
+
+def _score_lower(lin: _Lin, cols: NDArray[np.int64]) -> float:
+    """Linearised BIC after fixing the free parameters at positions ``cols`` to zero."""
+    x = lin.x
+    S = cols
+    Hss = lin.Hinv[np.ix_(S, S)]
+    full_x = x  # current point is the optimum: the parameters' values are in b's prior rows
+    # parameter values (normalised) of the current estimate: −b_prior
+    z = -lin.b[lin.A.shape[0] - lin.A.shape[1] :]
+    target = z[S] + full_x[S]
+    dx = -lin.Hinv[:, S] @ np.linalg.solve(Hss, target)
+    res = lin.b - lin.A @ (full_x + dx)
+    # prior rows change too: the removed parameters no longer carry a prior term
+    res = res[: lin.n * lin.d].reshape(lin.n, lin.d)
+    return bic_value(res, lin.n_free - len(S))
+
+
+def _search(
+    robot: RobotModel,
+    meas: Measurements,
+    effects: tuple[Effect, ...],
+    noise: InstrumentNoise,
+    prior: ParameterPrior,
+    spec0: ErrorModelSpec,
+    max_order: int,
+    margin: float | None,
+    prune_fraction: float,
+    max_steps: int,
+    refits_per_step: int,
+    chi2_factor: float,
+    say: Callable[[str], None],
+) -> Selection:
+    nj = robot.n_joints
+    fitted = fit_model(robot, meas, spec0, effects, noise, prior)
+    n_fits = 1
+    n_scored = 0
+    trace: list[SearchStep] = [SearchStep("start", "", 0, 0, np.nan, fitted.bic, True)]
+    n_moves = nj * 6 * max_order
+    if margin is None:
+        margin = 2.0 * float(np.log(max(n_moves, 2)))
+    visited = {fitted.spec.orders.tobytes()}
+    say(f"start: constant model, BIC {fitted.bic:.1f}")
+    for _step in range(max_steps):
+        lin = _linearise(fitted, meas)
+        orders = fitted.spec.orders
+        labels = _labels(fitted.spec, effects)
+        pos_of = {lb: i for i, lb in enumerate(labels)}
+        free_pos = {int(ix): k for k, ix in enumerate(lin.free_idx)}
+        moves: list[tuple[float, str, int, int, int]] = []
+        for j in range(nj):
+            for m in range(6):
+                cur = int(orders[j + 1, m])
+                sig = prior.joint_rot if m >= 3 else prior.joint_pos
+                for new in range(cur + 1, max_order + 1):
+                    moves.append((_score_raise(lin, j, m, cur, new, sig), "raise", j, m, new))
+                for new in range(max(cur - 1, -1), -1, -1) if cur > 0 else ():
+                    cols = [
+                        free_pos[pos_of[f"j{j + 1}.{MOTIONS[m]}.c{k}"]]
+                        for k in range(new + 1, cur + 1)
+                        if pos_of[f"j{j + 1}.{MOTIONS[m]}.c{k}"] in free_pos
+                    ]
+                    if not cols or new < 0:
+                        continue
+                    moves.append((_score_lower(lin, np.array(cols)), "lower", j, m, new))
+        n_scored += len(moves)
+        moves.sort(key=lambda t: t[0])
+        accepted = False
+        tried = 0
+        for bic_lin, kind, j, m, new in moves:
+            need = margin if kind == "raise" else 0.0
+            if bic_lin >= fitted.bic - need or tried >= refits_per_step:
+                break
+            o2 = orders.copy()
+            o2[j + 1, m] = new
+            if o2.tobytes() in visited:
+                continue
+            tried += 1
+            visited.add(o2.tobytes())
+            cand = fit_model(
+                robot, meas, fitted.spec.with_orders(o2), effects, noise, prior, init=fitted
+            )
+            n_fits += 1
+            name = f"j{j + 1}.{MOTIONS[m]}"
+            ok = cand.bic < fitted.bic - need
+            trace.append(SearchStep(kind, name, int(orders[j + 1, m]), new, bic_lin, cand.bic, ok))
+            if ok:
+                say(
+                    f"{name}: order {orders[j + 1, m]} -> {new}, BIC {fitted.bic:.1f} -> {cand.bic:.1f}"
+                )
+                fitted = cand
+                accepted = True
+                break
+        if not accepted:
+            break
+        fitted, k_fits = _prune(
+            robot, meas, effects, noise, prior, fitted, prune_fraction, trace, visited, say
+        )
+        n_fits += k_fits
+    check = chi2_check(fitted, chi2_factor)
+    say(check.message)
+    return Selection(
+        fitted=fitted,
+        trace=tuple(trace),
+        chi2_check=check,
+        n_fits=n_fits,
+        n_scored=n_scored,
+        margin=float(margin),
+        noise=noise,
+        prior=prior,
+    )
+
+
+def _prune(
+    robot: RobotModel,
+    meas: Measurements,
+    effects: tuple[Effect, ...],
+    noise: InstrumentNoise,
+    prior: ParameterPrior,
+    fitted: FittedModel,
+    fraction: float,
+    trace: list[SearchStep],
+    visited: set[bytes],
+    say: Callable[[str], None],
+) -> tuple[FittedModel, int]:
+    """The paper's pruning rules on the top coefficients of every joint series."""
+    spec = fitted.spec
+    orders = spec.orders.copy()
+    labels = fitted.labels
+    val = dict(zip(labels, fitted.params, strict=True))
+    sig = dict(zip(labels, fitted.sigma, strict=True))
+    unid = set(fitted.unidentifiable)
+    changed = []
+    for f in range(1, spec.n_joints + 1):
+        for m in range(6):
+            cur = int(orders[f, m])
+            o = cur
+            while o >= 1:
+                name = f"j{f}.{MOTIONS[m]}"
+                c = np.array([abs(val[f"{name}.c{k}"]) for k in range(1, o + 1)])
+                top = f"{name}.c{o}"
+                small = c[-1] < fraction * c.max() or abs(val[top]) < sig[top] or top in unid
+                if not small:
+                    break
+                o -= 1
+            if o != cur:
+                orders[f, m] = o
+                changed.append((f"j{f}.{MOTIONS[m]}", cur, o))
+    if not changed:
+        return fitted, 0
+    cand = fit_model(robot, meas, spec.with_orders(orders), effects, noise, prior, init=fitted)
+    ok = cand.bic <= fitted.bic
+    for name, a, b in changed:
+        trace.append(SearchStep("prune", name, a, b, np.nan, cand.bic, ok))
+    visited.add(orders.tobytes())
+    if ok:
+        say("pruned " + ", ".join(f"{n} {a}->{b}" for n, a, b in changed) + f", BIC {cand.bic:.1f}")
+        return cand, 1
+    return fitted, 1
