@@ -1,0 +1,669 @@
+"""Degradation over time: what changed since the baseline, is it real, and where is it heading.
+
+A pure library (no files, clocks or databases): runs come in as :class:`RunState` values, in
+time order, and the answers go out as frozen dataclasses.  Four questions, one function each:
+
+1. ``compare_curves``  which joint error curve changed against the baseline, judged against
+   the *combined* uncertainty of both fits (a change inside it is not a degradation);
+2. ``control_chart``   an upper EWMA control chart on each main figure (workspace mean, std
+   and max TCP error) with limits from the runs' own scatter;
+3. ``prognosis``       a straight-line trend of each figure, extrapolated to the user's
+   tolerance: an estimated crossing time with a 95 % band, or "no trend";
+4. ``assess_trend``    all of the above for one robot, with root-cause hints in words
+   ("joint 2 tilt about x grew by 0.30 mrad since baseline") and the comparability warnings
+   (plan, cell, calibration, software differing from the baseline).
+
+SYNOPSIS::
+
+    runs = [RunState(run_id, t_s, figures_mm={"mean": .., "std": .., "max": ..},
+                     spec=spec, coeffs=c, cov=S, meta={"plan_hash": ..}), ...]
+    result = assess_trend(runs, baseline_index=0, threshold_mm=0.5)
+    result.flagged, result.hints, result.latest_alarms
+
+Statistics
+----------
+*Curve change.*  Each motion ``m`` of joint ``j`` is ``B(u) c`` (Chebyshev, METHOD.md Eq. 3).
+Both runs' curves are evaluated on a common grid of the joint range they share; the difference
+``d`` has covariance ``Ba Σa Baᵀ + Bb Σb Bbᵀ`` (independent fits).  ``χ² = dᵀ C⁺ d`` on the
+covariance's numerical range with ``dof = rank C`` gives a p-value; a change is significant
+when ``p < alpha / n_curves`` (Bonferroni over all curves compared) *and* its largest size
+over the range exceeds a practical minimum (``min_change_m`` / ``min_change_rad``).  What the
+test leaves out: the covariances measure sampling noise of each fit, not model error; a motion
+one fit could not identify (zero variance) only counts where it was estimated.
+
+*Control chart.*  EWMA ``z_t = λ x_t + (1 − λ) z_{t−1}`` started at the in-control mean
+``μ0`` (mean of the baseline and the next ``n_phase1 − 1`` runs), with ``σ`` the larger of the
+moving-range estimate ``MR̄ / 1.128`` over the runs since the baseline (insensitive to slow
+drift) and the runs' own reported uncertainty.  Alarm when ``z_t > μ0 + L σ √(λ/(2−λ)
+(1 − (1−λ)^{2t}))``.  Only upward: a robot getting better is no alarm.
+
+*Prognosis.*  Ordinary least squares ``x = a + b t`` over the runs since the baseline.  "No
+trend" unless ``b > 0`` with one-sided ``p < 0.01``.  The crossing time solves ``a + b t =
+tolerance``; its band is where the 95 % confidence band of the fitted line meets the tolerance
+(the late end may be "beyond the horizon").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+
+from .errormodel import MOTION_WORDS, MOTIONS, ErrorModelSpec, chebyshev_basis, chebyshev_u
+
+F = NDArray[np.float64]
+FIGURES: tuple[str, ...] = ("mean", "std", "max")
+FIGURE_WORDS: dict[str, str] = {
+    "mean": "workspace mean TCP error",
+    "std": "workspace std of TCP error",
+    "max": "workspace max TCP error",
+}
+COMPARABILITY_KEYS: tuple[str, ...] = ("plan_hash", "cell", "calibration_id", "software_version")
+DAY_S = 86400.0
+
+
+@dataclass(frozen=True, eq=False)
+class RunState:
+    """One assessment of one robot, as the trend needs it (SI).
+
+    Attributes
+    ----------
+    run_id : str
+    t_s : float, s
+        Time of the run (any fixed epoch, e.g. Unix time).
+    figures_mm : mapping of str to float, mm
+        Main figures, keys from :data:`FIGURES` (``mean``, ``std``, ``max``); missing keys allowed.
+    spec, coeffs, cov : the identified error model; ``cov`` shape (n_params, n_params) or None
+    figure_sigma_mm : mapping of str to float, mm
+        Standard uncertainty of each figure as the run itself reports it (optional).
+    meta : mapping of str to str
+        ``plan_hash``, ``cell``, ``calibration_id``, ``software_version`` …
+    """
+
+    run_id: str
+    t_s: float
+    figures_mm: Mapping[str, float] = field(default_factory=dict)
+    spec: ErrorModelSpec | None = None
+    coeffs: F | None = None
+    cov: F | None = None
+    figure_sigma_mm: Mapping[str, float] = field(default_factory=dict)
+    meta: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class CurveChange:
+    """Change of one joint's error motion between the baseline and a run.
+
+    ``max_change`` and ``rms_change`` are in m (``dx dy dz``) or rad (``ex ey ez``);
+    ``peak_baseline`` / ``peak_run`` are the largest absolute values of the two curves.
+    """
+
+    joint: int  # 1-based
+    motion: str  # one of MOTIONS
+    chi2: float
+    dof: int
+    p_value: float
+    z_max: float  # largest |difference| / its standard deviation over the grid
+    max_change: float
+    rms_change: float
+    peak_baseline: float
+    peak_run: float
+    significant: bool
+
+    @property
+    def is_angle(self) -> bool:
+        """True for the rotations εx, εy, εz."""
+        return self.motion.startswith("e")
+
+    def hint(self) -> str:
+        """The change in words, e.g. "joint 2 tilt about x grew by 0.30 mrad since baseline"."""
+        scale, unit = (1e3, "mrad") if self.is_angle else (1e3, "mm")
+        verb = "grew" if self.peak_run > self.peak_baseline else "changed"
+        return (
+            f"joint {self.joint} {MOTION_WORDS[self.motion]} {verb} by "
+            f"{self.max_change * scale:.2f} {unit} since baseline "
+            f"({self.z_max:.1f}σ, p = {self.p_value:.1e})"
+        )
+
+
+@dataclass(frozen=True)
+class ControlChart:
+    """Upper EWMA chart of one figure over the runs since the baseline (mm)."""
+
+    figure: str
+    values_mm: tuple[float, ...]
+    ewma_mm: tuple[float, ...]
+    ucl_mm: tuple[float, ...]
+    mu0_mm: float
+    sigma_mm: float
+    alarms: tuple[bool, ...]
+    first_alarm: int | None  # index into values (0 = the baseline run)
+
+
+@dataclass(frozen=True)
+class Prognosis:
+    """Straight-line extrapolation of one figure to the tolerance."""
+
+    figure: str
+    trend: bool
+    slope_mm_per_day: float
+    p_value: float
+    tolerance_mm: float | None
+    crossing_t_s: float | None  # estimated time the line reaches the tolerance
+    crossing_early_t_s: float | None  # 95 % band, early end
+    crossing_late_t_s: float | None  # 95 % band, late end; None = beyond the horizon
+    already_above: bool
+    last_t_s: float | None = None  # time of the last run the line was fitted to
+
+    def days_from_last(self, t: float | None) -> float | None:
+        """Days from the last run to ``t`` (None stays None)."""
+        if t is None or self.last_t_s is None:
+            return None
+        return (t - self.last_t_s) / DAY_S
+
+    def words(self) -> str:
+        """One line for people."""
+        name = FIGURE_WORDS.get(self.figure, self.figure)
+        if self.already_above:
+            return f"{name} is already above the tolerance of {self.tolerance_mm:g} mm"
+        if not self.trend:
+            return f"{name}: no trend (slope p = {self.p_value:.2f})"
+        s = f"{name} rises by {self.slope_mm_per_day * 30:.3f} mm per 30 days"
+        if self.tolerance_mm is None or self.crossing_t_s is None:
+            return s
+        d = self.days_from_last(self.crossing_t_s)
+        e = self.days_from_last(self.crossing_early_t_s)
+        late = self.days_from_last(self.crossing_late_t_s)
+        band = f"{e:.0f} to " + ("beyond the horizon" if late is None else f"{late:.0f} days")
+        return s + f", reaching {self.tolerance_mm:g} mm in about {d:.0f} days ({band})"
+
+
+@dataclass(frozen=True)
+class TrendResult:
+    """Everything ``quickhealth trend`` shows for one robot."""
+
+    run_ids: tuple[str, ...]
+    t_s: tuple[float, ...]
+    baseline_index: int
+    figures_mm: dict[str, tuple[float, ...]]  # figure -> value per run (NaN if absent)
+    curve_changes: tuple[tuple[CurveChange, ...], ...]  # per run (empty for the baseline)
+    charts: dict[str, ControlChart]
+    prognoses: dict[str, Prognosis]
+    threshold_mm: float | None
+    threshold_figure: str
+    breaches: tuple[bool, ...]  # per run: figure above the threshold
+    warnings: tuple[str, ...]
+
+    @property
+    def latest(self) -> int:
+        """Index of the latest run."""
+        return len(self.run_ids) - 1
+
+    def significant_changes(self, index: int | None = None) -> list[CurveChange]:
+        """Significant curve changes of a run (default the latest), largest z first."""
+        i = self.latest if index is None else index
+        ch = [c for c in self.curve_changes[i] if c.significant]
+        return sorted(ch, key=lambda c: -c.z_max)
+
+    def alarms(self, index: int | None = None) -> list[str]:
+        """Control-chart figures in alarm at a run (default the latest)."""
+        i = (self.latest if index is None else index) - self.baseline_index
+        if i < 0:
+            return []
+        return [f for f, c in self.charts.items() if i < len(c.alarms) and c.alarms[i]]
+
+    def flags(self, index: int | None = None) -> list[str]:
+        """Reasons a run is flagged, in words; empty = healthy."""
+        i = self.latest if index is None else index
+        out = []
+        if self.breaches[i]:
+            v = self.figures_mm[self.threshold_figure][i]
+            out.append(
+                f"{FIGURE_WORDS[self.threshold_figure]} {v:.3f} mm is above the threshold "
+                f"{self.threshold_mm:g} mm"
+            )
+        for f in self.alarms(i):
+            c = self.charts[f]
+            k = i - self.baseline_index
+            out.append(
+                f"{FIGURE_WORDS[f]} EWMA {c.ewma_mm[k]:.3f} mm is above its control limit "
+                f"{c.ucl_mm[k]:.3f} mm"
+            )
+        out.extend(c.hint() for c in self.significant_changes(i))
+        return out
+
+    @property
+    def flagged(self) -> bool:
+        """Whether the latest run is flagged."""
+        return bool(self.flags())
+
+    @property
+    def hints(self) -> list[str]:
+        """Root-cause hints for the latest run (significant curve changes, in words)."""
+        return [c.hint() for c in self.significant_changes()]
+
+
+# ---------------------------------------------------------------------------- curves
+
+
+@dataclass(frozen=True, eq=False)
+class JointCurves:
+    """Every joint's six error curves with standard deviations on a grid over its range.
+
+    ``q`` shape (n_grid, nj) rad; ``value`` and ``std`` shape (nj, 6, n_grid) in m / rad.
+    """
+
+    q: F
+    value: F
+    std: F
+
+
+def _block(spec: ErrorModelSpec, j: int, m: int) -> slice:
+    """Slice of the coefficient vector holding joint ``j`` (1-based) motion ``m``."""
+    sizes = (spec.orders + 1).ravel()
+    start = int(sizes[: j * 6 + m].sum())
+    return slice(start, start + int(sizes[j * 6 + m]))
+
+
+def _cov_or_zero(spec: ErrorModelSpec, cov: F | None) -> F:
+    if cov is None:
+        return np.zeros((spec.n_params, spec.n_params))
+    c = np.asarray(cov, dtype=float)
+    if c.shape != (spec.n_params, spec.n_params):
+        raise ValueError(f"cov must be ({spec.n_params}, {spec.n_params}), got {c.shape}")
+    return np.where(np.isfinite(c), c, 0.0)
+
+
+def joint_curves(
+    spec: ErrorModelSpec, coeffs: F, cov: F | None = None, n_grid: int = 101
+) -> JointCurves:
+    """Evaluate each joint's six error motions and their standard deviations over its range.
+
+    Parameters
+    ----------
+    spec : ErrorModelSpec
+    coeffs : ndarray, shape (n_params,)
+    cov : ndarray, shape (n_params, n_params), optional
+    n_grid : int
+
+    Returns
+    -------
+    JointCurves
+    """
+    coeffs = np.asarray(coeffs, dtype=float)
+    C = _cov_or_zero(spec, cov)
+    nj = spec.n_joints
+    q = np.linspace(spec.q_lo, spec.q_hi, n_grid)  # (n_grid, nj)
+    value = np.zeros((nj, 6, n_grid))
+    std = np.zeros((nj, 6, n_grid))
+    for j in range(1, nj + 1):
+        for m in range(6):
+            s = _block(spec, j, m)
+            k = s.stop - s.start
+            if k == 0:
+                continue
+            B = chebyshev_basis(chebyshev_u(q[:, j - 1], spec.q_lo[j - 1], spec.q_hi[j - 1]), k - 1)
+            value[j - 1, m] = B @ coeffs[s]
+            std[j - 1, m] = np.sqrt(np.maximum(np.einsum("ik,kl,il->i", B, C[s, s], B), 0.0))
+    return JointCurves(q=q, value=value, std=std)
+
+
+def _curve_on(spec: ErrorModelSpec, coeffs: F, C: F, j: int, m: int, q: F) -> tuple[F, F]:
+    """Curve values (n,) and their covariance (n, n) of joint j motion m at readings q."""
+    s = _block(spec, j, m)
+    k = s.stop - s.start
+    if k == 0:
+        return np.zeros(q.size), np.zeros((q.size, q.size))
+    B = chebyshev_basis(chebyshev_u(q, spec.q_lo[j - 1], spec.q_hi[j - 1]), k - 1)
+    return B @ coeffs[s], B @ C[s, s] @ B.T
+
+
+def compare_curves(
+    base: RunState,
+    run: RunState,
+    *,
+    alpha: float = 1e-3,
+    min_change_m: float = 10e-6,
+    min_change_rad: float = 20e-6,
+    n_grid: int = 41,
+) -> tuple[CurveChange, ...]:
+    """Change of every joint error curve from ``base`` to ``run``, with its significance.
+
+    Parameters
+    ----------
+    base, run : RunState
+        Both need ``spec`` and ``coeffs``; ``cov`` None counts as exactly known.
+    alpha : float
+        Family-wise false-alarm probability per comparison (Bonferroni over the curves).
+    min_change_m, min_change_rad : float
+        Smallest change (largest over the range) worth calling a degradation.
+    n_grid : int
+        Grid points over the joint range both models share.
+
+    Returns
+    -------
+    tuple of CurveChange, one per (joint, motion) present in either model.
+    """
+    if base.spec is None or run.spec is None or base.coeffs is None or run.coeffs is None:
+        return ()
+    sa, sb = base.spec, run.spec
+    if sa.n_joints != sb.n_joints:
+        raise ValueError(f"runs have {sa.n_joints} and {sb.n_joints} joints: not comparable")
+    ca, cb = np.asarray(base.coeffs, float), np.asarray(run.coeffs, float)
+    Ca, Cb = _cov_or_zero(sa, base.cov), _cov_or_zero(sb, run.cov)
+    lo = np.maximum(sa.q_lo, sb.q_lo)
+    hi = np.minimum(sa.q_hi, sb.q_hi)
+    present = [
+        (j, m)
+        for j in range(1, sa.n_joints + 1)
+        for m in range(6)
+        if sa.orders[j, m] >= 0 or sb.orders[j, m] >= 0
+    ]
+    n_tests = max(len(present), 1)
+    out = []
+    for j, m in present:
+        q = np.linspace(lo[j - 1], hi[j - 1], n_grid) if hi[j - 1] > lo[j - 1] else lo[[j - 1]]
+        ya, Va = _curve_on(sa, ca, Ca, j, m, q)
+        yb, Vb = _curve_on(sb, cb, Cb, j, m, q)
+        d = yb - ya
+        V = Va + Vb
+        w, U = np.linalg.eigh(V)
+        scale = max(float(w.max(initial=0.0)), 0.0)
+        keep = w > max(scale * 1e-9, 1e-30)
+        dof = int(keep.sum())
+        sd = np.sqrt(np.maximum(np.diag(V), 0.0))
+        if dof == 0:  # both curves exactly known: any difference is certain
+            chi2 = math.inf if np.any(np.abs(d) > 0) else 0.0
+            p = 0.0 if chi2 else 1.0
+            z = math.inf if chi2 else 0.0
+        else:
+            proj = U[:, keep].T @ d
+            chi2 = float(np.sum(proj**2 / w[keep]))
+            p = float(stats.chi2.sf(chi2, dof))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                zz = np.where(sd > 0, np.abs(d) / np.where(sd > 0, sd, 1.0), 0.0)
+            z = float(zz.max(initial=0.0))
+        max_change = float(np.abs(d).max(initial=0.0))
+        floor = min_change_rad if MOTIONS[m].startswith("e") else min_change_m
+        out.append(
+            CurveChange(
+                joint=j,
+                motion=MOTIONS[m],
+                chi2=chi2,
+                dof=dof,
+                p_value=p,
+                z_max=z,
+                max_change=max_change,
+                rms_change=float(np.sqrt(np.mean(d**2))),
+                peak_baseline=float(np.abs(ya).max(initial=0.0)),
+                peak_run=float(np.abs(yb).max(initial=0.0)),
+                significant=bool(p < alpha / n_tests and max_change > floor),
+            )
+        )
+    return tuple(out)
+
+
+# ----------------------------------------------------------------------- control chart
+
+
+def control_chart(
+    values_mm: Sequence[float],
+    *,
+    figure: str = "",
+    lam: float = 0.2,
+    L: float = 4.0,
+    n_phase1: int = 5,
+    sigma_floor_mm: float = 0.0,
+    min_runs: int = 6,
+) -> ControlChart:
+    """Upper EWMA control chart of one figure; ``values_mm[0]`` is the baseline run.
+
+    Parameters
+    ----------
+    values_mm : sequence of float, mm
+        The figure at the baseline and every later run, in time order (NaN = missing).
+    lam, L : float
+        EWMA weight and limit width in standard deviations.  λ = 0.2, L = 4 gave 3 false
+        alarms in 1500 simulated healthy 30-run histories, and caught a rise of 0.3 σ per run
+        after 14 runs (median; 20 at most) in 200.
+    n_phase1 : int
+        Runs from the baseline on that define the in-control mean.
+    sigma_floor_mm : float
+        Smallest σ to use (e.g. the runs' own reported uncertainty of the figure).
+    min_runs : int
+        With fewer runs (and no ``sigma_floor_mm``) no alarm is raised: σ is not yet known.
+
+    Returns
+    -------
+    ControlChart
+    """
+    x = np.asarray(values_mm, dtype=float)
+    n = x.size
+    z = np.full(n, math.nan)
+    ucl = np.full(n, math.nan)
+    alarms = np.zeros(n, dtype=bool)
+    mu0 = sigma = math.nan
+    prev = math.nan
+    seen: list[float] = []
+    for i in range(n):  # causal: run i is judged on runs 0..i only, as it was at the time
+        if not math.isfinite(x[i]):
+            z[i] = prev
+            continue
+        seen.append(float(x[i]))
+        m = min(len(seen), n_phase1)
+        mu0 = float(np.mean(seen[:m]))
+        mr = np.abs(np.diff(seen))
+        sigma = max(float(mr.mean() / 1.128) if mr.size else 0.0, float(sigma_floor_mm))
+        # EWMA from the baseline on, restarted from the current in-control mean
+        zz = mu0
+        for v in seen[1:]:
+            zz = lam * v + (1.0 - lam) * zz
+        prev = zz
+        t = len(seen) - 1
+        width = lam / (2.0 - lam) * (1.0 - (1.0 - lam) ** (2 * t)) + 1.0 / m
+        z[i] = zz
+        ucl[i] = mu0 + L * sigma * math.sqrt(width)
+        enough = sigma > 0 and (len(seen) >= min_runs or sigma_floor_mm > 0)
+        alarms[i] = bool(enough and t > 0 and zz > ucl[i])
+    first = int(np.argmax(alarms)) if alarms.any() else None
+    return ControlChart(
+        figure=figure,
+        values_mm=tuple(map(float, x)),
+        ewma_mm=tuple(map(float, z)),
+        ucl_mm=tuple(map(float, ucl)),
+        mu0_mm=mu0,
+        sigma_mm=sigma,
+        alarms=tuple(map(bool, alarms)),
+        first_alarm=first,
+    )
+
+
+# ---------------------------------------------------------------------------- prognosis
+
+
+def prognosis(
+    t_s: Sequence[float],
+    values_mm: Sequence[float],
+    tolerance_mm: float | None,
+    *,
+    figure: str = "",
+    p_max: float = 0.01,
+    min_runs: int = 4,
+    horizon_factor: float = 20.0,
+) -> Prognosis:
+    """Extrapolate a figure linearly in time to the tolerance.
+
+    Parameters
+    ----------
+    t_s : sequence of float, s
+    values_mm : sequence of float, mm
+    tolerance_mm : float or None
+    p_max : float
+        One-sided p-value below which a rising slope counts as a trend.
+    min_runs : int
+        Fewer runs give "no trend".
+    horizon_factor : float
+        The band's late end is searched up to this many history spans after the last run.
+
+    Returns
+    -------
+    Prognosis (times in the same epoch as ``t_s``).
+    """
+    t = np.asarray(t_s, dtype=float)
+    y = np.asarray(values_mm, dtype=float)
+    ok = np.isfinite(t) & np.isfinite(y)
+    t, y = t[ok], y[ok]
+    above = bool(tolerance_mm is not None and y.size and y[-1] >= tolerance_mm)
+    none = Prognosis(figure, False, 0.0, 1.0, tolerance_mm, None, None, None, above)
+    if y.size < min_runs or np.ptp(t) <= 0:
+        return none
+    td = (t - t[0]) / DAY_S
+    res = stats.linregress(td, y)
+    n = y.size
+    dof = n - 2
+    resid = y - (res.intercept + res.slope * td)
+    s2 = float(resid @ resid) / dof if dof > 0 else 0.0
+    sxx = float(np.sum((td - td.mean()) ** 2))
+    se_b = math.sqrt(s2 / sxx) if sxx > 0 else math.inf
+    if se_b == 0.0:
+        p = 0.0 if res.slope > 0 else 1.0
+    else:
+        p = float(stats.t.sf(res.slope / se_b, dof))
+    if not (res.slope > 0 and p < p_max):
+        return Prognosis(
+            figure, False, float(res.slope), p, tolerance_mm, None, None, None, above, float(t[-1])
+        )
+    if tolerance_mm is None or above:
+        return Prognosis(
+            figure, True, float(res.slope), p, tolerance_mm, None, None, None, above, float(t[-1])
+        )
+    t_cross_d = (tolerance_mm - res.intercept) / res.slope
+    span = max(td[-1] - td[0], 1.0)
+    grid = np.linspace(td[-1], td[-1] + horizon_factor * span, 4001)
+    tq = stats.t.ppf(0.975, dof) if dof > 0 else 0.0
+    half = tq * np.sqrt(s2 * (1.0 / n + (grid - td.mean()) ** 2 / sxx))
+    line = res.intercept + res.slope * grid
+    hi_hit = np.nonzero(line + half >= tolerance_mm)[0]
+    lo_hit = np.nonzero(line - half >= tolerance_mm)[0]
+    early = grid[hi_hit[0]] if hi_hit.size else None
+    late = grid[lo_hit[0]] if lo_hit.size else None
+
+    def to_s(d: float | None) -> float | None:
+        return None if d is None else float(t[0] + d * DAY_S)
+
+    return Prognosis(
+        figure,
+        True,
+        float(res.slope),
+        p,
+        tolerance_mm,
+        to_s(float(t_cross_d)),
+        to_s(None if early is None else float(early)),
+        to_s(None if late is None else float(late)),
+        above,
+        float(t[-1]),
+    )
+
+
+# ------------------------------------------------------------------------------ assess
+
+
+def comparability_warnings(
+    runs: Sequence[RunState], baseline_index: int, keys: Sequence[str] = COMPARABILITY_KEYS
+) -> tuple[str, ...]:
+    """Warnings for runs whose plan, cell, calibration or software differ from the baseline."""
+    base = runs[baseline_index].meta
+    out = []
+    for r in runs[baseline_index + 1 :]:
+        for k in keys:
+            a, b = base.get(k), r.meta.get(k)
+            if a != b:
+                out.append(
+                    f"run {r.run_id}: {k.replace('_', ' ')} {b or '(unknown)'} differs from the "
+                    f"baseline's {a or '(unknown)'}; the comparison may not be like for like"
+                )
+    return tuple(out)
+
+
+def assess_trend(
+    runs: Sequence[RunState],
+    baseline_index: int = 0,
+    *,
+    threshold_mm: float | None = None,
+    threshold_figure: str = "max",
+    tolerance_mm: float | None = None,
+    alpha: float = 1e-3,
+    min_change_m: float = 10e-6,
+    min_change_rad: float = 20e-6,
+    lam: float = 0.2,
+    L: float = 4.0,
+) -> TrendResult:
+    """The whole trend of one robot: curve changes, control charts, prognosis, warnings.
+
+    Parameters
+    ----------
+    runs : sequence of RunState, in time order
+    baseline_index : int
+        Index of the baseline run in ``runs``; earlier runs are shown but not compared.
+    threshold_mm : float, optional
+        A run whose ``threshold_figure`` exceeds it is a breach.
+    threshold_figure : {"mean", "std", "max"}
+    tolerance_mm : float, optional
+        Level the prognosis extrapolates to (default: ``threshold_mm``).
+    alpha, min_change_m, min_change_rad : see :func:`compare_curves`
+    lam, L : see :func:`control_chart`
+
+    Returns
+    -------
+    TrendResult
+    """
+    if not runs:
+        raise ValueError("no runs to assess")
+    if not 0 <= baseline_index < len(runs):
+        raise ValueError(f"baseline index {baseline_index} outside 0..{len(runs) - 1}")
+    if threshold_figure not in FIGURES:
+        raise ValueError(f"threshold figure must be one of {FIGURES}, got {threshold_figure!r}")
+    runs = list(runs)
+    tol = threshold_mm if tolerance_mm is None else tolerance_mm
+    figs = {f: tuple(float(r.figures_mm.get(f, math.nan)) for r in runs) for f in FIGURES}
+    base = runs[baseline_index]
+    changes = tuple(
+        ()
+        if i <= baseline_index
+        else compare_curves(
+            base, r, alpha=alpha, min_change_m=min_change_m, min_change_rad=min_change_rad
+        )
+        for i, r in enumerate(runs)
+    )
+    charts, progs = {}, {}
+    since = runs[baseline_index:]
+    t_since = [r.t_s for r in since]
+    for f in FIGURES:
+        vals = figs[f][baseline_index:]
+        if not np.any(np.isfinite(vals)):
+            continue
+        sig = [r.figure_sigma_mm.get(f, math.nan) for r in since]
+        floor = float(np.nanmedian(sig)) if np.any(np.isfinite(sig)) else 0.0
+        charts[f] = control_chart(vals, figure=f, lam=lam, L=L, sigma_floor_mm=floor)
+        progs[f] = prognosis(t_since, vals, tol, figure=f)
+    thr_vals = figs[threshold_figure]
+    breaches = tuple(
+        bool(threshold_mm is not None and math.isfinite(v) and v > threshold_mm) for v in thr_vals
+    )
+    return TrendResult(
+        run_ids=tuple(r.run_id for r in runs),
+        t_s=tuple(float(r.t_s) for r in runs),
+        baseline_index=baseline_index,
+        figures_mm=figs,
+        curve_changes=changes,
+        charts=charts,
+        prognoses=progs,
+        threshold_mm=threshold_mm,
+        threshold_figure=threshold_figure,
+        breaches=breaches,
+        warnings=comparability_warnings(runs, baseline_index),
+    )
