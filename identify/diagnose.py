@@ -1,0 +1,926 @@
+"""Diagnosis: which physical effect does the fitted model miss, and how much would it help?
+
+The fitted model is compared with the measurements pose by pose.  What it leaves in the
+residuals is tested against every candidate effect of :mod:`quickhealth.identify.effects`
+that the model does not have yet: gravity compliance of each joint (residual against the
+joint's gravity torque), backlash of each joint (against its approach direction), cyclic
+errors of every joint and harmonic (the residual *spectrum* against each joint angle), thermal
+growth (against temperature), drift (against time) and the instrument's depth scale (against
+the distance from the instrument).
+
+The test is a linearised score (Lagrange-multiplier) test.  With whitened residuals ``r``
+(n_obs,) and the fitted model's whitened Jacobian ``J`` at the estimate, a candidate's
+Jacobian columns ``Z`` are projected off ``J`` (what the model can already absorb does not
+count), ``Z⊥ = (I − P_J) Z``, and
+
+    S = rᵀ P_{Z⊥} r     (the drop of the residual sum of squares a one-step refit would give)
+    F = (S / k) / ((RSS − S) / (dof − k)),   k = rank Z⊥, dof = n_obs − rank J
+
+is compared with the F distribution.  Because ~140 candidates are tested at once, the
+p-values are Bonferroni-corrected (× the number of candidates): a noise-only data set then
+raises a false alarm with probability below ``alpha`` (1 %).  The verdict is
+``missing-effect`` when the best candidate is significant, else ``adequate``.  The one-step
+refit also gives each candidate's predicted position RMS drop (mm) and parameter estimate.
+
+SYNOPSIS::
+
+    state = state_from_fitted(fitted)                # or LoopState(...)
+    diag = diagnose(state, meas)                     # Diagnosis
+    print("\\n".join(diag.summary()))
+    fig = plot_candidate(state, meas, diag.candidates[0].effect)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+
+from .effects import Effect, EffectContext, Perturbation, parse_effect, total_perturbation
+from .effects._base import perturbed_loop_pose
+from .effects.depthscale import UNIFORM_SCALE_EXPLANATION
+from .errormodel import ErrorModelSpec, chebyshev_basis, chebyshev_u
+from .measurements import Measurements
+from .robot import RobotModel, gravity_torques
+from .transforms import log_so3
+
+F = NDArray[np.float64]
+
+#: Defaults used when neither the measurements nor the model give the noise.
+DEFAULT_SIGMA_POS = 3e-5
+DEFAULT_SIGMA_ROT = 1e-4
+_EPS = 1e-6
+
+
+class Verdict(StrEnum):
+    """Outcome of a diagnosis (the contract's strings)."""
+
+    ADEQUATE = "adequate"
+    MISSING_EFFECT = "missing-effect"
+
+
+@dataclass(frozen=True, eq=False)
+class LoopState:
+    """A fitted loop model as the diagnosis sees it (SI units).
+
+    ``T_instr_target = perturbed_loop_pose(robot, spec, coeffs, T_instr_base0,
+    T_flange_target0, q, Σ effect perturbations)``.
+
+    Attributes
+    ----------
+    robot : RobotModel
+    spec : ErrorModelSpec
+    coeffs : ndarray, shape (spec.n_params,)
+    T_instr_base0, T_flange_target0 : ndarray, shape (4, 4)
+    effects : tuple of Effect
+    effect_params : tuple of ndarray
+    sigma_pos : float, m
+        Instrument position noise the model assumes (per axis).
+    sigma_rot : float, rad
+        Instrument rotation noise the model assumes (per axis).
+    """
+
+    robot: RobotModel
+    spec: ErrorModelSpec
+    coeffs: F
+    T_instr_base0: F
+    T_flange_target0: F
+    effects: tuple[Effect, ...] = ()
+    effect_params: tuple[F, ...] = ()
+    sigma_pos: float = DEFAULT_SIGMA_POS
+    sigma_rot: float = DEFAULT_SIGMA_ROT
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        """Names of the effects in the model."""
+        return tuple(e.name for e in self.effects)
+
+    def with_effect(self, effect: Effect, params: F | None = None) -> LoopState:
+        """The same model with one more effect (parameters zero unless given)."""
+        p = np.zeros(effect.n_params) if params is None else np.asarray(params, float)
+        return replace(
+            self, effects=(*self.effects, effect), effect_params=(*self.effect_params, p)
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Loop, residuals and Jacobians
+# --------------------------------------------------------------------------------------------
+
+
+def context_for(robot: RobotModel, meas: Measurements) -> EffectContext:
+    """The effects' context of a measurement set (approach from the execution order)."""
+    tau = None
+    if robot.masses is not None and robot.coms is not None:
+        tau = gravity_torques(robot, meas.q)
+    return EffectContext(
+        robot=robot,
+        q=meas.q,
+        approach=meas.approach_sign(),
+        gravity_torque=tau,
+        time=meas.time,
+        temp=meas.temp,
+    )
+
+
+def model_pose(state: LoopState, ctx: EffectContext) -> F:
+    """Model ``T_instr_target`` (n, 4, 4) of every pose, effects included."""
+    pert = total_perturbation(state.effects, state.effect_params, ctx)
+    return perturbed_loop_pose(
+        state.robot,
+        state.spec,
+        state.coeffs,
+        state.T_instr_base0,
+        state.T_flange_target0,
+        ctx.q,
+        pert,
+    )
+
+
+def pose_residuals(meas: Measurements, T_model: F) -> F:
+    """Measured minus model: ``(n, 6)`` = position (m), rotation vector (rad), instrument frame.
+
+    Position-only data give ``(n, 3)``.  The rotation residual is ``log(R_meas · R_modelᵀ)``.
+    """
+    dp = meas.pos - T_model[:, :3, 3]
+    if not meas.has_orientation:
+        return dp
+    dw = log_so3(meas.R @ np.swapaxes(T_model[:, :3, :3], -1, -2))
+    return np.concatenate([dp, dw], axis=1)
+
+
+def noise_sigmas(state: LoopState, meas: Measurements) -> F:
+    """Per-pose, per-component standard uncertainty ``(n, 6)`` or ``(n, 3)`` for whitening."""
+    n = meas.n_poses
+    sp = meas.sigma_pos if meas.sigma_pos is not None else np.full((n, 3), state.sigma_pos)
+    if not meas.has_orientation:
+        return np.asarray(sp, float)
+    sr = meas.sigma_rpy if meas.sigma_rpy is not None else np.full((n, 3), state.sigma_rot)
+    return np.concatenate([sp, sr], axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class Sensitivities:
+    """Derivatives of the model pose ``(n, 6)`` (position m, rotation rad) at the estimate.
+
+    Attributes
+    ----------
+    dq : ndarray, shape (n, nj, 6)
+        Per unit (rad) joint-angle perturbation.
+    link_scale : ndarray, shape (n, 6)
+        Per unit fractional link growth.
+    base_twist : ndarray, shape (n, 6, 6)
+        Per unit base motion component (δx δy δz εx εy εz).
+    instr_scale_z : ndarray, shape (n, 6)
+        Per unit instrument depth scale.
+    frame_motion : ndarray, shape (n, nj + 2, 6, 6)
+        Per unit constant error motion of each frame (base, joints, tool).
+    """
+
+    dq: F
+    link_scale: F
+    base_twist: F
+    instr_scale_z: F
+    frame_motion: F
+
+
+def _pose_delta(T1: F, T0: F, h: float) -> F:
+    dp = (T1[:, :3, 3] - T0[:, :3, 3]) / h
+    dw = log_so3(T1[:, :3, :3] @ np.swapaxes(T0[:, :3, :3], -1, -2)) / h
+    return np.concatenate([dp, dw], axis=1)
+
+
+def sensitivities(state: LoopState, ctx: EffectContext, h: float = _EPS) -> Sensitivities:
+    """Central-difference derivatives of the loop pose with respect to every channel."""
+    n, nj = ctx.q.shape
+    base = total_perturbation(state.effects, state.effect_params, ctx)
+    orders_full = np.maximum(state.spec.orders, 0)
+    spec_full = state.spec.with_orders(orders_full)
+    coeffs_full = _pad_coeffs(state.spec, spec_full, state.coeffs)
+
+    def pose(p: Perturbation, coeffs: F = coeffs_full) -> F:
+        return perturbed_loop_pose(
+            state.robot,
+            spec_full,
+            coeffs,
+            state.T_instr_base0,
+            state.T_flange_target0,
+            ctx.q,
+            base + p,
+        )
+
+    def diff(make: Any) -> F:
+        return _pose_delta(pose(make(h)), pose(make(-h)), 2 * h)
+
+    S_dq = np.empty((n, nj, 6))
+    for j in range(nj):
+        S_dq[:, j] = diff(lambda s, j=j: Perturbation(dq=_col(n, nj, j, s)))
+    S_ls = diff(lambda s: Perturbation(link_scale=np.full(n, s)))
+    S_bt = np.empty((n, 6, 6))
+    for c in range(6):
+        S_bt[:, c] = diff(lambda s, c=c: Perturbation(base_twist=_col(n, 6, c, s)))
+    S_iz = diff(lambda s: Perturbation(instr_scale_z=np.full(n, s)))
+    # frame motions: perturb each (frame, motion)'s c0 coefficient
+    idx = spec_full.index()
+    c0_pos = {(int(f), int(m)): i for i, (f, m, k) in enumerate(idx) if k == 0}
+    S_fm = np.empty((n, nj + 2, 6, 6))
+    zero = Perturbation()
+    for f in range(nj + 2):
+        for m in range(6):
+            cp = coeffs_full.copy()
+            cm = coeffs_full.copy()
+            cp[c0_pos[f, m]] += h
+            cm[c0_pos[f, m]] -= h
+            S_fm[:, f, m] = _pose_delta(pose(zero, cp), pose(zero, cm), 2 * h)
+    return Sensitivities(S_dq, S_ls, S_bt, S_iz, S_fm)
+
+
+def _col(n: int, width: int, c: int, v: float) -> F:
+    a = np.zeros((n, width))
+    a[:, c] = v
+    return a
+
+
+def _pad_coeffs(spec: ErrorModelSpec, spec_full: ErrorModelSpec, coeffs: F) -> F:
+    full = np.zeros(spec_full.n_params)
+    where = {tuple(r): i for i, r in enumerate(spec_full.index())}
+    for i, r in enumerate(spec.index()):
+        full[where[tuple(r)]] = coeffs[i]
+    return full
+
+
+def effect_jacobian(effect: Effect, ctx: EffectContext, sens: Sensitivities) -> F:
+    """Derivative of the model pose with respect to the effect's parameters, ``(n, 6, k)``.
+
+    Exact for the perturbation (the effect is linear in its parameters); the loop is
+    linearised at the estimate through :class:`Sensitivities`.
+    """
+    n = ctx.n_poses
+    out = np.zeros((n, 6, effect.n_params))
+    for i in range(effect.n_params):
+        unit = np.zeros(effect.n_params)
+        unit[i] = 1.0
+        p = effect.perturbation(ctx, unit)
+        col = np.zeros((n, 6))
+        if p.dq is not None:
+            col += np.einsum("nj,njc->nc", p.dq, sens.dq)
+        if p.link_scale is not None:
+            col += p.link_scale[:, None] * sens.link_scale
+        if p.base_twist is not None:
+            col += np.einsum("nk,nkc->nc", p.base_twist, sens.base_twist)
+        if p.instr_scale_z is not None:
+            col += p.instr_scale_z[:, None] * sens.instr_scale_z
+        out[:, :, i] = col
+    return out
+
+
+def chebyshev_jacobian(state: LoopState, ctx: EffectContext, sens: Sensitivities) -> F:
+    """Derivative of the model pose with respect to every Chebyshev coefficient ``(n, 6, p)``."""
+    spec = state.spec
+    idx = spec.index()
+    u = chebyshev_u(ctx.q, spec.q_lo, spec.q_hi)
+    kmax = int(max(spec.orders.max(), 0))
+    B = chebyshev_basis(u, kmax)  # (n, nj, K)
+    nj = spec.n_joints
+    out = np.empty((ctx.n_poses, 6, idx.shape[0]))
+    for i, (f, m, k) in enumerate(idx):
+        S = sens.frame_motion[:, f, m]
+        if 1 <= f <= nj:
+            out[:, :, i] = S * B[:, f - 1, k][:, None]
+        else:
+            out[:, :, i] = S
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class WhitenedProblem:
+    """Whitened residuals and Jacobian of a fitted loop at its estimate.
+
+    ``r = (measured − model) / σ`` flattened per pose; ``J = ∂model/∂p / σ`` so that a step
+    ``Δp`` changes the residual by ``−J Δp``.
+    """
+
+    r: F  # (n_obs,)
+    J: F  # (n_obs, n_params)
+    labels: tuple[str, ...]
+    sigma: F  # (n, c): per-component σ used
+    n_comp: int  # 6 for pose data, 3 for position-only
+    ctx: EffectContext
+    sens: Sensitivities
+    T_model: F
+
+
+def whitened(state: LoopState, meas: Measurements) -> WhitenedProblem:
+    """Residuals and Jacobian (Chebyshev coefficients, then effect parameters), whitened."""
+    ctx = context_for(state.robot, meas)
+    T = model_pose(state, ctx)
+    res = pose_residuals(meas, T)
+    c = res.shape[1]
+    sig = noise_sigmas(state, meas)
+    sens = sensitivities(state, ctx)
+    cols = [chebyshev_jacobian(state, ctx, sens)]
+    labels = list(state.spec.labels())
+    for e in state.effects:
+        cols.append(effect_jacobian(e, ctx, sens))
+        labels += [f"{e.name}.{p}" for p in e.param_names]
+    Jp = np.concatenate(cols, axis=2)[:, :c, :] / sig[:, :, None]
+    return WhitenedProblem(
+        r=(res / sig).reshape(-1),
+        J=Jp.reshape(-1, Jp.shape[2]),
+        labels=tuple(labels),
+        sigma=sig,
+        n_comp=c,
+        ctx=ctx,
+        sens=sens,
+        T_model=T,
+    )
+
+
+def refine(
+    state: LoopState,
+    meas: Measurements,
+    iterations: int = 4,
+    prior_scale: float = 1.0,
+) -> LoopState:
+    """Gauss-Newton refinement of every coefficient and effect parameter (fixed orders).
+
+    A weak prior (each Chebyshev coefficient ~ 1 mm or 10 mrad × ``prior_scale``; effects
+    their own ``prior_sigma``) keeps unidentifiable combinations at zero change.  This is the
+    diagnosis's own small solver, used for one-off refits (compare, tests); the product's
+    estimator is :func:`quickhealth.identify.fit.fit_model`.
+    """
+    for _ in range(iterations):
+        wp = whitened(state, meas)
+        prior = np.concatenate(
+            [np.where(state.spec.index()[:, 1] < 3, 1e-3, 1e-2) * prior_scale]
+            + [np.asarray(e.prior_sigma, float) * prior_scale for e in state.effects]
+        )
+        x = _current_params(state)
+        # minimise |r − J Δ|² + |(x + Δ)/prior|²
+        A = np.vstack([wp.J, np.diag(1.0 / prior)])
+        b = np.concatenate([wp.r, -x / prior])
+        delta = np.linalg.lstsq(A, b, rcond=None)[0]
+        state = _apply_step(state, delta)
+        if np.max(np.abs(delta) / prior) < 1e-9:
+            break
+    return state
+
+
+def _current_params(state: LoopState) -> F:
+    return np.concatenate([state.coeffs, *[np.asarray(p, float) for p in state.effect_params]])
+
+
+def _apply_step(state: LoopState, delta: F) -> LoopState:
+    n = state.spec.n_params
+    coeffs = state.coeffs + delta[:n]
+    params = []
+    pos = n
+    for e, p in zip(state.effects, state.effect_params, strict=True):
+        params.append(np.asarray(p, float) + delta[pos : pos + e.n_params])
+        pos += e.n_params
+    return replace(state, coeffs=coeffs, effect_params=tuple(params))
+
+
+# --------------------------------------------------------------------------------------------
+# Candidates and the score test
+# --------------------------------------------------------------------------------------------
+
+
+def candidate_names(
+    robot: RobotModel,
+    meas: Measurements,
+    exclude: Sequence[str] = (),
+    max_harmonic: int = 30,
+) -> list[str]:
+    """Every effect worth testing on this data set, minus those already in the model.
+
+    Compliance needs link masses and a joint whose gravity torque varies; backlash needs a
+    joint approached from both sides; thermal a varying ``temp`` column; drift a varying
+    ``time`` column.  Cyclic harmonics go up to ``max_harmonic`` cycles per revolution.
+    """
+    ex = set(exclude)
+    out: list[str] = []
+    nj = robot.n_joints
+    if robot.masses is not None and robot.coms is not None:
+        tau = gravity_torques(robot, meas.q)
+        out += [f"compliance:j{k + 1}" for k in range(nj) if np.ptp(tau[:, k]) > 1e-6]
+    app = meas.approach_sign()
+    out += [f"backlash:j{k + 1}" for k in range(nj) if np.unique(app[:, k]).size > 1]
+    out += [f"cyclic:j{k + 1}:h{m}" for k in range(nj) for m in range(1, max_harmonic + 1)]
+    if meas.temp is not None and np.ptp(meas.temp) > 0.05:
+        out.append("thermal")
+    if meas.time is not None and np.ptp(meas.time) > 0:
+        out.append("drift")
+    out.append("depthscale")
+    return [c for c in out if c not in ex]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect and the evidence for it.
+
+    Attributes
+    ----------
+    effect : str
+        Contract name, e.g. ``compliance:j2``.
+    score : float
+        ``−log10`` of the Bonferroni-corrected p-value (≥ 2 ⇔ significant at 1 %).
+    lm_statistic : float
+        Score statistic ``S / σ̂²`` (≈ χ² with ``dof`` degrees of freedom under no effect).
+    dof : int
+        Identifiable parameters of the candidate beyond the model (rank of ``Z⊥``).
+    p_value : float
+        Bonferroni-corrected p-value (capped at 1).
+    delta_bic : float
+        BIC change a one-step refit with the effect would give (negative = better).
+    predicted_rms_drop_mm : float
+        Position RMS (3D, mm) now minus after a one-step refit with the effect.
+    rms_after_mm : float
+        Predicted position RMS after adding it (mm).
+    params : tuple of float
+        One-step estimate of the effect's parameters (SI).
+    significant : bool
+    evidence : str
+        The evidence in words.
+    """
+
+    effect: str
+    score: float
+    lm_statistic: float
+    dof: int
+    p_value: float
+    delta_bic: float
+    predicted_rms_drop_mm: float
+    rms_after_mm: float
+    params: tuple[float, ...]
+    significant: bool
+    evidence: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """The contract's keys (``effect``, ``score``, ``predicted_rms_drop_mm``, ``evidence``)
+        first, then the details."""
+        return {
+            "effect": self.effect,
+            "score": self.score,
+            "predicted_rms_drop_mm": self.predicted_rms_drop_mm,
+            "evidence": self.evidence,
+            "significant": self.significant,
+            "p_value": self.p_value,
+            "lm_statistic": self.lm_statistic,
+            "dof": self.dof,
+            "delta_bic": self.delta_bic,
+            "rms_after_mm": self.rms_after_mm,
+            "params": list(self.params),
+        }
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Result of :func:`diagnose`.
+
+    Attributes
+    ----------
+    verdict : Verdict
+    candidates : tuple of Candidate
+        Best first (smallest p-value, then largest predicted drop).
+    n_tested : int
+        Number of candidates tested (the Bonferroni factor).
+    alpha : float
+        Family-wise false-alarm rate.
+    rms_pos_mm : float
+        Position RMS (3D) of the model against the measurements now.
+    rms_rot_mrad : float or None
+    noise_scale : float
+        σ̂ / σ assumed: ≈ 1 when the model explains the data down to the noise.
+    spectra : dict of str to list of float
+        Per joint (``j1`` …), the LM statistic of ``cyclic`` for harmonics 1, 2, …: the
+        residual spectrum against that joint's angle.
+    not_identifiable : tuple of str
+        Candidates the model already absorbs completely (with why).
+    notes : tuple of str
+    """
+
+    verdict: Verdict
+    candidates: tuple[Candidate, ...]
+    n_tested: int
+    alpha: float
+    rms_pos_mm: float
+    rms_rot_mrad: float | None
+    noise_scale: float
+    spectra: dict[str, list[float]] = field(default_factory=dict)
+    not_identifiable: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+
+    def to_dict(self, top: int | None = None) -> dict[str, Any]:
+        """The contract's JSON: ``verdict`` and ``candidates`` (best first), plus details."""
+        cands = self.candidates if top is None else self.candidates[:top]
+        return {
+            "verdict": self.verdict.value,
+            "candidates": [c.to_dict() for c in cands],
+            "n_tested": self.n_tested,
+            "alpha": self.alpha,
+            "rms_pos_mm": self.rms_pos_mm,
+            "rms_rot_mrad": self.rms_rot_mrad,
+            "noise_scale": self.noise_scale,
+            "spectra": self.spectra,
+            "not_identifiable": list(self.not_identifiable),
+            "notes": list(self.notes),
+        }
+
+    def summary(self, top: int = 5) -> list[str]:
+        """Lines for the command line and the TUI."""
+        rot = "" if self.rms_rot_mrad is None else f", rotation RMS {self.rms_rot_mrad:.3f} mrad"
+        lines = [
+            f"verdict: {self.verdict.value}  (position RMS {self.rms_pos_mm:.4f} mm{rot}; "
+            f"residual/noise {self.noise_scale:.2f}; {self.n_tested} candidates tested, "
+            f"family-wise false-alarm rate {self.alpha:g})"
+        ]
+        for i, c in enumerate(self.candidates[:top], 1):
+            mark = "*" if c.significant else " "
+            lines.append(
+                f"{mark}{i:2d}. {c.effect:<16} score {c.score:7.2f}  "
+                f"drop {c.predicted_rms_drop_mm:.4f} mm  — {c.evidence}"
+            )
+        if self.verdict is Verdict.ADEQUATE:
+            lines.append(
+                "no candidate is significant: the model explains the data down to the noise"
+            )
+        lines += list(self.notes)
+        return lines
+
+
+def _orthonormal_basis(J: F, rtol: float = 1e-9) -> F:
+    """Orthonormal basis of the column space of ``J`` (columns scaled to unit norm first)."""
+    norms = np.linalg.norm(J, axis=0)
+    Jn = J[:, norms > 0] / norms[norms > 0]
+    U, s, _ = np.linalg.svd(Jn, full_matrices=False)
+    return U[:, s > rtol * (s[0] if s.size else 1.0)]
+
+
+def rms_pos_mm(res: F) -> float:
+    """3D position RMS ``sqrt(mean |e|²)`` of residuals ``(n, ≥3)`` (m) in mm."""
+    return float(np.sqrt(np.mean(np.sum(res[:, :3] ** 2, axis=1))) * 1e3)
+
+
+def diagnose(
+    state: LoopState,
+    meas: Measurements,
+    candidates: Sequence[str] | None = None,
+    alpha: float = 0.01,
+    max_harmonic: int = 30,
+    problem: tuple[F, F] | None = None,
+) -> Diagnosis:
+    """Test the residuals of a fitted model for every candidate effect.
+
+    Parameters
+    ----------
+    state : LoopState
+        The fitted model (see :func:`state_from_fitted`).
+    meas : Measurements
+        The data it was fitted to (or new data of the same robot and set-up).
+    candidates : sequence of str, optional
+        Effect names to test (default: :func:`candidate_names`).  ``uniformscale`` may be
+        asked about: it is reported as not identifiable, with the reason.
+    alpha : float
+        Family-wise false-alarm rate of the Bonferroni-corrected test.
+    max_harmonic : int
+        Highest cyclic harmonic tested by default.
+    problem : (r, J), optional
+        Whitened residuals and Jacobian from the estimator (``whitened_problem``); by
+        default they are computed here with the same whitening.  Their row layout must be
+        the one of :func:`whitened` (per pose: x y z [rx ry rz]).
+
+    Returns
+    -------
+    Diagnosis
+    """
+    wp = whitened(state, meas)
+    r, J = (wp.r, wp.J) if problem is None else problem
+    names = (
+        list(candidates)
+        if candidates is not None
+        else candidate_names(state.robot, meas, state.effect_names, max_harmonic)
+    )
+    notes: list[str] = []
+    not_ident: list[str] = []
+    if "uniformscale" in names:
+        names.remove("uniformscale")
+        not_ident.append(f"uniformscale: {UNIFORM_SCALE_EXPLANATION}")
+    Q = _orthonormal_basis(J)
+    r_perp = r - Q @ (Q.T @ r)
+    rss = float(r_perp @ r_perp)
+    n_obs = r.size
+    dof_res = n_obs - Q.shape[1]
+    s2 = rss / max(dof_res, 1)
+    c = wp.n_comp
+    res_now = r.reshape(-1, c) * wp.sigma
+    rms_now = rms_pos_mm(res_now)
+    rms_rot = float(np.sqrt(np.mean(np.sum(res_now[:, 3:] ** 2, axis=1))) * 1e3) if c == 6 else None
+    m_tests = max(len(names), 1)
+    raw: list[tuple[float, Candidate]] = []
+    spectra: dict[str, list[float]] = {}
+    for name in names:
+        effect = parse_effect(name, state.robot)
+        missing = [col for col in effect.requires() if getattr(meas, col) is None]
+        if missing:
+            notes.append(f"{name} not tested: the data have no {', '.join(missing)} column")
+            continue
+        one = _one_step(wp, Q, r_perp, effect)
+        if one is None:
+            not_ident.append(
+                f"{name}: the fitted model already expresses it (its Jacobian lies in the "
+                "model's), so the data cannot tell it apart"
+            )
+            continue
+        k, S, theta, fit_res = one
+        F_stat = (S / k) / max((rss - S) / max(dof_res - k, 1), 1e-300)
+        logp = float(stats.f.logsf(F_stat, k, max(dof_res - k, 1)))
+        logp_adj = min(0.0, logp + np.log(m_tests))
+        p_adj = float(np.exp(logp_adj))
+        score = float(-logp_adj / np.log(10.0))
+        rms_after = rms_pos_mm(res_now - fit_res)
+        lm = S / s2
+        dbic = -S / s2 + k * np.log(n_obs)
+        cand = Candidate(
+            effect=effect.name,
+            score=score,
+            lm_statistic=float(lm),
+            dof=k,
+            p_value=p_adj,
+            delta_bic=float(dbic),
+            predicted_rms_drop_mm=float(rms_now - rms_after),
+            rms_after_mm=float(rms_after),
+            params=tuple(float(v) for v in theta),
+            significant=p_adj < alpha,
+            evidence="",
+        )
+        raw.append((logp_adj, cand))
+        if effect.name.startswith("cyclic:"):
+            _, jk, hm = effect.name.split(":")
+            spec_list = spectra.setdefault(jk, [])
+            h = int(hm[1:])
+            while len(spec_list) < h:
+                spec_list.append(0.0)
+            spec_list[h - 1] = float(lm)
+    raw.sort(key=lambda t: (t[0], -t[1].predicted_rms_drop_mm))
+    cands = tuple(
+        replace(c_, evidence=_evidence(c_, state, spectra, m_tests, rms_now)) for _, c_ in raw
+    )
+    verdict = Verdict.MISSING_EFFECT if cands and cands[0].significant else Verdict.ADEQUATE
+    noise_scale = float(np.sqrt(s2))
+    if verdict is Verdict.ADEQUATE and noise_scale > 1.5:
+        notes.append(
+            f"the residuals are {noise_scale:.1f}× the assumed instrument noise but have no "
+            "structure any candidate explains: the instrument may be worse than assumed, or "
+            "the error model's orders too low"
+        )
+    return Diagnosis(
+        verdict=verdict,
+        candidates=cands,
+        n_tested=m_tests,
+        alpha=alpha,
+        rms_pos_mm=rms_now,
+        rms_rot_mrad=rms_rot,
+        noise_scale=noise_scale,
+        spectra=spectra,
+        not_identifiable=tuple(not_ident),
+        notes=tuple(notes),
+    )
+
+
+def _one_step(
+    wp: WhitenedProblem, Q: F, r_perp: F, effect: Effect
+) -> tuple[int, float, F, F] | None:
+    """Linearised refit with one more effect: ``(k, S, θ, fitted residual change (n, c) SI)``.
+
+    ``None`` when the effect's columns lie in the model's column space (not identifiable).
+    """
+    c = wp.n_comp
+    Z = effect_jacobian(effect, wp.ctx, wp.sens)[:, :c, :] / wp.sigma[:, :, None]
+    Z = Z.reshape(-1, effect.n_params)
+    Zp = Z - Q @ (Q.T @ Z)
+    zn = np.linalg.norm(Z, axis=0)
+    U, sv, Vt = np.linalg.svd(Zp, full_matrices=False)
+    keep = sv > 1e-6 * max(float(zn.max()), 1e-300)
+    k = int(keep.sum())
+    if k == 0:
+        return None
+    Uk = U[:, keep]
+    proj = Uk.T @ r_perp
+    theta = Vt[keep].T @ (proj / sv[keep])
+    return k, float(proj @ proj), theta, (Uk @ proj).reshape(-1, c) * wp.sigma
+
+
+def _evidence(
+    c: Candidate,
+    state: LoopState,
+    spectra: dict[str, list[float]],
+    m_tests: int,
+    rms_now: float,
+) -> str:
+    effect = parse_effect(c.effect, state.robot)
+    what = effect.regressor_name
+    p = "p < 1e-300" if c.p_value == 0 else f"p = {c.p_value:.2g}"
+    base = (
+        f"residuals follow the {what}: score test χ² = {c.lm_statistic:.1f} on {c.dof} dof, "
+        f"{p} after Bonferroni over {m_tests} candidates; adding it would lower the position "
+        f"RMS from {rms_now:.4f} to {c.rms_after_mm:.4f} mm"
+    )
+    est = ", ".join(
+        f"{n} ≈ {v:.3g} {u}"
+        for n, v, u in zip(effect.param_names, c.params, effect.param_units, strict=False)
+    )
+    if c.effect.startswith("cyclic:"):
+        _, jk, hm = c.effect.split(":")
+        sp = np.asarray(spectra.get(jk, []))
+        h = int(hm[1:])
+        if sp.size > 1:
+            others = np.delete(sp, h - 1)
+            j2 = int(np.argmax(others))
+            j2 = j2 + 1 if j2 < h - 1 else j2 + 2
+            where = "peaks at" if sp[h - 1] >= others.max() else "has a side peak at"
+            base += (
+                f"; the residual spectrum against q{jk[1:]} {where} {h} cycles/rev "
+                f"(χ² {sp[h - 1]:.1f}; largest other harmonic {j2}: χ² {float(others.max()):.1f})"
+            )
+    if not c.significant:
+        base = "not significant: " + base
+    return f"{base} ({est})"
+
+
+def state_from_fitted(fitted: Any) -> LoopState:
+    """The diagnosis's view of a :class:`quickhealth.identify.fit.FittedModel`."""
+    noise = getattr(fitted, "noise", None)
+    return LoopState(
+        robot=fitted.robot,
+        spec=fitted.spec,
+        coeffs=np.asarray(fitted.coeffs, float),
+        T_instr_base0=np.asarray(fitted.T_instr_base0, float),
+        T_flange_target0=np.asarray(fitted.T_flange_target0, float),
+        effects=tuple(fitted.effects),
+        effect_params=tuple(np.asarray(p, float) for p in fitted.effect_params),
+        sigma_pos=float(getattr(noise, "sigma_pos", DEFAULT_SIGMA_POS)),
+        sigma_rot=float(getattr(noise, "sigma_rot", DEFAULT_SIGMA_ROT)),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Residual against a candidate's regressor (numbers for the TUI, figures for people)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class EffectView:
+    """Residuals seen through one effect, against its regressor.
+
+    Every pose's residual is expressed in the effect's own quantity (weighted least squares
+    per pose on the whitened residual): a joint effect shows the joint-angle error the
+    residual implies (mrad), thermal the link growth (ppm), drift the base motion along the
+    fitted drift (mm or mrad), depth scale the residual along the optical axis (mm).
+
+    Attributes
+    ----------
+    effect : str
+    x : ndarray, shape (n,)
+        The effect's regressor per pose (``x_label`` says what and in which unit).
+    x_label : str
+    implied : ndarray, shape (n,)
+        The effect's quantity the residual of each pose implies (``y_label``).
+    predicted : ndarray, shape (n,)
+        The same quantity from the effect at ``params``.
+    y_label : str
+    params : ndarray
+        The effect's parameters used for ``predicted`` (SI).
+    """
+
+    effect: str
+    x: F
+    x_label: str
+    implied: F
+    predicted: F
+    y_label: str
+    params: F
+
+
+def regressor_values(effect: Effect, ctx: EffectContext, T_model: F) -> tuple[F, str]:
+    """The effect's regressor per pose and its label (depth from the model for depthscale)."""
+    if effect.name == "depthscale":
+        return T_model[:, 2, 3], effect.regressor_name
+    return effect.regressor(ctx), effect.regressor_name
+
+
+def implied_channel(
+    effect: Effect,
+    params: F,
+    ctx: EffectContext,
+    sens: Sensitivities,
+    T_model: F,
+    residual: F,
+    sigma: F,
+) -> tuple[F, F, str]:
+    """Per-pose value of the effect's quantity implied by ``residual`` (n, c), and predicted.
+
+    Returns ``(implied, predicted, label)`` in display units (see :class:`EffectView`).
+    """
+    n, c = residual.shape
+    p = effect.perturbation(ctx, np.asarray(params, float))
+    if p.dq is not None and np.count_nonzero(np.any(p.dq != 0, axis=0)) <= 1:
+        cols = np.any(p.dq != 0, axis=0)
+        k = int(np.flatnonzero(cols)[0]) if cols.any() else _effect_joint(effect, ctx)
+        g, pred, scale = sens.dq[:, k], p.dq[:, k], 1e3
+        label = f"joint {k + 1} angle error (mrad)"
+    elif p.link_scale is not None:
+        g, pred, scale = sens.link_scale, p.link_scale, 1e6
+        label = "link growth (ppm)"
+    elif p.instr_scale_z is not None:
+        g = np.tile([0.0, 0.0, 1.0, 0.0, 0.0, 0.0], (n, 1))
+        pred, scale = p.instr_scale_z * T_model[:, 2, 3], 1e3
+        label = "residual along the instrument's optical axis (mm)"
+    elif p.base_twist is not None:
+        norm = np.linalg.norm(params)
+        u = np.asarray(params, float) / norm if norm > 0 else np.eye(effect.n_params)[0]
+        g = np.einsum("c,nck->nk", u[:6], sens.base_twist)
+        pred, scale = p.base_twist @ u[:6], 1e3
+        label = "base motion along the fitted drift (mm or mrad)"
+    else:
+        raise ValueError(f"{effect.name}: no channel to show")
+    gw = g[:, :c] / sigma
+    rw = residual / sigma
+    implied = np.einsum("nc,nc->n", gw, rw) / np.maximum(np.einsum("nc,nc->n", gw, gw), 1e-300)
+    return implied * scale, np.asarray(pred, float) * scale, label
+
+
+def _effect_joint(effect: Effect, ctx: EffectContext) -> int:
+    unit = np.ones(effect.n_params)
+    dq = effect.perturbation(ctx, unit).dq
+    assert dq is not None
+    return int(np.argmax(np.abs(dq).sum(0)))
+
+
+def effect_view(state: LoopState, meas: Measurements, effect_name: str) -> EffectView:
+    """Residuals of ``state`` seen through the effect ``effect_name``, against its regressor.
+
+    When the model has the effect, its fitted parameters are shown; otherwise the one-step
+    estimate of :func:`diagnose`.
+    """
+    effect = parse_effect(effect_name, state.robot)
+    wp = whitened(state, meas)
+    res = wp.r.reshape(-1, wp.n_comp) * wp.sigma
+    if effect.name in state.effect_names:
+        theta = np.asarray(state.effect_params[state.effect_names.index(effect.name)], float)
+    else:
+        Q = _orthonormal_basis(wp.J)
+        one = _one_step(wp, Q, wp.r - Q @ (Q.T @ wp.r), effect)
+        theta = np.zeros(effect.n_params) if one is None else one[2]
+    y, pred, ylabel = implied_channel(effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.sigma)
+    x, xlabel = regressor_values(effect, wp.ctx, wp.T_model)
+    if effect.name in state.effect_names:  # residual is what is left: show effect + residual
+        y = y + pred
+    return EffectView(effect.name, np.asarray(x, float), xlabel, y, pred, ylabel, theta)
+
+
+def plot_candidate(state: LoopState, meas: Measurements, effect_name: str) -> Any:
+    """Figure: the residual along the effect against its regressor, with what it explains.
+
+    Returns a matplotlib ``Figure`` (Agg; nothing is shown or saved).
+    """
+    from matplotlib.figure import Figure
+
+    v = effect_view(state, meas, effect_name)
+    fig = Figure(figsize=(7.0, 4.2), layout="constrained")
+    ax = fig.add_subplot()
+    lim = np.percentile(np.abs(v.implied), 98) * 1.3 if v.implied.size else 1.0
+    ax.scatter(v.x, np.clip(v.implied, -lim, lim), s=9, alpha=0.6, label="implied by the residual")
+    ax.plot(v.x, v.predicted, ".", color="C3", ms=4, label=f"{v.effect} (estimate)")
+    ax.axhline(0.0, color="0.5", lw=0.8)
+    ax.set_xlabel(v.x_label)
+    ax.set_ylabel(v.y_label)
+    ax.set_title(f"Residual against the regressor of {v.effect}")
+    ax.legend(loc="best", fontsize=8)
+    return fig
+
+
+def plot_spectrum(diag: Diagnosis) -> Any:
+    """Figure: the residual spectrum (cyclic score statistic per harmonic) of every joint."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.0, 4.2), layout="constrained")
+    ax = fig.add_subplot()
+    for jk, sp in sorted(diag.spectra.items()):
+        ax.plot(np.arange(1, len(sp) + 1), sp, marker=".", label=jk)
+    if diag.spectra:
+        dof = 2
+        crit = float(
+            stats.chi2.isf(diag.alpha / max(diag.n_tested, 1), dof)
+        )  # Bonferroni threshold
+        ax.axhline(crit, color="0.3", ls="--", lw=0.8, label="significance (Bonferroni)")
+    ax.set_xlabel("harmonic M (cycles per joint revolution)")
+    ax.set_ylabel("score statistic χ²")
+    ax.set_title("Residual spectrum against each joint angle")
+    ax.legend(loc="best", fontsize=8)
+    return fig
