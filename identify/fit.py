@@ -53,9 +53,8 @@ from .errormodel import (
 )
 from .errors import InputError
 from .measurements import Measurements
-from .robot import RobotModel, chain, gravity_torques
+from .robot import RobotModel, gravity_torques
 from .transforms import (
-    inv_T,
     kabsch,
     log_so3,
     make_T,

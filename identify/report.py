@@ -1,0 +1,109 @@
+"""Figures a user looks at (matplotlib, Agg): they are returned, never saved here.
+
+- :func:`workspace_histogram`: TCP error over the workspace (paper Fig. 7).
+- :func:`joint_curve_figure`: one joint's six error motions with confidence bands (Fig. 8).
+- :func:`residual_plot`: measured minus model per pose, so a user sees where the model fails.
+"""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+from .errormodel import MOTION_WORDS, MOTIONS  # noqa: E402
+from .fit import FittedModel  # noqa: E402
+from .measurements import Measurements  # noqa: E402
+from .workspace import JointCurves, WorkspaceError  # noqa: E402
+
+
+def workspace_histogram(ws: WorkspaceError, title: str = "") -> Figure:
+    """Histogram of the model's TCP position error over the sampled workspace (mm)."""
+    fig = Figure(figsize=(6.4, 4.0))
+    ax = fig.add_subplot(111)
+    e = ws.hist_edges * 1e3
+    ax.bar(
+        e[:-1], ws.hist_counts, width=np.diff(e), align="edge", color="#4477aa", edgecolor="white"
+    )
+    for v, lab, ls in ((ws.mean, "mean", "-"), (ws.p95, "95 %", "--"), (ws.max, "max", ":")):
+        ax.axvline(v * 1e3, color="k", ls=ls, lw=1)
+        ax.text(v * 1e3, ax.get_ylim()[1] * 0.95, f" {lab} {v * 1e3:.3f}", fontsize=8, va="top")
+    ax.set_xlabel("TCP position error from the model (mm)")
+    ax.set_ylabel(f"joint commands (of {ws.n_samples})")
+    ax.set_title(
+        title or f"Workspace TCP error: mean {ws.mean * 1e3:.3f} mm, std {ws.std * 1e3:.3f} mm"
+    )
+    fig.tight_layout()
+    return fig
+
+
+def joint_curve_figure(curves: JointCurves, truth: np.ndarray | None = None) -> Figure:
+    """Six panels: each error motion of one joint over its range with its band.
+
+    ``truth`` (6, k), optional: curves to overlay (synthetic checks).
+    """
+    fig = Figure(figsize=(9.0, 6.0))
+    th = np.degrees(curves.theta)
+    for m in range(6):
+        ax = fig.add_subplot(2, 3, m + 1)
+        v = curves.values[m] * 1e3
+        h = curves.half_width[m] * 1e3
+        ax.fill_between(
+            th, v - h, v + h, color="#88ccee", alpha=0.6, lw=0, label=f"{curves.level:.0%} band"
+        )
+        ax.plot(th, v, color="#224488", lw=1.5, label="identified")
+        if truth is not None:
+            ax.plot(th, truth[m] * 1e3, color="#cc3311", lw=1, ls="--", label="truth")
+        unit = "mm" if m < 3 else "mrad"
+        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=8)
+        ax.set_ylabel(unit, fontsize=8)
+        ax.tick_params(labelsize=7)
+        if m >= 3:
+            ax.set_xlabel(f"joint {curves.joint} angle (deg)", fontsize=8)
+        if m == 0:
+            ax.legend(fontsize=7)
+    fig.suptitle(f"Joint {curves.joint}: error motions")
+    fig.tight_layout()
+    return fig
+
+
+def residual_plot(fitted: FittedModel, meas: Measurements) -> Figure:
+    """Measured minus model per pose (execution order) and against each joint angle."""
+    rp = fitted.residual_pos * 1e3
+    n = rp.shape[0]
+    rows = 2 if fitted.residual_rot is not None else 1
+    fig = Figure(figsize=(10.0, 3.2 * (rows + 1)))
+    ax = fig.add_subplot(rows + 1, 1, 1)
+    idx = np.arange(1, n + 1)
+    for k, c in enumerate("xyz"):
+        ax.plot(idx, rp[:, k], ".", ms=3, label=f"{c}")
+    ax.plot(idx, np.linalg.norm(rp, axis=1), "k-", lw=0.6, label="|r|")
+    sp = fitted.noise.sigma_pos * 1e3
+    ax.axhspan(-2 * sp, 2 * sp, color="0.9", zorder=0, label="±2σ instrument")
+    ax.set_xlabel("pose (execution order)")
+    ax.set_ylabel("measured − model (mm)")
+    ax.legend(fontsize=7, ncol=5)
+    ax.set_title(f"Residuals: rms {fitted.rms_pos * 1e3:.4f} mm")
+    if fitted.residual_rot is not None:
+        ax2 = fig.add_subplot(rows + 1, 1, 2)
+        rr = np.degrees(fitted.residual_rot) * 1e3
+        for k, c in enumerate("xyz"):
+            ax2.plot(idx, rr[:, k], ".", ms=3, label=f"rot {c}")
+        ax2.set_xlabel("pose (execution order)")
+        ax2.set_ylabel("rotation residual (mdeg)")
+        ax2.legend(fontsize=7, ncol=3)
+    nj = meas.n_joints
+    qd = np.degrees(meas.q)
+    norm_r = np.linalg.norm(rp, axis=1)
+    for j in range(nj):
+        a = fig.add_subplot(rows + 1, nj, rows * nj + j + 1)
+        a.plot(qd[:, j], norm_r, ".", ms=2)
+        a.set_xlabel(f"q{j + 1} (deg)", fontsize=7)
+        a.tick_params(labelsize=6)
+        if j == 0:
+            a.set_ylabel("|r| (mm)", fontsize=7)
+    fig.tight_layout()
+    return fig

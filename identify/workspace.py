@@ -1,0 +1,209 @@
+"""What the identified model says about the robot (METHOD.md Sec. 5, paper Figs. 7–8).
+
+- :func:`workspace_error`: TCP error evaluated from the model over the whole joint range the
+  model covers (not only at measured poses): mean, standard deviation, maximum, histogram.
+- :func:`joint_curves`: each joint's six error motions over its range with confidence bands
+  from the estimate's covariance.
+- :func:`predict_commands`: predicted TCP error of new joint commands (a robot program before
+  it runs), with its standard uncertainty and flags above a threshold or outside the range the
+  model was identified on.
+
+The bands propagate the covariance of the estimate (sampling error).  They leave out model
+error (effects the model does not have) and coefficients the data could not identify (held
+at zero; see ``FittedModel.unidentifiable``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.stats import norm
+
+from .errormodel import MOTIONS, chebyshev_basis, chebyshev_u
+from .fit import FittedModel, Perturbation, _forward, _motion_jacobian
+
+F = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class WorkspaceError:
+    """Distribution of the model's TCP position error over uniformly sampled joint commands (m)."""
+
+    n_samples: int
+    mean: float
+    std: float
+    max: float
+    p95: float
+    q_worst: F  # (nj,) rad, the sampled command with the largest error
+    hist_counts: NDArray[np.int64]
+    hist_edges: F  # m
+
+    def as_dict(self) -> dict[str, object]:
+        """Numbers for report.json (mm)."""
+        return {
+            "n_samples": self.n_samples,
+            "mean_mm": self.mean * 1e3,
+            "std_mm": self.std * 1e3,
+            "max_mm": self.max * 1e3,
+            "p95_mm": self.p95 * 1e3,
+            "q_worst_deg": np.degrees(self.q_worst).tolist(),
+            "histogram": {
+                "counts": self.hist_counts.tolist(),
+                "edges_mm": (self.hist_edges * 1e3).tolist(),
+            },
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class JointCurves:
+    """The six error motions of one joint over its range, with confidence bands."""
+
+    joint: int  # 1-based
+    theta: F  # (k,) rad
+    values: F  # (6, k): δx δy δz (m), εx εy εz (rad)
+    sigma: F  # (6, k) standard uncertainty
+    level: float  # e.g. 0.95
+    half_width: F  # (6, k) band half-width at ``level``
+
+    def as_dict(self) -> dict[str, object]:
+        """Numbers for report.json (deg, mm, mrad)."""
+        scale = np.array([1e3, 1e3, 1e3, 1e3, 1e3, 1e3])[:, None]
+        return {
+            "joint": self.joint,
+            "theta_deg": np.degrees(self.theta).tolist(),
+            "level": self.level,
+            "units": {"dx": "mm", "dy": "mm", "dz": "mm", "ex": "mrad", "ey": "mrad", "ez": "mrad"},
+            "motions": {
+                m: {
+                    "value": (self.values[i] * scale[i]).tolist(),
+                    "half_width": (self.half_width[i] * scale[i]).tolist(),
+                }
+                for i, m in enumerate(MOTIONS)
+            },
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class CommandPrediction:
+    """Predicted TCP error of joint commands."""
+
+    T_instr_target: F  # (n, 4, 4)
+    err: F  # (n,) m
+    err_vec: F  # (n, 3) m, instrument frame
+    err_sigma: F  # (n,) m, standard uncertainty of err from the covariance
+    over_threshold: NDArray[np.bool_]  # (n,)
+    extrapolated: NDArray[np.bool_]  # (n,) some joint outside the identified range
+    threshold: float | None
+
+
+def workspace_error(
+    fitted: FittedModel, n_samples: int = 5000, seed: int = 0, bins: int = 40
+) -> WorkspaceError:
+    """TCP error from the model at ``n_samples`` joint commands uniform over the model's ranges."""
+    rng = np.random.default_rng(seed)
+    spec = fitted.spec
+    q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
+    err = fitted.tcp_error(q, approach=np.ones_like(q))
+    counts, edges = np.histogram(err, bins=bins, range=(0.0, float(err.max()) * 1.0001 + 1e-12))
+    return WorkspaceError(
+        n_samples=n_samples,
+        mean=float(err.mean()),
+        std=float(err.std()),
+        max=float(err.max()),
+        p95=float(np.percentile(err, 95)),
+        q_worst=q[int(np.argmax(err))],
+        hist_counts=counts,
+        hist_edges=edges,
+    )
+
+
+def joint_curves(
+    fitted: FittedModel, joint: int, n_points: int = 121, level: float = 0.95
+) -> JointCurves:
+    """Error motions of ``joint`` (1-based) over its identified range, with bands at ``level``."""
+    spec = fitted.spec
+    if not 1 <= joint <= spec.n_joints:
+        raise ValueError(f"joint must be 1..{spec.n_joints}, got {joint}")
+    j = joint - 1
+    theta = np.linspace(spec.q_lo[j], spec.q_hi[j], n_points)
+    u = chebyshev_u(theta, spec.q_lo[j], spec.q_hi[j])
+    idx = spec.index()
+    values = np.zeros((6, n_points))
+    sigma = np.zeros((6, n_points))
+    for m in range(6):
+        sel = np.flatnonzero((idx[:, 0] == joint) & (idx[:, 1] == m))
+        if sel.size == 0:
+            continue
+        B = chebyshev_basis(u, int(idx[sel, 2].max()))[:, idx[sel, 2]]  # (k, nc)
+        values[m] = B @ fitted.coeffs[sel]
+        C = fitted.cov[np.ix_(sel, sel)]
+        sigma[m] = np.sqrt(np.clip(np.einsum("ki,ij,kj->k", B, C, B), 0.0, None))
+    z = float(norm.ppf(0.5 + level / 2))
+    return JointCurves(joint, theta, values, sigma, level, z * sigma)
+
+
+def all_joint_curves(
+    fitted: FittedModel, n_points: int = 121, level: float = 0.95
+) -> list[JointCurves]:
+    """:func:`joint_curves` of every joint."""
+    return [joint_curves(fitted, j, n_points, level) for j in range(1, fitted.spec.n_joints + 1)]
+
+
+def predict_commands(
+    fitted: FittedModel,
+    q: ArrayLike,
+    threshold: float | None = None,
+    *,
+    time: ArrayLike | None = None,
+    temp: ArrayLike | None = None,
+) -> CommandPrediction:
+    """Predicted pose and TCP error for joint commands ``q`` (rad, (n, nj)), in program order.
+
+    ``threshold`` (m) flags commands whose predicted error exceeds it.  Commands with a joint
+    outside the range the model was identified on are flagged ``extrapolated``: the Chebyshev
+    series are not trusted there.
+    """
+    q = np.atleast_2d(np.asarray(q, float))
+    T = fitted.predict(q, time=time, temp=temp)
+    ev = fitted.tcp_error_vector(q, time=time, temp=temp)
+    err = np.linalg.norm(ev, axis=1)
+    Jt = _joint_coeff_position_jacobian(fitted, q)  # (n, 3, P)
+    sel = _joint_coeff_index(fitted)
+    C = fitted.cov[np.ix_(sel, sel)]
+    dirn = ev / np.maximum(err, 1e-15)[:, None]
+    g = np.einsum("ni,nip->np", dirn, Jt)
+    var = np.einsum("np,pq,nq->n", g, C, g)
+    spec = fitted.spec
+    extrap = np.any((q < spec.q_lo - 1e-9) | (q > spec.q_hi + 1e-9), axis=1)
+    over = err > threshold if threshold is not None else np.zeros(len(q), bool)
+    return CommandPrediction(T, err, ev, np.sqrt(np.clip(var, 0, None)), over, extrap, threshold)
+
+
+def _joint_coeff_index(fitted: FittedModel) -> NDArray[np.int64]:
+    idx = fitted.spec.index()
+    return np.flatnonzero((idx[:, 0] >= 1) & (idx[:, 0] <= fitted.spec.n_joints))
+
+
+def _joint_coeff_position_jacobian(fitted: FittedModel, q: F) -> F:
+    """∂(target position)/∂(joint Chebyshev coefficients), shape (n, 3, n_joint_coeffs)."""
+    spec = fitted.spec
+    T, A, mot = _forward(
+        fitted.robot,
+        spec,
+        fitted.coeffs,
+        fitted.T_instr_base0,
+        fitted.T_flange_target0,
+        q,
+        Perturbation(),
+    )
+    assert A is not None and mot is not None
+    Jm = _motion_jacobian(T, A, mot, None)[:, :3]  # (n, 3, nf, 6)
+    idx = spec.index()[_joint_coeff_index(fitted)]
+    if idx.size == 0:
+        return np.zeros((q.shape[0], 3, 0))
+    u = chebyshev_u(q, spec.q_lo, spec.q_hi)
+    B = chebyshev_basis(u, int(idx[:, 2].max()))  # (n, nj, K)
+    basis = B[:, idx[:, 0] - 1, idx[:, 2]]
+    return Jm[:, :, idx[:, 0], idx[:, 1]] * basis[:, None, :]

@@ -1,0 +1,428 @@
+"""``quickhealth identify``: fit the error model to measurements, predict new commands.
+
+quickhealth identify fit MEAS.csv --robot ROBOT --out DIR [--effects LIST] [--max-order N]
+    [--sigma-pos-mm S] [--sigma-rot-deg S] [--sigma-q-deg S] [--plots] [--auto-rescale]
+quickhealth identify predict DIR/model.json INPUT --out PRED.csv [--threshold-mm T]
+    INPUT: a measurement CSV, a CSV of joint columns only, or a URScript file (.script)
+    whose movej/movel joint targets are predicted.  Exit 1 if --threshold-mm is given and
+    some command's predicted error exceeds it.
+quickhealth identify import-wam WAM.csv --out MEAS.csv [--sign auto|+1|-1] [--robot R]
+    Converts the Barrett WAM laser-tracker files to CSV v1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+DEFAULT_SIGMA_POS_MM = 0.03
+DEFAULT_SIGMA_ROT_DEG = 0.0057  # 0.1 mrad
+
+
+def register(subparsers: Any) -> None:
+    """Add ``identify fit``, ``identify predict`` and ``identify import-wam``."""
+    p = subparsers.add_parser("identify", help="fit the error model; predict new commands")
+    sub = p.add_subparsers(dest="identify_command", metavar="SUBCOMMAND")
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+
+    f = sub.add_parser(
+        "fit",
+        help="fit the error model (BIC order search) and write model.json, report.json",
+        description="Implicit-loop ML fit of the paper's error model with BIC order selection.",
+    )
+    f.add_argument("meas", help="measurement file, CSV v1")
+    f.add_argument("--robot", required=True, help="built-in name (ur5) or .toml/.urdf file")
+    f.add_argument("--out", required=True, help="output directory")
+    f.add_argument("--effects", default=None, help="comma-separated effect names")
+    f.add_argument("--max-order", type=int, default=6, help="cap of every series' order (6)")
+    f.add_argument(
+        "--sigma-pos-mm",
+        type=float,
+        default=DEFAULT_SIGMA_POS_MM,
+        help=f"instrument position uncertainty per axis where the file has no sx..sz ({DEFAULT_SIGMA_POS_MM})",
+    )
+    f.add_argument(
+        "--sigma-rot-deg",
+        type=float,
+        default=DEFAULT_SIGMA_ROT_DEG,
+        help=f"instrument angle uncertainty where the file has no spitch.. ({DEFAULT_SIGMA_ROT_DEG})",
+    )
+    f.add_argument("--sigma-q-deg", type=float, default=0.0, help="joint encoder uncertainty (0)")
+    f.add_argument("--margin", type=float, default=None, help="BIC drop a raise must reach")
+    f.add_argument(
+        "--auto-rescale",
+        action="store_true",
+        help="rerun once with the suspected uncertainty raised if the chi2 check fails",
+    )
+    f.add_argument("--plots", action="store_true", help="also write PNG figures into DIR")
+    f.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    f.set_defaults(func=_fit)
+
+    pr = sub.add_parser("predict", help="predict poses and TCP errors of joint commands")
+    pr.add_argument("model", help="model.json written by identify fit")
+    pr.add_argument("input", help="CSV (measurement or joints only) or URScript (.script)")
+    pr.add_argument("--out", required=True, help="PRED.csv")
+    pr.add_argument("--threshold-mm", type=float, default=None, help="flag errors above this")
+    pr.set_defaults(func=_predict)
+
+    w = sub.add_parser("import-wam", help="convert the WAM laser-tracker files to CSV v1")
+    w.add_argument("wam", help="grid.csv or random.csv of the WAM data set")
+    w.add_argument("--out", required=True, help="CSV v1 file to write")
+    w.add_argument(
+        "--sign",
+        default="auto",
+        help="position = x_t + SIGN * dif; auto: the sign whose geometric fit has the lower chi2",
+    )
+    w.add_argument("--robot", default=None, help="robot file for --sign auto (WAM DH table)")
+    w.set_defaults(func=_import_wam)
+
+
+# --------------------------------------------------------------------------- fit
+
+
+def _positive(name: str, v: float) -> None:
+    from quickhealth.identify.errors import InputError
+
+    if not v > 0:
+        raise InputError(f"{name} must be > 0, got {v}")
+
+
+def _fit(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from quickhealth.identify.effects import parse_effects
+    from quickhealth.identify.errors import InputError
+    from quickhealth.identify.fit import InstrumentNoise
+    from quickhealth.identify.select import select_orders
+    from quickhealth.station import formats
+
+    _positive("--sigma-pos-mm", args.sigma_pos_mm)
+    _positive("--sigma-rot-deg", args.sigma_rot_deg)
+    if args.sigma_q_deg < 0:
+        raise InputError(f"--sigma-q-deg must be >= 0, got {args.sigma_q_deg}")
+    if not 0 <= args.max_order <= 40:
+        raise InputError(f"--max-order must be in 0..40, got {args.max_order}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a directory")
+    robot = formats.load_robot(args.robot)
+    meas = formats.read_measurements(args.meas, robot.n_joints)
+    effects = parse_effects(args.effects, robot)
+    noise = InstrumentNoise(
+        sigma_pos=args.sigma_pos_mm * 1e-3,
+        sigma_rot=float(np.radians(args.sigma_rot_deg)),
+        sigma_q=float(np.radians(args.sigma_q_deg)),
+    )
+    say = (lambda s: None) if args.quiet else (lambda s: print(f"  {s}", file=sys.stderr))
+    say(
+        f"{meas.n_poses} poses, {'full pose' if meas.has_orientation else 'position only'}; searching orders up to {args.max_order}"
+    )
+    try:
+        sel = select_orders(
+            robot,
+            meas,
+            effects,
+            noise=noise,
+            max_order=args.max_order,
+            margin=args.margin,
+            auto_rescale=args.auto_rescale,
+            progress=say,
+        )
+    except InputError as exc:
+        n_lines = len(Path(args.meas).read_text(encoding="utf-8").splitlines())
+        raise InputError(f"{args.meas}:{n_lines}:1: {exc}") from None
+    report = build_report(sel, meas, args)
+    figs = None
+    if args.plots:
+        figs = _figures(sel, meas)
+    # write everything into a temporary directory first: nothing half-written on failure
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".identify-", dir=out.parent))
+    try:
+        formats.write_model(tmp / "model.json", sel.fitted)
+        formats.write_report(tmp / "report.json", report)
+        formats.write_text_atomic(tmp / "residuals.csv", residual_table(sel.fitted, meas))
+        if figs:
+            for name, fig in figs.items():
+                fig.savefig(tmp / f"{name}.png", dpi=110)
+        out.mkdir(parents=True, exist_ok=True)
+        for f in tmp.iterdir():
+            shutil.move(str(f), out / f.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    for line in sel.fitted.summary() + sel.summary():
+        print(line)
+    ws = report["workspace"]
+    print(
+        f"workspace TCP error (model): mean {ws['mean_mm']:.3f} mm, std {ws['std_mm']:.3f} mm, "
+        f"max {ws['max_mm']:.3f} mm"
+    )
+    print(f"wrote {out / 'model.json'}, {out / 'report.json'}, {out / 'residuals.csv'}")
+    return 0
+
+
+def build_report(sel: Any, meas: Any, args: argparse.Namespace | None = None) -> dict[str, Any]:
+    """report.json content for a selection."""
+    import numpy as np
+
+    from quickhealth.identify.workspace import all_joint_curves, workspace_error
+
+    fm = sel.fitted
+    spec = fm.spec
+    ws = workspace_error(fm)
+    rep: dict[str, Any] = {
+        "n_poses": fm.n_poses,
+        "n_params": fm.n_free,
+        "n_params_total": int(fm.params.size),
+        "bic": fm.bic,
+        "chi2": fm.chi2_data,
+        "chi2_with_prior": fm.chi2,
+        "dof": fm.dof,
+        "rms_pos_mm": fm.rms_pos * 1e3,
+        "converged": fm.converged,
+        "robot": fm.robot.name,
+        "effects": [e.name for e in fm.effects],
+        "orders": {
+            spec.frame_name(f): dict(
+                zip(("dx", "dy", "dz", "ex", "ey", "ez"), spec.orders[f].tolist(), strict=True)
+            )
+            for f in range(spec.orders.shape[0])
+        },
+        "joint_range_deg": {
+            "lo": np.degrees(spec.q_lo).tolist(),
+            "hi": np.degrees(spec.q_hi).tolist(),
+        },
+        "unidentifiable": list(fm.unidentifiable),
+        "chi2_check": {
+            "verdict": sel.chi2_check.verdict,
+            "ratio_to_median": sel.chi2_check.ratio_to_median,
+            "message": sel.chi2_check.message,
+        },
+        "search": {
+            "margin": sel.margin,
+            "n_fits": sel.n_fits,
+            "n_scored": sel.n_scored,
+            "steps": [
+                {
+                    "kind": s.kind,
+                    "motion": s.motion,
+                    "from": s.from_order,
+                    "to": s.to_order,
+                    "bic_linear": s.bic_linear,
+                    "bic": s.bic,
+                    "accepted": s.accepted,
+                }
+                for s in sel.trace
+            ],
+            "rescaled": list(sel.rescaled),
+        },
+        "noise": {
+            "sigma_pos_mm": sel.noise.sigma_pos * 1e3,
+            "sigma_rot_deg": float(np.degrees(sel.noise.sigma_rot)),
+            "sigma_q_deg": float(np.degrees(sel.noise.sigma_q)),
+            "per_row": meas.sigma_pos is not None,
+        },
+        "summary": fm.summary() + sel.summary(),
+        "workspace": ws.as_dict(),
+        "joint_curves": [c.as_dict() for c in all_joint_curves(fm, n_points=61)],
+        "residuals": _residual_records(fm, meas),
+    }
+    if fm.rms_rot is not None:
+        rep["rms_rot_deg"] = float(np.degrees(fm.rms_rot))
+    if args is not None:
+        rep["input"] = str(args.meas)
+    return rep
+
+
+def _residual_records(fm: Any, meas: Any) -> list[dict[str, Any]]:
+    import numpy as np
+
+    rp = fm.residual_pos * 1e3
+    out = []
+    for i in range(fm.n_poses):
+        r: dict[str, Any] = {
+            "row": i + 1,
+            "pose_id": None if meas.pose_id is None else meas.pose_id[i],
+            "pos_mm": rp[i].tolist(),
+            "norm_mm": float(np.linalg.norm(rp[i])),
+        }
+        if fm.residual_rot is not None:
+            r["rot_deg"] = np.degrees(fm.residual_rot[i]).tolist()
+        out.append(r)
+    return out
+
+
+def residual_table(fm: Any, meas: Any) -> str:
+    """Per-pose measured-minus-model table (CSV: mm, deg)."""
+    import numpy as np
+
+    cols = ["row", "pose_id"] + [f"q{i + 1}" for i in range(meas.n_joints)]
+    cols += ["rx_mm", "ry_mm", "rz_mm", "r_mm"]
+    if fm.residual_rot is not None:
+        cols += ["rrx_deg", "rry_deg", "rrz_deg"]
+    lines = [",".join(cols)]
+    qd = np.degrees(meas.q)
+    for i in range(fm.n_poses):
+        rp = fm.residual_pos[i] * 1e3
+        v = [str(i + 1), "" if meas.pose_id is None else meas.pose_id[i]]
+        v += [f"{x:.6f}" for x in qd[i]]
+        v += [f"{x:.6f}" for x in rp] + [f"{np.linalg.norm(rp):.6f}"]
+        if fm.residual_rot is not None:
+            v += [f"{x:.7f}" for x in np.degrees(fm.residual_rot[i])]
+        lines.append(",".join(v))
+    return "\n".join(lines) + "\n"
+
+
+def _figures(sel: Any, meas: Any) -> dict[str, Any]:
+    from quickhealth.identify import report
+    from quickhealth.identify.workspace import all_joint_curves, workspace_error
+
+    fm = sel.fitted
+    figs = {
+        "workspace_histogram": report.workspace_histogram(workspace_error(fm)),
+        "residuals": report.residual_plot(fm, meas),
+    }
+    for c in all_joint_curves(fm):
+        figs[f"joint{c.joint}_curves"] = report.joint_curve_figure(c)
+    return figs
+
+
+# --------------------------------------------------------------------------- predict
+
+
+def _predict(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from quickhealth.identify.errors import InputError
+    from quickhealth.identify.transforms import R_to_rpy
+    from quickhealth.identify.workspace import predict_commands
+    from quickhealth.station import formats
+
+    if args.threshold_mm is not None:
+        _positive("--threshold-mm", args.threshold_mm)
+    fm = formats.read_model(args.model)
+    nj = fm.robot.n_joints
+    inp = Path(args.input)
+    meas = None
+    if inp.suffix.lower() in (".script", ".urscript", ".urp"):
+        q, src_lines = formats.read_urscript_joints(inp, nj)
+        time = temp = None
+    else:
+        meas = formats.read_measurements(inp, nj, joints_only=True)
+        q, time, temp = meas.q, meas.time, meas.temp
+        src_lines = None
+    for e in fm.effects:
+        for col in e.requires():
+            if (time if col == "time" else temp if col == "temp" else 0) is None:
+                raise InputError(
+                    f"{inp}:1:1: the model's effect {e.name!r} needs the {col!r} column"
+                )
+    thr = None if args.threshold_mm is None else args.threshold_mm * 1e-3
+    pred = predict_commands(fm, q, thr, time=time, temp=temp)
+    cols = ["row"]
+    if src_lines is not None:
+        cols.append("line")
+    if meas is not None and meas.pose_id is not None:
+        cols.append("pose_id")
+    cols += [f"q{i + 1}" for i in range(nj)] + ["x", "y", "z"]
+    if fm.has_orientation:
+        cols += ["pitch", "yaw", "roll"]
+    cols += ["err_mm", "err_sigma_mm", "extrapolated"]
+    has_meas = meas is not None and not np.all(np.isnan(meas.pos))
+    if has_meas:
+        cols += ["meas_minus_model_mm"]
+    if thr is not None:
+        cols += ["over_threshold"]
+    qd = np.degrees(q)
+    xyz = pred.T_instr_target[:, :3, 3] * 1e3
+    rpy = np.degrees(R_to_rpy(pred.T_instr_target[:, :3, :3]))
+    lines = [",".join(cols)]
+    for i in range(len(q)):
+        v = [str(i + 1)]
+        if src_lines is not None:
+            v.append(str(src_lines[i]))
+        if meas is not None and meas.pose_id is not None:
+            v.append(meas.pose_id[i])
+        v += [f"{x:.6f}" for x in qd[i]] + [f"{x:.6f}" for x in xyz[i]]
+        if fm.has_orientation:
+            v += [f"{x:.7f}" for x in rpy[i]]
+        v += [
+            f"{pred.err[i] * 1e3:.6f}",
+            f"{pred.err_sigma[i] * 1e3:.6f}",
+            str(int(pred.extrapolated[i])),
+        ]
+        if has_meas:
+            assert meas is not None
+            v.append(f"{np.linalg.norm(meas.pos[i] * 1e3 - xyz[i]):.6f}")
+        if thr is not None:
+            v.append(str(int(pred.over_threshold[i])))
+        lines.append(",".join(v))
+    formats.write_text_atomic(args.out, "\n".join(lines) + "\n")
+    n_over = int(pred.over_threshold.sum())
+    msg = (
+        f"{len(q)} commands: predicted TCP error mean {pred.err.mean() * 1e3:.3f} mm, "
+        f"max {pred.err.max() * 1e3:.3f} mm (row {int(np.argmax(pred.err)) + 1})"
+    )
+    if pred.extrapolated.any():
+        msg += f"; {int(pred.extrapolated.sum())} outside the identified joint range"
+    if has_meas:
+        assert meas is not None
+        d = np.linalg.norm(meas.pos * 1e3 - xyz, axis=1)
+        msg += (
+            f"; measured minus model: mean {d.mean():.3f} mm, rms {np.sqrt(np.mean(d**2)):.3f} mm"
+        )
+    print(msg)
+    print(f"wrote {args.out}")
+    if thr is not None:
+        print(f"{n_over} commands above {args.threshold_mm} mm")
+        return 1 if n_over else 0
+    return 0
+
+
+# --------------------------------------------------------------------------- WAM import
+
+
+def wam_sign(robot: Any, path: str | Path) -> tuple[float, dict[float, float]]:
+    """The sign of the ``dif`` columns: the one whose geometric-model fit has the lower χ²."""
+    from quickhealth.identify.fit import InstrumentNoise, fit_model
+    from quickhealth.identify.select import data_spec
+    from quickhealth.station import formats
+
+    chi = {}
+    for s in (1.0, -1.0):
+        m = formats.read_wam_csv(path, s)
+        fm = fit_model(robot, m, data_spec(robot, m), noise=InstrumentNoise(sigma_pos=1e-3))
+        chi[s] = fm.chi2_data
+    return (1.0 if chi[1.0] <= chi[-1.0] else -1.0), chi
+
+
+def _import_wam(args: argparse.Namespace) -> int:
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station import formats
+
+    if args.sign == "auto":
+        if args.robot is None:
+            raise InputError("--sign auto needs --robot (the WAM description file)")
+        robot = formats.load_robot(args.robot)
+        sign, chi = wam_sign(robot, args.wam)
+        print(
+            f"sign from the data: chi2 {chi[1.0]:.1f} (+1) vs {chi[-1.0]:.1f} (-1): using {sign:+.0f}"
+        )
+    else:
+        try:
+            sign = float(args.sign)
+        except ValueError:
+            raise InputError(f"--sign must be auto, +1 or -1, got {args.sign!r}") from None
+        if sign not in (1.0, -1.0):
+            raise InputError(f"--sign must be auto, +1 or -1, got {args.sign!r}")
+    m = formats.read_wam_csv(args.wam, sign)
+    from dataclasses import replace
+
+    m = replace(m, meta={**m.meta, "position": f"x_t + ({sign:+.0f}) * dif"})
+    formats.write_measurements(args.out, m)
+    print(f"wrote {args.out}: {m.n_poses} poses, position only")
+    return 0
