@@ -1,0 +1,477 @@
+"""The run archive: one folder per run plus an index, for many robots over months.
+
+Layout (``ROOT`` from ``--archive DIR``, else ``$QUICKHEALTH_ARCHIVE``, else
+``~/quickhealth-archive``)::
+
+    ROOT/index.sqlite                      the index (or a PostgreSQL database, see below)
+    ROOT/robots/<robot>/<run_id>/          a copy of the run folder: measurements.csv,
+                                           model.json, report.json, plan.json, images …
+
+The index holds one row per run (time, plan hash, cell, calibration id, software version,
+the main figures, healthy or not) and one per robot (its explicit baseline, if set).  The
+baseline of a robot is the run set with :meth:`Archive.set_baseline`, else its first healthy
+run.  Robot names and run ids are plain names (letters, digits, ``._-``, no ``..``): they can
+never point outside ``ROOT``.
+
+A fleet can share one index: pass an SQLAlchemy URL (``postgresql+psycopg://user@host/db``)
+as ``url``; the run folders then live under ``ROOT`` on a shared file system.  SQLite is the
+default (``sqlite:///ROOT/index.sqlite``).
+
+SYNOPSIS::
+
+    arch = Archive.open("/data/qh-archive")
+    rec = arch.add_run("ur5-cell3", "runs/2026-11-22", run_id="2026-11-22")
+    arch.set_baseline("ur5-cell3", rec.run_id)
+    states = [arch.run_state(r) for r in arch.runs("ur5-cell3")]
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from quickhealth.identify.errormodel import ErrorModelSpec
+from quickhealth.identify.errors import InputError
+from quickhealth.identify.trend import FIGURES, RunState
+
+ENV_VAR = "QUICKHEALTH_ARCHIVE"
+META_KEYS: tuple[str, ...] = ("plan_hash", "cell", "calibration_id", "software_version")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
+
+
+def safe_name(name: str, what: str) -> str:
+    """Check that a robot name or run id is a plain name that stays inside the archive.
+
+    Raises
+    ------
+    InputError
+        For empty names, path separators, ``..``, or characters outside ``[A-Za-z0-9._-]``.
+    """
+    if not isinstance(name, str) or not _NAME.match(name) or ".." in name:
+        raise InputError(
+            f"{what} {name!r} is not allowed: use letters, digits, '.', '_' and '-' "
+            "(at most 100, starting with a letter or digit, no '..')"
+        )
+    return name
+
+
+def default_root() -> Path:
+    """``$QUICKHEALTH_ARCHIVE`` if set, else ``~/quickhealth-archive``."""
+    env = os.environ.get(ENV_VAR)
+    return Path(env) if env else Path.home() / "quickhealth-archive"
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One archived run as the index holds it (figures in mm, time in UTC)."""
+
+    robot: str
+    run_id: str
+    time_utc: str  # ISO 8601
+    path: str  # relative to the archive root
+    plan_hash: str = ""
+    cell: str = ""
+    calibration_id: str = ""
+    software_version: str = ""
+    mean_mm: float = math.nan
+    std_mm: float = math.nan
+    max_mm: float = math.nan
+    healthy: bool | None = None
+    baseline: bool = False
+
+    @property
+    def t_s(self) -> float:
+        """Unix time of the run (s)."""
+        return _parse_time(self.time_utc).timestamp()
+
+    @property
+    def figures_mm(self) -> dict[str, float]:
+        """``{"mean": …, "std": …, "max": …}`` (mm)."""
+        return {"mean": self.mean_mm, "std": self.std_mm, "max": self.max_mm}
+
+    @property
+    def meta(self) -> dict[str, str]:
+        """Plan hash, cell, calibration id and software version."""
+        return {k: getattr(self, k) for k in META_KEYS}
+
+
+def _parse_time(s: str) -> datetime:
+    try:
+        t = datetime.fromisoformat(s.replace("Z", "+00:00"))
+    except ValueError as exc:
+        raise InputError(f"time {s!r} is not ISO 8601 (e.g. 2026-11-22T10:30:00Z)") from exc
+    return t if t.tzinfo else t.replace(tzinfo=UTC)
+
+
+def _iso(t: datetime) -> str:
+    return t.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+# ------------------------------------------------------------------ reading a run folder
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from exc
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a JSON object")
+    return doc
+
+
+def _csv_meta(path: Path) -> dict[str, str]:
+    """``# key: value`` comment lines at the top of a CSV v1 file."""
+    out: dict[str, str] = {}
+    with path.open() as fh:
+        for line in fh:
+            if not line.startswith("#"):
+                break
+            key, sep, value = line[1:].partition(":")
+            if sep:
+                out[key.strip()] = value.strip()
+    return out
+
+
+def run_metadata(run_dir: Path) -> dict[str, str]:
+    """Metadata of a run folder: plan hash, cell, calibration id, software version, time, robot.
+
+    Looked up, later sources winning: ``measurements.csv`` comments, ``run.json``,
+    ``report.json`` (top level or its ``meta``/``run`` object), and the plan's ``plan_hash``.
+    """
+    meta: dict[str, str] = {}
+    meas = run_dir / "measurements.csv"
+    if meas.is_file():
+        meta.update(_csv_meta(meas))
+    for name in ("run.json", "report.json"):
+        p = run_dir / name
+        if not p.is_file():
+            continue
+        doc = _read_json(p)
+        for src in (doc, doc.get("meta", {}), doc.get("run", {})):
+            if isinstance(src, dict):
+                meta.update({k: str(v) for k, v in src.items() if isinstance(v, str | int)})
+    plan = run_dir / "plan.json"
+    if "plan_hash" not in meta and plan.is_file():
+        doc = _read_json(plan)
+        if isinstance(doc.get("plan_hash"), str):
+            meta["plan_hash"] = doc["plan_hash"]
+    for alias, key in (("calibration", "calibration_id"), ("version", "software_version")):
+        if key not in meta and alias in meta:
+            meta[key] = meta[alias]
+    return meta
+
+
+def report_figures(report: Mapping[str, Any]) -> tuple[dict[str, float], dict[str, float]]:
+    """Main figures (mm) and their standard uncertainties (mm) from a report.json object.
+
+    Accepts ``{"workspace": {"mean_mm": …, "std_mm": …, "max_mm": …, "mean_sigma_mm": …}}``
+    or the same keys with a ``workspace_`` prefix at the top level.
+    """
+    ws = report.get("workspace")
+    src: Mapping[str, Any] = ws if isinstance(ws, Mapping) else {}
+    figs, sig = {}, {}
+    for f in FIGURES:
+        for key, dst in ((f"{f}_mm", figs), (f"{f}_sigma_mm", sig)):
+            v = src.get(key, report.get(f"workspace_{key}"))
+            if isinstance(v, int | float) and math.isfinite(v):
+                dst[f] = float(v)
+    return figs, sig
+
+
+def model_arrays(
+    doc: Mapping[str, Any], name: str = "model.json"
+) -> tuple[ErrorModelSpec, np.ndarray, np.ndarray | None]:
+    """Error-model spec, Chebyshev coefficients (SI) and their covariance from a model.json object.
+
+    The covariance is the Chebyshev block of the fit's covariance (effect parameters left out).
+    """
+    from quickhealth.station import formats
+
+    fitted = formats.model_from_json(dict(doc), name)
+    n = fitted.spec.n_params
+    return fitted.spec, np.asarray(fitted.coeffs, float), np.asarray(fitted.cov, float)[:n, :n]
+
+
+# ---------------------------------------------------------------------------- the archive
+
+
+class Archive:
+    """Run folders under ``root`` plus an index (SQLite by default, any SQLAlchemy URL)."""
+
+    def __init__(self, root: Path, url: str | None = None) -> None:
+        import sqlalchemy as sa
+
+        self.root = Path(root).resolve()
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.url = url or f"sqlite:///{self.root / 'index.sqlite'}"
+        self._sa = sa
+        self.engine = sa.create_engine(self.url)
+        md = sa.MetaData()
+        self.t_runs = sa.Table(
+            "runs",
+            md,
+            sa.Column("robot", sa.String(100), primary_key=True),
+            sa.Column("run_id", sa.String(100), primary_key=True),
+            sa.Column("time_utc", sa.String(32), nullable=False),
+            sa.Column("path", sa.String(300), nullable=False),
+            *(sa.Column(k, sa.String(200), nullable=False, default="") for k in META_KEYS),
+            sa.Column("mean_mm", sa.Float),
+            sa.Column("std_mm", sa.Float),
+            sa.Column("max_mm", sa.Float),
+            sa.Column("healthy", sa.Boolean, nullable=True),
+        )
+        self.t_robots = sa.Table(
+            "robots",
+            md,
+            sa.Column("robot", sa.String(100), primary_key=True),
+            sa.Column("baseline_run_id", sa.String(100), nullable=True),
+        )
+        md.create_all(self.engine)
+
+    @classmethod
+    def open(cls, root: str | Path | None = None, url: str | None = None) -> Archive:
+        """The archive at ``root`` (default :func:`default_root`), created if missing."""
+        return cls(Path(root) if root else default_root(), url)
+
+    # ---- paths
+    def run_path(self, robot: str, run_id: str) -> Path:
+        """Folder of a run; never outside the archive root."""
+        p = (
+            self.root / "robots" / safe_name(robot, "robot") / safe_name(run_id, "run id")
+        ).resolve()
+        if not p.is_relative_to(self.root):
+            raise InputError(f"run {robot}/{run_id} would lie outside the archive {self.root}")
+        return p
+
+    # ---- writing
+    def add_run(
+        self,
+        robot: str,
+        run_dir: str | Path,
+        *,
+        run_id: str | None = None,
+        time_utc: str | None = None,
+        meta: Mapping[str, str] | None = None,
+        healthy: bool | None = None,
+        replace_existing: bool = False,
+    ) -> RunRecord:
+        """Copy a run folder into the archive and index it.
+
+        Parameters
+        ----------
+        robot : str
+        run_dir : path
+            A run folder (at least ``report.json``; ``model.json`` for the curve comparison).
+        run_id : str, optional
+            Default: the folder's ``run_id`` metadata, else the folder name.
+        time_utc : str, optional
+            ISO 8601; default the folder's ``time_utc``/``started_utc`` metadata, else the
+            modification time of its report.json.
+        meta : mapping, optional
+            Overrides plan_hash, cell, calibration_id, software_version.
+        healthy : bool, optional
+            Default: the report's ``healthy`` entry if present, else unknown (counts as healthy
+            for choosing the first baseline).
+
+        Returns
+        -------
+        RunRecord
+        """
+        src = Path(run_dir)
+        if not src.is_dir():
+            raise InputError(f"{src}: not a run folder")
+        report_p = src / "report.json"
+        if not report_p.is_file():
+            raise InputError(f"{src}: no report.json (fit the run first: quickhealth identify fit)")
+        report = _read_json(report_p)
+        found = run_metadata(src)
+        found.update(meta or {})
+        robot = safe_name(robot, "robot")
+        rid = run_id if run_id is not None else (found.get("run_id") or src.resolve().name)
+        rid = safe_name(rid, "run id")
+        when = time_utc or found.get("time_utc") or found.get("started_utc")
+        if when:
+            t_iso = _iso(_parse_time(when))
+        else:
+            t_iso = _iso(datetime.fromtimestamp(report_p.stat().st_mtime, UTC))
+        if not found.get("software_version"):
+            found["software_version"] = _software_version()
+        figs, _ = report_figures(report)
+        if healthy is None and isinstance(report.get("healthy"), bool):
+            healthy = report["healthy"]
+        dst = self.run_path(robot, rid)
+        if dst.exists() and dst.resolve() != src.resolve():
+            if not replace_existing:
+                raise InputError(f"run {robot}/{rid} is already archived (use another run id)")
+            shutil.rmtree(dst)
+        if dst.resolve() != src.resolve():
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copytree(src, dst)
+        rec = RunRecord(
+            robot=robot,
+            run_id=rid,
+            time_utc=t_iso,
+            path=str(dst.relative_to(self.root)),
+            **{k: str(found.get(k, "")) for k in META_KEYS},
+            mean_mm=figs.get("mean", math.nan),
+            std_mm=figs.get("std", math.nan),
+            max_mm=figs.get("max", math.nan),
+            healthy=healthy,
+        )
+        sa = self._sa
+        row = {k: v for k, v in rec.__dict__.items() if k != "baseline"}
+        row = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
+        with self.engine.begin() as con:
+            con.execute(
+                sa.delete(self.t_runs).where(
+                    (self.t_runs.c.robot == robot) & (self.t_runs.c.run_id == rid)
+                )
+            )
+            con.execute(sa.insert(self.t_runs).values(**row))
+            exists = con.execute(
+                sa.select(self.t_robots.c.robot).where(self.t_robots.c.robot == robot)
+            ).first()
+            if exists is None:
+                con.execute(sa.insert(self.t_robots).values(robot=robot, baseline_run_id=None))
+        return self.get(robot, rid)
+
+    def update_figures(self, robot: str, run_id: str, figures_mm: Mapping[str, float]) -> None:
+        """Replace a run's indexed figures (after reprocessing)."""
+        sa = self._sa
+        vals = {f"{f}_mm": float(v) for f, v in figures_mm.items() if f in FIGURES}
+        with self.engine.begin() as con:
+            con.execute(
+                sa.update(self.t_runs)
+                .where((self.t_runs.c.robot == robot) & (self.t_runs.c.run_id == run_id))
+                .values(**vals)
+            )
+
+    def set_baseline(self, robot: str, run_id: str | None) -> None:
+        """Make ``run_id`` the robot's baseline (None: back to the first healthy run)."""
+        if run_id is not None:
+            self.get(robot, run_id)  # must exist
+        sa = self._sa
+        with self.engine.begin() as con:
+            con.execute(
+                sa.update(self.t_robots)
+                .where(self.t_robots.c.robot == safe_name(robot, "robot"))
+                .values(baseline_run_id=run_id)
+            )
+
+    def set_healthy(self, robot: str, run_id: str, healthy: bool | None) -> None:
+        """Mark a run healthy or not (used to choose the first healthy baseline)."""
+        self.get(robot, run_id)
+        sa = self._sa
+        with self.engine.begin() as con:
+            con.execute(
+                sa.update(self.t_runs)
+                .where((self.t_runs.c.robot == robot) & (self.t_runs.c.run_id == run_id))
+                .values(healthy=healthy)
+            )
+
+    # ---- reading
+    def robots(self) -> list[str]:
+        """Every robot in the archive, sorted."""
+        sa = self._sa
+        with self.engine.connect() as con:
+            return sorted(r[0] for r in con.execute(sa.select(self.t_robots.c.robot)))
+
+    def _records(self, robot: str) -> Iterator[RunRecord]:
+        sa = self._sa
+        t = self.t_runs
+        with self.engine.connect() as con:
+            rows = con.execute(
+                sa.select(t).where(t.c.robot == robot).order_by(t.c.time_utc, t.c.run_id)
+            ).mappings()
+            for r in rows:
+                d = dict(r)
+                for f in FIGURES:
+                    if d[f"{f}_mm"] is None:
+                        d[f"{f}_mm"] = math.nan
+                yield RunRecord(**d)
+
+    def runs(self, robot: str) -> list[RunRecord]:
+        """The robot's runs in time order, the baseline marked.
+
+        Raises
+        ------
+        InputError
+            Unknown robot.
+        """
+        robot = safe_name(robot, "robot")
+        recs = list(self._records(robot))
+        if not recs:
+            known = ", ".join(self.robots()) or "none"
+            raise InputError(
+                f"robot {robot!r} has no runs in the archive {self.root} (robots: {known})"
+            )
+        b = self._baseline_id(robot, recs)
+        return [replace(r, baseline=r.run_id == b) for r in recs]
+
+    def _baseline_id(self, robot: str, recs: list[RunRecord]) -> str | None:
+        sa = self._sa
+        with self.engine.connect() as con:
+            row = con.execute(
+                sa.select(self.t_robots.c.baseline_run_id).where(self.t_robots.c.robot == robot)
+            ).first()
+        if row is not None and row[0] is not None:
+            return str(row[0])
+        return next((r.run_id for r in recs if r.healthy is not False), None)
+
+    def baseline(self, robot: str) -> RunRecord | None:
+        """The explicit baseline, else the first healthy run, else None."""
+        return next((r for r in self.runs(robot) if r.baseline), None)
+
+    def get(self, robot: str, run_id: str) -> RunRecord:
+        """One run's record."""
+        for r in self.runs(robot):
+            if r.run_id == run_id:
+                return r
+        raise InputError(f"run {run_id!r} of robot {robot!r} is not in the archive {self.root}")
+
+    def folder(self, rec: RunRecord) -> Path:
+        """The run's folder in the archive."""
+        return self.run_path(rec.robot, rec.run_id)
+
+    def run_state(self, rec: RunRecord) -> RunState:
+        """What the trend needs of a run: figures and their uncertainty, error model, metadata."""
+        folder = self.folder(rec)
+        figs, sig = rec.figures_mm, {}
+        rp = folder / "report.json"
+        if rp.is_file():
+            f2, sig = report_figures(_read_json(rp))
+            figs = {**figs, **{k: v for k, v in f2.items() if math.isnan(figs.get(k, math.nan))}}
+        spec = coeffs = cov = None
+        mp = folder / "model.json"
+        if mp.is_file():
+            spec, coeffs, cov = model_arrays(_read_json(mp), str(mp))
+        return RunState(
+            run_id=rec.run_id,
+            t_s=rec.t_s,
+            figures_mm=figs,
+            spec=spec,
+            coeffs=coeffs,
+            cov=cov,
+            figure_sigma_mm=sig,
+            meta=rec.meta,
+        )
+
+
+def _software_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("quickhealth")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        return "unknown"

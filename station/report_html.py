@@ -1,0 +1,625 @@
+"""The run report: one self-contained HTML file (plots embedded as PNG) and the same as JSON.
+
+Sections, in the order a reader needs them:
+
+1. summary          robot, run, plan hash, cell, calibration, software; the fit's lines
+2. plan coverage    commanded joint angles over each joint's range and the TCP positions
+                    (paper Fig. 6)
+3. workspace error  histogram of the model's TCP error over the whole workspace (Fig. 7)
+4. error curves     each joint's six error motions with 95 % bands (Fig. 8)
+5. residuals        measured minus model, per pose and against each joint angle
+6. diagnosis        which physical effect the model misses, if any
+7. trend            the robot's figures over time against its baseline, control limits,
+                    root-cause hints (when the run is archived)
+8. ISO 9283         pose accuracy AP and repeatability RP at plan poses visited repeatedly
+
+``build_report`` gathers the numbers and figures from a run folder; ``render_html`` turns them
+into the page.  ``report_json`` is the page's content as JSON (also embedded in the page as
+``<script type="application/json" id="report-json">``).  Missing inputs give a section that
+says what is missing and how to get it, never a silent gap.
+
+SYNOPSIS::
+
+    rep = build_report(Path("runs/r1"), archive=Archive.open(), robot="ur5-cell3")
+    Path("runs/r1/report.html").write_text(render_html(rep))
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+from quickhealth.identify.errors import InputError  # noqa: E402
+
+F = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Plot:
+    """One embedded figure."""
+
+    key: str
+    title: str
+    png: bytes
+
+
+@dataclass(frozen=True)
+class Section:
+    """One part of the report: text lines, a table, figures, or why it is missing."""
+
+    key: str
+    title: str
+    lines: tuple[str, ...] = ()
+    table: tuple[tuple[str, ...], ...] = ()  # first row = header
+    plots: tuple[Plot, ...] = ()
+    missing: str = ""  # non-empty: the section could not be made, and why
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Report:
+    """The whole report of one run."""
+
+    title: str
+    run_dir: str
+    sections: tuple[Section, ...]
+
+    @property
+    def plots(self) -> list[Plot]:
+        """Every figure, in page order."""
+        return [p for s in self.sections for p in s.plots]
+
+
+# ------------------------------------------------------------------------ ISO 9283
+
+
+@dataclass(frozen=True)
+class PoseStats:
+    """ISO 9283-style figures of one repeatedly visited pose (position only, m)."""
+
+    pose_id: str
+    n: int
+    accuracy: float  # AP_P: distance of the barycentre of attained positions from the command
+    repeatability: (
+        float  # RP_l = l̄ + 3 S_l, l = distance of each attained position to the barycentre
+    )
+
+
+def iso9283_pose_stats(pose_id: tuple[str, ...], attained: F, commanded: F) -> list[PoseStats]:
+    """Pose accuracy and repeatability (ISO 9283 §7.2.1, §7.2.3) at poses visited ≥ 2 times.
+
+    Parameters
+    ----------
+    pose_id : tuple of str, length n
+    attained : ndarray, shape (n, 3), m
+        Measured positions.
+    commanded : ndarray, shape (n, 3), m
+        Commanded positions in the same frame (the nominal kinematics with the identified
+        base and tool).
+
+    Returns
+    -------
+    list of PoseStats, one per repeated pose, in first-visit order.
+    """
+    out = []
+    ids = np.asarray(pose_id)
+    seen: list[str] = []
+    for p in ids:
+        if p not in seen:
+            seen.append(str(p))
+    for p in seen:
+        sel = ids == p
+        n = int(sel.sum())
+        if n < 2:
+            continue
+        a = attained[sel]
+        bary = a.mean(axis=0)
+        l = np.linalg.norm(a - bary, axis=1)
+        s_l = math.sqrt(float(np.sum((l - l.mean()) ** 2)) / (n - 1))
+        ap = float(np.linalg.norm(bary - commanded[sel].mean(axis=0)))
+        out.append(PoseStats(p, n, ap, float(l.mean() + 3 * s_l)))
+    return out
+
+
+# ------------------------------------------------------------------------ figures
+
+
+def _png(fig: Figure) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    return buf.getvalue()
+
+
+def _coverage_figure(robot: Any, q: F, q_lo: F, q_hi: F) -> Figure:
+    nj = q.shape[1]
+    fig = Figure(figsize=(10.0, 5.6))
+    for j in range(nj):
+        ax = fig.add_subplot(2, nj, j + 1)
+        ax.hist(np.degrees(q[:, j]), bins=24, range=(np.degrees(q_lo[j]), np.degrees(q_hi[j])))
+        ax.set_title(f"joint {j + 1}", fontsize=8)
+        ax.tick_params(labelsize=6)
+        ax.set_xlabel("deg", fontsize=7)
+    T = robot.fk(q)
+    p = T[:, :3, 3] * 1e3
+    for k, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+        ax = fig.add_subplot(2, 3, 4 + k)
+        ax.plot(p[:, a], p[:, b], ".", ms=3)
+        ax.set_xlabel(f"{'xyz'[a]} (mm, base)", fontsize=7)
+        ax.set_ylabel(f"{'xyz'[b]} (mm, base)", fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.set_aspect("equal", adjustable="datalim")
+    fig.suptitle(f"Plan coverage: {q.shape[0]} poses (joint angles; flange positions)")
+    fig.tight_layout()
+    return fig
+
+
+def _iso_figure(stats: list[PoseStats]) -> Figure:
+    fig = Figure(figsize=(8.0, 3.2))
+    ax = fig.add_subplot(111)
+    x = np.arange(len(stats))
+    ax.bar(x - 0.2, [s.accuracy * 1e3 for s in stats], 0.4, label="AP (accuracy)")
+    ax.bar(x + 0.2, [s.repeatability * 1e3 for s in stats], 0.4, label="RP (repeatability)")
+    ax.set_xticks(x, [s.pose_id for s in stats], fontsize=7, rotation=45)
+    ax.set_ylabel("mm")
+    ax.legend(fontsize=7)
+    ax.set_title("ISO 9283-style pose accuracy and repeatability")
+    fig.tight_layout()
+    return fig
+
+
+def trend_figure(result: Any) -> Figure:
+    """Main figures over time with the EWMA control limits, the baseline marked."""
+    from datetime import UTC, datetime
+
+    figs = [f for f in ("mean", "std", "max") if f in result.charts]
+    fig = Figure(figsize=(9.0, 2.6 * max(len(figs), 1)))
+    t = [datetime.fromtimestamp(v, UTC) for v in result.t_s]
+    b = result.baseline_index
+    for k, f in enumerate(figs):
+        ax = fig.add_subplot(len(figs), 1, k + 1)
+        ax.plot(t, result.figures_mm[f], "o-", ms=4, label=f"{f} (mm)")
+        ch = result.charts[f]
+        ax.plot(t[b:], ch.ewma_mm, "-", color="#228833", lw=1, label="EWMA")
+        ax.plot(t[b:], ch.ucl_mm, "--", color="#cc3311", lw=1, label="control limit")
+        ax.axvline(t[b], color="0.5", ls=":", lw=1)
+        if result.threshold_mm is not None and f == result.threshold_figure:
+            ax.axhline(result.threshold_mm, color="k", lw=1, label="threshold")
+        ax.set_ylabel(f"{f} TCP error (mm)", fontsize=8)
+        ax.legend(fontsize=7, loc="upper left")
+        ax.tick_params(labelsize=7)
+    fig.autofmt_xdate()
+    fig.suptitle("Workspace TCP error over time (dotted: baseline)")
+    fig.tight_layout()
+    return fig
+
+
+# ------------------------------------------------------------------------ building
+
+
+def _json(path: Path) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
+    return doc if isinstance(doc, dict) else None
+
+
+def build_report(
+    run_dir: str | Path,
+    *,
+    archive: Any = None,
+    robot: str | None = None,
+    run_id: str | None = None,
+    threshold_mm: float | None = None,
+    diagnose_if_missing: bool = True,
+    workspace_samples: int = 5000,
+) -> Report:
+    """Gather every section of a run's report.
+
+    Parameters
+    ----------
+    run_dir : path
+        Folder with ``model.json`` and ``measurements.csv`` (and optionally ``report.json``,
+        ``plan.json``, ``run.json``, ``diagnosis.json``).
+    archive : Archive, optional
+        For the trend section: the archive holding this robot's runs.
+    robot, run_id : str, optional
+        The run's robot and id in the archive (run id default: the folder's name).
+    threshold_mm : float, optional
+        Threshold drawn in the trend and used for its verdict.
+    diagnose_if_missing : bool
+        Run the diagnosis when the folder has no ``diagnosis.json``.
+
+    Returns
+    -------
+    Report
+
+    Raises
+    ------
+    InputError
+        The folder has no ``model.json`` (nothing to report).
+    """
+    from quickhealth.identify.report import joint_curve_figure, residual_plot, workspace_histogram
+    from quickhealth.identify.workspace import all_joint_curves, workspace_error
+    from quickhealth.station import formats
+
+    from .archive import run_metadata
+
+    d = Path(run_dir)
+    if not (d / "model.json").is_file():
+        raise InputError(f"{d}: no model.json (fit the run first: quickhealth identify fit)")
+    fitted = formats.read_model(d / "model.json")
+    meas = None
+    if (d / "measurements.csv").is_file():
+        meas = formats.read_measurements(d / "measurements.csv", fitted.robot.n_joints)
+        if meas.n_poses != fitted.n_poses:
+            meas = None  # not the data this model was fitted to
+    meta = run_metadata(d)
+    rid = run_id or meta.get("run_id") or d.resolve().name
+    sections: list[Section] = []
+
+    # 1. summary
+    lines = [
+        f"robot: {fitted.robot.name}" + (f" ({robot})" if robot else ""),
+        f"run: {rid}" + (f", {meta['time_utc']}" if "time_utc" in meta else ""),
+    ]
+    for k in ("plan_hash", "cell", "calibration_id", "software_version"):
+        lines.append(f"{k.replace('_', ' ')}: {meta.get(k, '(unknown)')}")
+    lines += list(fitted.summary())
+    sections.append(Section("summary", "Summary", tuple(lines), data={"meta": meta, "run_id": rid}))
+
+    # 2. plan coverage
+    plan = _json(d / "plan.json")
+    q_plan = None
+    if plan and isinstance(plan.get("poses"), list) and plan["poses"]:
+        q_plan = np.radians(np.array([p["q_deg"] for p in plan["poses"]], dtype=float))
+        src = "plan.json"
+    elif meas is not None:
+        q_plan, src = meas.q, "measurements.csv (executed poses)"
+    if q_plan is not None:
+        fig = _coverage_figure(fitted.robot, q_plan, fitted.spec.q_lo, fitted.spec.q_hi)
+        span = np.ptp(q_plan, axis=0) / (fitted.spec.q_hi - fitted.spec.q_lo)
+        sections.append(
+            Section(
+                "coverage",
+                "Plan coverage (paper Fig. 6)",
+                (
+                    f"{q_plan.shape[0]} poses from {src}",
+                    "share of each joint's modelled range spanned: "
+                    + ", ".join(f"j{j + 1} {s:.0%}" for j, s in enumerate(span)),
+                ),
+                plots=(Plot("coverage", "Plan coverage", _png(fig)),),
+                data={"n_poses": int(q_plan.shape[0]), "range_share": span.tolist()},
+            )
+        )
+    else:
+        sections.append(
+            Section(
+                "coverage",
+                "Plan coverage (paper Fig. 6)",
+                missing="no plan.json and no measurements.csv",
+            )
+        )
+
+    # 3. workspace error
+    ws = workspace_error(fitted, n_samples=workspace_samples)
+    sections.append(
+        Section(
+            "workspace",
+            "Workspace TCP error (paper Fig. 7)",
+            (
+                f"mean {ws.mean * 1e3:.3f} mm, std {ws.std * 1e3:.3f} mm, "
+                f"95 % {ws.p95 * 1e3:.3f} mm, max {ws.max * 1e3:.3f} mm "
+                f"over {ws.n_samples} joint commands uniform in the modelled ranges",
+            ),
+            plots=(
+                Plot("workspace_hist", "Workspace error histogram", _png(workspace_histogram(ws))),
+            ),
+            data=ws.as_dict(),
+        )
+    )
+
+    # 4. joint curves
+    curves = all_joint_curves(fitted, n_points=61)
+    sections.append(
+        Section(
+            "curves",
+            "Error motions of every joint, 95 % bands (paper Fig. 8)",
+            ("bands: sampling uncertainty of the estimate; model error is not in them",),
+            plots=tuple(
+                Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(joint_curve_figure(c)))
+                for c in curves
+            ),
+            data={"joint_curves": [c.as_dict() for c in curves]},
+        )
+    )
+
+    # 5. residuals
+    if meas is not None:
+        sections.append(
+            Section(
+                "residuals",
+                "Measured versus model",
+                (f"rms position residual {fitted.rms_pos * 1e3:.4f} mm",),
+                plots=(Plot("residuals", "Residuals", _png(residual_plot(fitted, meas))),),
+                data={"rms_pos_mm": fitted.rms_pos * 1e3},
+            )
+        )
+    else:
+        sections.append(
+            Section(
+                "residuals",
+                "Measured versus model",
+                missing="measurements.csv missing or not the fitted data",
+            )
+        )
+
+    # 6. diagnosis
+    sections.append(_diagnosis_section(d, fitted, meas, diagnose_if_missing))
+
+    # 7. trend
+    sections.append(_trend_section(archive, robot, rid, threshold_mm))
+
+    # 8. ISO 9283
+    sections.append(_iso_section(fitted, meas))
+
+    return Report(
+        title=f"quickhealth report: {fitted.robot.name}, run {rid}",
+        run_dir=str(d),
+        sections=tuple(sections),
+    )
+
+
+def _diagnosis_section(d: Path, fitted: Any, meas: Any, run_it: bool) -> Section:
+    title = "Diagnosis: which physical effect is missing"
+    doc = _json(d / "diagnosis.json")
+    if doc is None and run_it and meas is not None:
+        from quickhealth.identify.diagnose import diagnose, state_from_fitted
+
+        doc = diagnose(state_from_fitted(fitted), meas).to_dict(top=8)
+    if doc is None:
+        return Section("diagnosis", title, missing="no diagnosis.json (quickhealth diagnose …)")
+    rows = [("effect", "score", "predicted RMS drop (mm)", "evidence")]
+    for c in doc.get("candidates", [])[:8]:
+        rows.append(
+            (
+                str(c.get("effect")),
+                f"{float(c.get('score', math.nan)):.2f}",
+                f"{float(c.get('predicted_rms_drop_mm', math.nan)):.4f}",
+                str(c.get("evidence", "")),
+            )
+        )
+    return Section(
+        "diagnosis",
+        title,
+        (f"verdict: {doc.get('verdict')}",),
+        table=tuple(rows),
+        data=doc,
+    )
+
+
+def _trend_section(
+    archive: Any, robot: str | None, rid: str, threshold_mm: float | None
+) -> Section:
+    title = "Trend against the baseline"
+    if archive is None or robot is None:
+        return Section(
+            "trend", title, missing="run not archived: quickhealth archive add RUN_DIR --robot NAME"
+        )
+    from quickhealth.identify.trend import assess_trend
+
+    recs = archive.runs(robot)
+    ids = [r.run_id for r in recs]
+    if rid not in ids:
+        return Section("trend", title, missing=f"run {rid} is not in the archive of robot {robot}")
+    recs = recs[: ids.index(rid) + 1]
+    b = next((i for i, r in enumerate(recs) if r.baseline), None)
+    if b is None:
+        return Section("trend", title, missing=f"robot {robot} has no baseline before this run")
+    states = [archive.run_state(r) for r in recs]
+    res = assess_trend(states, b, threshold_mm=threshold_mm)
+    flags = res.flags()
+    lines = [
+        f"{len(recs)} runs; baseline {recs[b].run_id}",
+        "verdict: " + ("FLAGGED" if flags else "healthy"),
+    ]
+    lines += flags
+    lines += [p.words() for p in res.prognoses.values()]
+    lines += [f"warning: {w}" for w in res.warnings]
+    rows = [("run", "time (UTC)", "mean (mm)", "std (mm)", "max (mm)", "flags")]
+    for i, r in enumerate(recs):
+        rows.append(
+            (
+                r.run_id + (" (baseline)" if i == b else ""),
+                r.time_utc,
+                *(f"{res.figures_mm[f][i]:.3f}" for f in ("mean", "std", "max")),
+                str(len(res.flags(i))),
+            )
+        )
+    return Section(
+        "trend",
+        title,
+        tuple(lines),
+        table=tuple(rows),
+        plots=(Plot("trend", "Trend", _png(trend_figure(res))),),
+        data=trend_json(res),
+    )
+
+
+def _iso_section(fitted: Any, meas: Any) -> Section:
+    title = "ISO 9283-style pose accuracy and repeatability"
+    if meas is None or meas.pose_id is None:
+        return Section(
+            "iso9283", title, missing="no pose_id column: the plan has no repeated poses"
+        )
+    commanded = fitted.nominal_pose(meas.q)[:, :3, 3]
+    stats = iso9283_pose_stats(meas.pose_id, meas.pos, commanded)
+    if not stats:
+        return Section("iso9283", title, missing="the plan visits no pose more than once")
+    rows = [("pose", "visits", "AP (mm)", "RP (mm)")]
+    rows += [
+        (s.pose_id, str(s.n), f"{s.accuracy * 1e3:.4f}", f"{s.repeatability * 1e3:.4f}")
+        for s in stats
+    ]
+    return Section(
+        "iso9283",
+        title,
+        (
+            "AP: distance of the mean attained position from the commanded one (nominal "
+            "kinematics with the identified base and tool); RP = l̄ + 3 S_l; position only",
+            f"worst AP {max(s.accuracy for s in stats) * 1e3:.4f} mm, worst RP "
+            f"{max(s.repeatability for s in stats) * 1e3:.4f} mm",
+        ),
+        table=tuple(rows),
+        plots=(Plot("iso9283", "ISO 9283", _png(_iso_figure(stats))),),
+        data={
+            "poses": [
+                {
+                    "pose_id": s.pose_id,
+                    "n": s.n,
+                    "ap_mm": s.accuracy * 1e3,
+                    "rp_mm": s.repeatability * 1e3,
+                }
+                for s in stats
+            ]
+        },
+    )
+
+
+def trend_json(res: Any) -> dict[str, Any]:
+    """A TrendResult as JSON-able numbers (mm, s, words)."""
+    return {
+        "run_ids": list(res.run_ids),
+        "t_s": list(res.t_s),
+        "baseline": res.run_ids[res.baseline_index],
+        "figures_mm": {k: list(v) for k, v in res.figures_mm.items()},
+        "flags": res.flags(),
+        "flagged": res.flagged,
+        "hints": res.hints,
+        "warnings": list(res.warnings),
+        "threshold_mm": res.threshold_mm,
+        "prognosis": {
+            f: {
+                "trend": p.trend,
+                "slope_mm_per_day": p.slope_mm_per_day,
+                "p_value": p.p_value,
+                "crossing_t_s": p.crossing_t_s,
+                "crossing_early_t_s": p.crossing_early_t_s,
+                "crossing_late_t_s": p.crossing_late_t_s,
+                "words": p.words(),
+            }
+            for f, p in res.prognoses.items()
+        },
+        "curve_changes": [
+            {
+                "joint": c.joint,
+                "motion": c.motion,
+                "max_change": c.max_change,
+                "z_max": c.z_max,
+                "p_value": c.p_value,
+                "significant": c.significant,
+            }
+            for c in res.curve_changes[res.latest]
+        ],
+    }
+
+
+# ------------------------------------------------------------------------ rendering
+
+
+def report_json(rep: Report) -> dict[str, Any]:
+    """The report's content as JSON-able data (sections with their numbers and text)."""
+    return {
+        "title": rep.title,
+        "run_dir": rep.run_dir,
+        "sections": {
+            s.key: {
+                "title": s.title,
+                "lines": list(s.lines),
+                "table": [list(r) for r in s.table],
+                "plots": [p.key for p in s.plots],
+                "missing": s.missing or None,
+                "data": s.data,
+            }
+            for s in rep.sections
+        },
+    }
+
+
+def _plain(x: Any) -> Any:
+    """JSON-able copy: numpy to Python, NaN/inf to None."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.bool_ | bool):
+        return bool(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.floating | float):
+        return float(x) if math.isfinite(x) else None
+    return x
+
+
+_CSS = """
+body{font-family:system-ui,sans-serif;max-width:1100px;margin:1em auto;padding:0 1em;color:#222}
+h1{font-size:1.4em}h2{font-size:1.15em;border-bottom:1px solid #ccc;margin-top:1.6em}
+img.plot{max-width:100%;display:block;margin:.6em 0;border:1px solid #eee}
+table{border-collapse:collapse;font-size:.85em}td,th{border:1px solid #ccc;padding:2px 6px}
+.missing{color:#a60}.flag{color:#b00;font-weight:bold}pre{white-space:pre-wrap}
+"""
+
+
+def render_html(rep: Report) -> str:
+    """One self-contained HTML page: no external files, every figure a PNG data URI."""
+    e = html.escape
+    out = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{e(rep.title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{e(rep.title)}</h1>",
+        "<nav>"
+        + " · ".join(f'<a href="#{s.key}">{e(s.title)}</a>' for s in rep.sections)
+        + "</nav>",
+    ]
+    for s in rep.sections:
+        out.append(f'<section id="{s.key}"><h2>{e(s.title)}</h2>')
+        if s.missing:
+            out.append(f'<p class="missing">Not available: {e(s.missing)}</p>')
+        for line in s.lines:
+            cls = ' class="flag"' if line.startswith(("verdict: FLAGGED", "joint ")) else ""
+            out.append(f"<p{cls}>{e(line)}</p>")
+        if s.table:
+            head, *body = s.table
+            out.append("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr>")
+            out += ["<tr>" + "".join(f"<td>{e(c)}</td>" for c in r) + "</tr>" for r in body]
+            out.append("</table>")
+        for p in s.plots:
+            b64 = base64.b64encode(p.png).decode("ascii")
+            out.append(
+                f'<img class="plot" id="plot-{p.key}" alt="{e(p.title)}" '
+                f'src="data:image/png;base64,{b64}">'
+            )
+        out.append("</section>")
+    payload = json.dumps(_plain(report_json(rep))).replace("</", "<\\/")
+    out.append(f'<script type="application/json" id="report-json">{payload}</script>')
+    out.append("</body></html>")
+    return "\n".join(out)
