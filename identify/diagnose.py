@@ -503,6 +503,9 @@ class Diagnosis:
     not_identifiable : tuple of str
         Candidates the model already absorbs completely (with why).
     notes : tuple of str
+    suggested : tuple of str
+        Forward selection: the effects to add together (the best first), each significant
+        with the ones before it in the model; empty when adequate.
     """
 
     verdict: Verdict
@@ -515,6 +518,7 @@ class Diagnosis:
     spectra: dict[str, list[float]] = field(default_factory=dict)
     not_identifiable: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    suggested: tuple[str, ...] = ()
 
     def to_dict(self, top: int | None = None) -> dict[str, Any]:
         """The contract's JSON: ``verdict`` and ``candidates`` (best first), plus details."""
@@ -530,6 +534,7 @@ class Diagnosis:
             "spectra": self.spectra,
             "not_identifiable": list(self.not_identifiable),
             "notes": list(self.notes),
+            "suggested": list(self.suggested),
         }
 
     def summary(self, top: int = 5) -> list[str]:
@@ -573,7 +578,7 @@ def diagnose(
     candidates: Sequence[str] | None = None,
     alpha: float = 0.01,
     max_harmonic: int = 30,
-    problem: tuple[F, F] | None = None,
+    max_suggested: int = 3,
 ) -> Diagnosis:
     """Test the residuals of a fitted model for every candidate effect.
 
@@ -590,17 +595,22 @@ def diagnose(
         Family-wise false-alarm rate of the Bonferroni-corrected test.
     max_harmonic : int
         Highest cyclic harmonic tested by default.
-    problem : (r, J), optional
-        Whitened residuals and Jacobian from the estimator (``whitened_problem``); by
-        default they are computed here with the same whitening.  Their row layout must be
-        the one of :func:`whitened` (per pose: x y z [rx ry rz]).
+    max_suggested : int
+        Forward selection: after the best candidate, the others are tested again with it
+        in the model, and so on while one stays significant, up to this many effects
+        (``Diagnosis.suggested``).  A large effect leaves side peaks in other candidates;
+        this tells them apart from a second real effect.
+
+    The residuals and Jacobians are computed here (:func:`whitened`), with the model's
+    instrument noise on the diagonal, so the candidates' columns and the model's share one
+    whitening; the model pose equals ``FittedModel.predict`` to rounding.
 
     Returns
     -------
     Diagnosis
     """
     wp = whitened(state, meas)
-    r, J = (wp.r, wp.J) if problem is None else problem
+    r, J = wp.r, wp.J
     names = (
         list(candidates)
         if candidates is not None
@@ -622,25 +632,24 @@ def diagnose(
     rms_now = rms_pos_mm(res_now)
     rms_rot = float(np.sqrt(np.mean(np.sum(res_now[:, 3:] ** 2, axis=1))) * 1e3) if c == 6 else None
     m_tests = max(len(names), 1)
-    raw: list[tuple[float, Candidate]] = []
-    spectra: dict[str, list[float]] = {}
+    effects: list[Effect] = []
     for name in names:
         effect = parse_effect(name, state.robot)
         missing = [col for col in effect.requires() if getattr(meas, col) is None]
         if missing:
             notes.append(f"{name} not tested: the data have no {', '.join(missing)} column")
             continue
-        one = _one_step(wp, Q, r_perp, effect)
+        effects.append(effect)
+    raw: list[tuple[float, Candidate]] = []
+    spectra: dict[str, list[float]] = {}
+    for effect, one, logp_adj in _scan(wp, Q, r_perp, effects, m_tests):
         if one is None:
             not_ident.append(
-                f"{name}: the fitted model already expresses it (its Jacobian lies in the "
-                "model's), so the data cannot tell it apart"
+                f"{effect.name}: the fitted model already expresses it (its Jacobian lies in "
+                "the model's), so the data cannot tell it apart"
             )
             continue
         k, S, theta, fit_res = one
-        F_stat = (S / k) / max((rss - S) / max(dof_res - k, 1), 1e-300)
-        logp = float(stats.f.logsf(F_stat, k, max(dof_res - k, 1)))
-        logp_adj = min(0.0, logp + np.log(m_tests))
         p_adj = float(np.exp(logp_adj))
         score = float(-logp_adj / np.log(10.0))
         rms_after = rms_pos_mm(res_now - fit_res)
@@ -672,6 +681,20 @@ def diagnose(
         replace(c_, evidence=_evidence(c_, state, spectra, m_tests, rms_now)) for _, c_ in raw
     )
     verdict = Verdict.MISSING_EFFECT if cands and cands[0].significant else Verdict.ADEQUATE
+    suggested: tuple[str, ...] = ()
+    if verdict is Verdict.MISSING_EFFECT:
+        suggested = _forward(wp, Q, r, effects, cands[0].effect, m_tests, alpha, max_suggested)
+        rest = [c_.effect for c_ in cands[1:] if c_.significant and c_.effect not in suggested]
+        if len(suggested) == 1:
+            notes.append(
+                f"with {suggested[0]} in the model no other candidate is significant"
+                + (f" ({len(rest)} others were only its side effects)" if rest else "")
+            )
+        else:
+            notes.append(
+                f"forward selection: {', '.join(suggested)} each stay significant with the "
+                "ones before them in the model: add them together"
+            )
     noise_scale = float(np.sqrt(s2))
     if verdict is Verdict.ADEQUATE and noise_scale > 1.5:
         notes.append(
@@ -690,7 +713,68 @@ def diagnose(
         spectra=spectra,
         not_identifiable=tuple(not_ident),
         notes=tuple(notes),
+        suggested=suggested,
     )
+
+
+def _scan(
+    wp: WhitenedProblem, Q: F, r_perp: F, effects: Sequence[Effect], m_tests: int
+) -> list[tuple[Effect, tuple[int, float, F, F] | None, float]]:
+    """Score test of every effect: ``(effect, one-step result or None, log adjusted p)``."""
+    rss = float(r_perp @ r_perp)
+    dof_res = r_perp.size - Q.shape[1]
+    out: list[tuple[Effect, tuple[int, float, F, F] | None, float]] = []
+    for effect in effects:
+        one = _one_step(wp, Q, r_perp, effect)
+        if one is None:
+            out.append((effect, None, 0.0))
+            continue
+        k, S = one[0], one[1]
+        d2 = max(dof_res - k, 1)
+        F_stat = (S / k) / max((rss - S) / d2, 1e-300)
+        logp = float(stats.f.logsf(F_stat, k, d2))
+        if not np.isfinite(logp):  # beyond double precision: the χ² tail's asymptote
+            logp = float(stats.chi2.logsf(k * F_stat, k))
+            logp = logp if np.isfinite(logp) else -0.5 * k * F_stat
+        out.append((effect, one, min(0.0, logp + np.log(m_tests))))
+    return out
+
+
+def _forward(
+    wp: WhitenedProblem,
+    Q: F,
+    r: F,
+    effects: Sequence[Effect],
+    first: str,
+    m_tests: int,
+    alpha: float,
+    max_effects: int,
+) -> tuple[str, ...]:
+    """Forward selection from ``first``: add the best candidate while it stays significant."""
+    chosen = [first]
+    by_name = {e.name: e for e in effects}
+    c = wp.n_comp
+    while len(chosen) < max_effects:
+        Z = np.concatenate(
+            [
+                (
+                    effect_jacobian(by_name[n], wp.ctx, wp.sens)[:, :c, :] / wp.sigma[:, :, None]
+                ).reshape(-1, by_name[n].n_params)
+                for n in chosen
+            ],
+            axis=1,
+        )
+        Qc = _orthonormal_basis(np.concatenate([Q, Z], axis=1))
+        r_perp = r - Qc @ (Qc.T @ r)
+        rest = [e for e in effects if e.name not in chosen]
+        scored = [(lp, e.name) for e, one, lp in _scan(wp, Qc, r_perp, rest, m_tests) if one]
+        if not scored:
+            break
+        lp, name = min(scored)
+        if np.exp(lp) >= alpha:
+            break
+        chosen.append(name)
+    return tuple(chosen)
 
 
 def _one_step(
