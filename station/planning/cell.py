@@ -173,7 +173,9 @@ def load_cell(path_or_name: str | Path) -> Cell:
     """
     p = Path(path_or_name)
     if str(path_or_name) in BUILTIN_CELLS and not p.exists():
-        ref = resources.files("quickhealth.station").joinpath("data", BUILTIN_CELLS[str(path_or_name)])
+        ref = resources.files("quickhealth.station").joinpath(
+            "data", BUILTIN_CELLS[str(path_or_name)]
+        )
         raw = ref.read_bytes()
         label = f"builtin:{path_or_name}"
     else:
@@ -192,7 +194,9 @@ _TAG = re.compile(rb"!![A-Za-z]|!<tag:|^\s*---\s*$", re.M)
 def parse_cell(raw: bytes, label: str) -> Cell:
     """Parse the bytes of a cell file (see :func:`load_cell`); ``label`` names it in errors."""
     if label.lower().endswith((".yaml", ".yml")):
-        raise InputError(f"{label}: YAML cell files are not accepted; write the cell in TOML (docs/plan.md)")
+        raise InputError(
+            f"{label}: YAML cell files are not accepted; write the cell in TOML (docs/plan.md)"
+        )
     m = _TAG.search(raw)
     if m is not None:
         line = raw[: m.start()].count(b"\n") + 1
@@ -202,7 +206,9 @@ def parse_cell(raw: bytes, label: str) -> Cell:
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise InputError(f"{label}: not a TOML cell file: not UTF-8 text (byte {exc.start})") from None
+        raise InputError(
+            f"{label}: not a TOML cell file: not UTF-8 text (byte {exc.start})"
+        ) from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -238,7 +244,14 @@ class _Tab:
     def sub(self, key: str) -> _Tab:
         return _Tab(self.get(key), self.label, f"{self.prefix}{key}.")
 
-    def num(self, key: str, default: Any = ..., lo: float = -math.inf, hi: float = math.inf, strict_lo: bool = False) -> float:
+    def num(
+        self,
+        key: str,
+        default: Any = ...,
+        lo: float = -math.inf,
+        hi: float = math.inf,
+        strict_lo: bool = False,
+    ) -> float:
         v = self.get(key, default)
         if isinstance(v, bool) or not isinstance(v, int | float):
             raise self.err(key, f"expected a number, got {type(v).__name__}")
@@ -338,7 +351,9 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
     if np.any(wmax <= wmin):
         raise wt.err("max_mm", "must exceed min_mm on every axis")
     if wmin[2] <= top_z:
-        raise wt.err("min_mm", f"z = {wmin[2] * 1000:g} mm is not above the table top ({top_z * 1000:g} mm)")
+        raise wt.err(
+            "min_mm", f"z = {wmin[2] * 1000:g} mm is not above the table top ({top_z * 1000:g} mm)"
+        )
     wt.done()
 
     gt = top.sub("target")
@@ -423,7 +438,10 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         passes=mt.integer("passes", 1, lo=1, hi=100),
     )
     if 0 < motion.handshake_register < 24:
-        raise mt.err("handshake_register", "RTDE leaves registers 24-47 to external clients; use 24-47 or 0 (none)")
+        raise mt.err(
+            "handshake_register",
+            "RTDE leaves registers 24-47 to external clients; use 24-47 or 0 (none)",
+        )
     mt.done()
 
     pt = top.sub("planner") if top.has("planner") else _Tab({}, label, "planner.")

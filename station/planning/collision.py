@@ -23,7 +23,7 @@ from __future__ import annotations
 import importlib.metadata
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 import fcl
@@ -67,7 +67,9 @@ def _share() -> Path:
     try:
         files = importlib.metadata.files("example-robot-data") or []
     except importlib.metadata.PackageNotFoundError:
-        raise InputError("example-robot-data is not installed: pip install example-robot-data") from None
+        raise InputError(
+            "example-robot-data is not installed: pip install example-robot-data"
+        ) from None
     for f in files:
         s = str(f)
         if s.endswith("ur_description/urdf/ur5_robot.urdf"):
@@ -161,7 +163,7 @@ def read_stl(path: Path) -> tuple[F, NDArray[np.int32]]:
     return vs, np.arange(len(vs), dtype=np.int32).reshape(-1, 3)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _mesh_data(path: str) -> tuple[F, NDArray[np.int32]]:
     return read_stl(Path(path))
 
@@ -197,20 +199,33 @@ class CollisionWorld:
         self._T_world_dhbase = cell.T_world_base
         self._T_link_mesh = ch.T_link_mesh
         self.moving: list[tuple[str, fcl.CollisionObject]] = [
-            (name, fcl.CollisionObject(_bvh(path))) for name, path in zip(LINKS, ch.mesh_files, strict=True)
+            (name, fcl.CollisionObject(_bvh(path)))
+            for name, path in zip(LINKS, ch.mesh_files, strict=True)
         ]
         self.moving.append((TARGET, fcl.CollisionObject(fcl.Box(*cell.target_body_size))))
-        self._T_wrist3_body = ch.T_wrist3_tool0 @ _T_tool0_flange() @ cell.T_flange_target @ cell.T_target_body
+        self._T_wrist3_body = (
+            ch.T_wrist3_tool0 @ _T_tool0_flange() @ cell.T_flange_target @ cell.T_target_body
+        )
         # static: obstacles (grown) and the table, plus exact copies for line-of-sight tests
         self.static: list[tuple[str, fcl.CollisionObject]] = []
         self.sight_static: list[tuple[str, fcl.CollisionObject]] = []
         for o in cell.obstacles:
-            self.static.append((o.name, fcl.CollisionObject(obstacle_geometry(o, g), _tf(o.T_world_obstacle))))
-            self.sight_static.append((o.name, fcl.CollisionObject(obstacle_geometry(o), _tf(o.T_world_obstacle))))
+            self.static.append(
+                (o.name, fcl.CollisionObject(obstacle_geometry(o, g), _tf(o.T_world_obstacle)))
+            )
+            self.sight_static.append(
+                (o.name, fcl.CollisionObject(obstacle_geometry(o), _tf(o.T_world_obstacle)))
+            )
         size = np.r_[cell.table_max_xy - cell.table_min_xy, cell.table_thickness]
-        ctr = np.r_[(cell.table_max_xy + cell.table_min_xy) / 2, cell.table_top_z - cell.table_thickness / 2]
-        self.static.append((TABLE, fcl.CollisionObject(fcl.Box(*size), _tf(make_T(np.eye(3), ctr + [0, 0, g])))))
-        self.sight_static.append((TABLE, fcl.CollisionObject(fcl.Box(*size), _tf(make_T(np.eye(3), ctr)))))
+        ctr = np.r_[
+            (cell.table_max_xy + cell.table_min_xy) / 2, cell.table_top_z - cell.table_thickness / 2
+        ]
+        self.static.append(
+            (TABLE, fcl.CollisionObject(fcl.Box(*size), _tf(make_T(np.eye(3), ctr + [0, 0, g]))))
+        )
+        self.sight_static.append(
+            (TABLE, fcl.CollisionObject(fcl.Box(*size), _tf(make_T(np.eye(3), ctr))))
+        )
         names = [n for n, _ in self.moving]
         self.self_pairs = [
             (i, j)
@@ -256,13 +271,17 @@ class CollisionWorld:
             self._place(Tm)
             hits: list[str] = []
             for i, j in self.self_pairs:
-                if fcl.collide(self.moving[i][1], self.moving[j][1], self._req, fcl.CollisionResult()):
+                if fcl.collide(
+                    self.moving[i][1], self.moving[j][1], self._req, fcl.CollisionResult()
+                ):
                     hits.append(f"{self.moving[i][0]}|{self.moving[j][0]}")
                     if first_only:
                         break
             if not (hits and first_only):
                 for i, k in self.static_pairs:
-                    if fcl.collide(self.moving[i][1], self.static[k][1], self._req, fcl.CollisionResult()):
+                    if fcl.collide(
+                        self.moving[i][1], self.static[k][1], self._req, fcl.CollisionResult()
+                    ):
                         hits.append(f"{self.moving[i][0]}|{self.static[k][0]}")
                         if first_only:
                             break
@@ -280,10 +299,14 @@ class CollisionWorld:
         for n, Tm in enumerate(Tall):
             self._place(Tm)
             for i, j in self.self_pairs:
-                if fcl.collide(self.moving[i][1], self.moving[j][1], self._req, fcl.CollisionResult()):
+                if fcl.collide(
+                    self.moving[i][1], self.moving[j][1], self._req, fcl.CollisionResult()
+                ):
                     return n
             for i, k in self.static_pairs:
-                if fcl.collide(self.moving[i][1], self.static[k][1], self._req, fcl.CollisionResult()):
+                if fcl.collide(
+                    self.moving[i][1], self.static[k][1], self._req, fcl.CollisionResult()
+                ):
                     return n
         return -1
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,14 +53,14 @@ _REACH = np.array([1.0, 1.0, 0.65, 0.35, 0.3, 0.25])
 USABLE_TAIL = 0.025
 
 
-class LegType(str, Enum):
+class LegType(StrEnum):
     """How the robot arrives at a pose."""
 
     LINEAR = "linear"
     JOINT = "joint"
 
 
-class DropReason(str, Enum):
+class DropReason(StrEnum):
     """Why a generated target was not kept."""
 
     UNREACHABLE = "unreachable"
@@ -207,7 +207,11 @@ def sample_targets(cell: Cell, n: int, rng: np.random.Generator) -> F:
     cos_t = 1.0 - rng.random(n) * (1.0 - math.cos(cell.orientation_spread))
     sin_t = np.sqrt(1.0 - cos_t**2)
     phi = rng.uniform(-np.pi, np.pi, n)
-    z = (sin_t * np.cos(phi))[:, None] * x0 + (sin_t * np.sin(phi))[:, None] * y0 + cos_t[:, None] * z0
+    z = (
+        (sin_t * np.cos(phi))[:, None] * x0
+        + (sin_t * np.sin(phi))[:, None] * y0
+        + cos_t[:, None] * z0
+    )
     roll = rng.uniform(-np.pi, np.pi, n)
     xr = np.cross(y0, z)
     xr /= np.linalg.norm(xr, axis=1, keepdims=True)
@@ -227,14 +231,24 @@ def _check_camera_view(cell: Cell, world: CollisionWorld) -> None:
         for o in cell.obstacles:
             local = inv_T(o.T_world_obstacle) @ np.r_[c, 1.0]
             if o.shape == "box" and np.all(np.abs(local[:3]) <= o.size / 2):  # type: ignore[operator]
-                raise InputError(f"{cell.source}: camera.{side}.position_mm: inside obstacle {o.name!r}")
-            if o.shape == "cylinder" and np.hypot(local[0], local[1]) <= o.radius and abs(local[2]) <= o.length / 2:
-                raise InputError(f"{cell.source}: camera.{side}.position_mm: inside obstacle {o.name!r}")
+                raise InputError(
+                    f"{cell.source}: camera.{side}.position_mm: inside obstacle {o.name!r}"
+                )
+            if (
+                o.shape == "cylinder"
+                and np.hypot(local[0], local[1]) <= o.radius
+                and abs(local[2]) <= o.length / 2
+            ):
+                raise InputError(
+                    f"{cell.source}: camera.{side}.position_mm: inside obstacle {o.name!r}"
+                )
         blockers = []
         for p in probes:
             d = p - c
             u = d / np.linalg.norm(d)
-            blockers.append(world.static_sight_blocker(c + 0.05 * u, p - 0.05 * u, cell.planner.sight_radius))
+            blockers.append(
+                world.static_sight_blocker(c + 0.05 * u, p - 0.05 * u, cell.planner.sight_radius)
+            )
         if all(b is not None for b in blockers):
             names = sorted({b for b in blockers if b is not None})
             raise InputError(
@@ -259,10 +273,16 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         if not valid[i].any():
             reason[i] = (DropReason.UNREACHABLE, "no inverse-kinematics solution")
         elif not inlim[i].any():
-            reason[i] = (DropReason.JOINT_LIMITS, f"all {int(valid[i].sum())} IK solutions outside the planning limits")
+            reason[i] = (
+                DropReason.JOINT_LIMITS,
+                f"all {int(valid[i].sum())} IK solutions outside the planning limits",
+            )
         elif not sight.in_fov[i].all():
             sides = [s for s, ok in zip(("left", "right"), sight.in_fov[i], strict=True) if not ok]
-            reason[i] = (DropReason.OUTSIDE_FOV, f"outside the {' and '.join(sides)} camera's image")
+            reason[i] = (
+                DropReason.OUTSIDE_FOV,
+                f"outside the {' and '.join(sides)} camera's image",
+            )
         elif not sight.facing_ok[i]:
             f = np.degrees(sight.facing[i])
             reason[i] = (
@@ -283,7 +303,10 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         hits = world.contacts(Q[i, ks])
         free = [k for k, h in zip(ks, hits, strict=True) if not h]
         if not free:
-            reason[i] = (DropReason.COLLISION, f"every in-limit IK solution collides ({hits[0][0]})")
+            reason[i] = (
+                DropReason.COLLISION,
+                f"every in-limit IK solution collides ({hits[0][0]})",
+            )
             continue
         bl = robot_blockers(world, Q[i, free], np.repeat(p_world[i][None], len(free), 0))
         seen = [k for k, b in zip(free, bl, strict=True) if b is None]
@@ -318,7 +341,12 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         choice = walker.choose(i, kept[-1] if kept else None)
         if choice is None:
             dropped.append(
-                DroppedTarget(i, DropReason.NO_FEASIBLE_LEG, "neither a linear nor a joint-space leg is collision-free", T_wt[i])
+                DroppedTarget(
+                    i,
+                    DropReason.NO_FEASIBLE_LEG,
+                    "neither a linear nor a joint-space leg is collision-free",
+                    T_wt[i],
+                )
             )
             continue
         kept.append(choice)
@@ -333,7 +361,12 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         i_last = kept.pop()[0]
         walker.remove(i_last)
         dropped.append(
-            DroppedTarget(i_last, DropReason.NO_FEASIBLE_LEG, "no collision-free return leg to the first pose", T_wt[i_last])
+            DroppedTarget(
+                i_last,
+                DropReason.NO_FEASIBLE_LEG,
+                "no collision-free return leg to the first pose",
+                T_wt[i_last],
+            )
         )
     if ret is None:
         ret = (LegType.JOINT, 0.0)
@@ -363,7 +396,9 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         dropped=tuple(dropped),
         return_leg=ret[0],
         return_leg_time_s=ret[1],
-        coverage=joint_coverage(np.array([p.q for p in poses]), usable_min, usable_max, cell.planner.bins),
+        coverage=joint_coverage(
+            np.array([p.q for p in poses]), usable_min, usable_max, cell.planner.bins
+        ),
     )
 
 
@@ -442,7 +477,16 @@ def _order(cell: Cell, Q: F, feas: NDArray[np.bool_]) -> list[int]:
 class _Walker:
     """Steps 4–5: leg feasibility and the evenness-driven choice of configurations."""
 
-    def __init__(self, cell: Cell, world: CollisionWorld, Q: F, feas: NDArray[np.bool_], T_bt: F, lo: F, hi: F) -> None:
+    def __init__(
+        self,
+        cell: Cell,
+        world: CollisionWorld,
+        Q: F,
+        feas: NDArray[np.bool_],
+        T_bt: F,
+        lo: F,
+        hi: F,
+    ) -> None:
         self.cell = cell
         self.world = world
         self.Q = Q
@@ -481,7 +525,9 @@ class _Walker:
                 del self.members[n]
                 return
 
-    def choose(self, i: int, prev: tuple[int, int, LegType, float] | None) -> tuple[int, int, LegType, float] | None:
+    def choose(
+        self, i: int, prev: tuple[int, int, LegType, float] | None
+    ) -> tuple[int, int, LegType, float] | None:
         ks = np.flatnonzero(self.feas[i])
         if prev is None:
             pen = [self.penalty(self.Q[i, k]) for k in ks]
@@ -501,7 +547,9 @@ class _Walker:
                 best = cand
         return None if best is None else best[2]
 
-    def leg(self, prev: tuple[int, int, LegType, float], i: int, k: int) -> tuple[LegType, float] | None:
+    def leg(
+        self, prev: tuple[int, int, LegType, float], i: int, k: int
+    ) -> tuple[LegType, float] | None:
         """The preferred feasible leg from ``prev`` to configuration k of target i, or None."""
         q0 = self.Q[prev[0], prev[1]]
         q1 = self.Q[i, k]
@@ -510,7 +558,10 @@ class _Walker:
             return (LegType.LINEAR, t)
         if joint_leg_ok(self.cell, self.world, q0, q1):
             m = self.cell.motion
-            return (LegType.JOINT, float(_trap_time(np.abs(q1 - q0).max(), m.joint_speed, m.joint_accel)))
+            return (
+                LegType.JOINT,
+                float(_trap_time(np.abs(q1 - q0).max(), m.joint_speed, m.joint_accel)),
+            )
         return None
 
 

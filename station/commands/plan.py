@@ -1,0 +1,85 @@
+"""quickhealth plan — generate the fixed measurement loop (paper Sec. 3, Fig. 3).
+
+    quickhealth plan --cell CELL --n N [--seed S] --out DIR
+
+CELL is a cell file (TOML, docs/plan.md) or the built-in name ``reference`` (a UR5 on an
+optical table, the stereo camera about 2 m in front).  Writes DIR/plan.json (poses with joint
+targets and leg types, every dropped candidate with its reason, the summary and a content
+hash), DIR/loop.script (URScript of the loop) and the Fig. 6 plots DIR/fig6_joints.png and
+DIR/fig6_targets.png.  Nothing is written when the input is refused (exit status 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``plan`` to the command line."""
+    p = subparsers.add_parser(
+        "plan",
+        help="generate the fixed measurement loop (plan.json, loop.script, plots)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--cell", required=True, help="cell file (TOML) or built-in name 'reference'")
+    p.add_argument(
+        "--n", required=True, type=int, help="number of random target poses (paper: 150)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.set_defaults(func=run)
+
+
+def _write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def run(args: argparse.Namespace) -> int:
+    """Plan, validate the plan document, then write plan.json, loop.script and plots."""
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station.planning.cell import load_cell
+    from quickhealth.station.planning.figures import write_figures
+    from quickhealth.station.planning.planfile import dumps, plan_from_dict, plan_to_dict
+    from quickhealth.station.planning.planner import plan_loop
+    from quickhealth.station.planning.urscript import render_urscript
+
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: {out} exists and is not a folder")
+    cell = load_cell(args.cell)
+
+    tty = sys.stderr.isatty()
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if done == total:
+            sys.stderr.write(f"{stage}: {done}/{total}\n")
+        elif tty:
+            sys.stderr.write(f"{stage}: {done}/{total}\r")
+
+    res = plan_loop(cell, args.n, args.seed, progress)
+    doc = plan_to_dict(res)
+    plan = plan_from_dict(doc, "plan.json")  # the program is made from the validated document
+    script = render_urscript(plan)
+    out.mkdir(parents=True, exist_ok=True)
+    _write(out / "plan.json", dumps(doc).encode("utf-8"))
+    _write(out / "loop.script", script.encode("utf-8"))
+    figs = write_figures(res, out)
+    for line in res.summary():
+        print(line)
+    print(f"plan {doc['hash']}")
+    print(f"wrote {out / 'plan.json'}, {out / 'loop.script'}, " + ", ".join(str(f) for f in figs))
+    return 0
