@@ -542,7 +542,11 @@ def _coverage(px: F, size: tuple[int, int], nx: int = 10, ny: int = 6) -> float:
 
 
 def _intrinsics_cov(
-    cam: CameraModel, views: Sequence[BoardView], masks: Sequence[NDArray[np.bool_]], rvecs: F, tvecs: F
+    cam: CameraModel,
+    views: Sequence[BoardView],
+    masks: Sequence[NDArray[np.bool_]],
+    rvecs: F,
+    tvecs: F,
 ) -> F:
     """Covariance (12×12) of the 9 intrinsics and the mean rotation ω̄ of the board poses
     (camera frame, rad): ``σ̂² G (JᵀJ)⁻¹ Gᵀ`` over the full problem (intrinsics + 6 per view)."""
@@ -601,14 +605,18 @@ def projection_std(cam: CameraModel, cov: F, gx: F, gy: F) -> F:
         tp, tm = theta.copy(), theta.copy()
         tp[k] += h
         tm[k] -= h
-        J[..., k] = (_cam_from(tp, cam.image_size).project(p) - _cam_from(tm, cam.image_size).project(p)) / (2 * h)
+        J[..., k] = (
+            _cam_from(tp, cam.image_size).project(p) - _cam_from(tm, cam.image_size).project(p)
+        ) / (2 * h)
     if npar == 12:
         h = 1e-7
         for k in range(3):
             w = np.zeros(3)
             w[k] = h
             # the point turns with the boards: p' = exp(ω) p ≈ p + ω × p
-            J[..., 9 + k] = (cam.project(p + np.cross(w, p)) - cam.project(p - np.cross(w, p))) / (2 * h)
+            J[..., 9 + k] = (cam.project(p + np.cross(w, p)) - cam.project(p - np.cross(w, p))) / (
+                2 * h
+            )
     C = J @ cov @ np.swapaxes(J, -1, -2)
     ev = np.linalg.eigvalsh(C)
     out = np.sqrt(np.clip(ev[..., -1], 0.0, None))

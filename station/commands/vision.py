@@ -1,0 +1,282 @@
+"""quickhealth vision — the 7D camera: calibrate cameras, reprocess a run's stereo images.
+
+    quickhealth vision calibrate --board SPEC --left GLOB [--right GLOB] --out CAL.json
+    quickhealth vision measure RUN_DIR [--calibration CAL.json] [--target TARGET] [--jobs N] [--out CSV]
+
+calibrate: one camera (--left only) or a stereo pair (paired by sorted file name).  SPEC is
+chessboard:COLSxROWS:SQUARE_MM (inner corners) or charuco:SXxSY:SQUARE_MM:MARKER_MM:DICT.
+Writes CAL.json and, beside it, CAL_residuals.png, CAL_coverage.png, CAL_uncertainty.png.
+The verdict ("ok" / "unreliable" with reasons) is printed and stored; exit 0 either way
+unless --fail-on-unreliable asks for exit 1.
+
+measure: reads RUN_DIR/images/index.csv (pose_id, q1..qN in deg, optional pan deg, time s,
+temp °C) and the pairs RUN_DIR/images/<pose_id>_left.png / _right.png, measures the smart
+target's pose in every pair (in parallel) and writes RUN_DIR/measurements.csv (CSV v1, one row
+per accepted pose, rejected poses listed as comments).  The calibration defaults to
+RUN_DIR/calibration.json, else the reference design; the target to RUN_DIR/target.json, else
+the reference target.  Nothing is written when the input is refused (exit status 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``vision calibrate`` and ``vision measure``."""
+    p = subparsers.add_parser(
+        "vision", help="7D camera: calibration and offline measurement", description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    sub = p.add_subparsers(dest="vision_command", metavar="SUBCOMMAND", parser_class=type(p))
+    c = sub.add_parser("calibrate", help="calibrate one camera or a stereo pair", description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    c.add_argument(
+        "--board",
+        required=True,
+        help="chessboard:COLSxROWS:SQUARE_MM or charuco:SXxSY:SQUARE_MM:MARKER_MM:DICT",
+    )
+    c.add_argument("--left", required=True, help="glob of the (left) camera's images (quote it)")
+    c.add_argument("--right", help="glob of the right camera's images (stereo)")
+    c.add_argument("--out", required=True, type=Path, help="CAL.json to write")
+    c.add_argument(
+        "--fail-on-unreliable", action="store_true", help="exit 1 when the verdict is 'unreliable'"
+    )
+    c.set_defaults(func=run_calibrate)
+    m = sub.add_parser("measure", help="measure a run folder's stored stereo images", description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    m.add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    m.add_argument("--calibration", type=Path, help="stereo CAL.json")
+    m.add_argument("--target", type=Path, help="target description file (JSON)")
+    m.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    m.add_argument("--out", type=Path, help="CSV to write (default RUN_DIR/measurements.csv)")
+    m.set_defaults(func=run_measure)
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    """Detect the board in every image, calibrate, write CAL.json and the report plots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station import vision_io as io
+    from quickhealth.vision.boards import parse_board_spec
+    from quickhealth.vision.calibrate import Verdict, calibrate, detect_board
+    from quickhealth.vision.plots import plot_coverage, plot_residuals, plot_uncertainty
+
+    board = parse_board_spec(args.board)
+    left = io.expand_glob(args.left, "--left")
+    right = io.expand_glob(args.right, "--right") if args.right else None
+    if right is not None and len(right) != len(left):
+        raise InputError(
+            f"--left matches {len(left)} images but --right matches {len(right)}: a stereo set needs "
+            "one right image per left image (paired by sorted file name)"
+        )
+    imgs_l = io.read_image_set(left)
+    imgs_r = io.read_image_set(right) if right is not None else None
+    if imgs_r is not None and imgs_r[0].shape != imgs_l[0].shape:
+        raise InputError(
+            f"{right[0]}: right images are {imgs_r[0].shape[1]}×{imgs_r[0].shape[0]}, left {imgs_l[0].shape[1]}×{imgs_l[0].shape[0]}"
+        )  # type: ignore[index]
+    size = (int(imgs_l[0].shape[1]), int(imgs_l[0].shape[0]))
+    n = len(imgs_l) * (2 if imgs_r else 1)
+    done = 0
+    views_l, views_r = [], []
+    for k, im in enumerate(imgs_l):
+        views_l.append(detect_board(board, im))
+        if imgs_r is not None:
+            views_r.append(detect_board(board, imgs_r[k]))
+        done += 2 if imgs_r is not None else 1
+        sys.stderr.write(f"\rdetecting the board: {done}/{n} images")
+    sys.stderr.write("\n")
+    try:
+        res = calibrate(board, views_l, size, views_r if imgs_r is not None else None)
+    except ValueError as exc:
+        raise InputError(f"--left {args.left!r}: {exc}") from None
+    doc = io.calibration_to_json(res)
+    doc["images"] = {
+        "left": [str(p) for p in left],
+        **({"right": [str(p) for p in right]} if right else {}),
+    }
+    doc["board"] = args.board
+    out: Path = args.out
+    io.write_json(out, doc)
+    stem = out.with_suffix("")
+    for name, fig in (
+        ("residuals", plot_residuals(res)),
+        ("coverage", plot_coverage(res)),
+        ("uncertainty", plot_uncertainty(res)),
+    ):
+        fig.savefig(f"{stem}_{name}.png", dpi=110)
+    print("\n".join(res.summary()))
+    print(f"wrote {out} and {stem.name}_{{residuals,coverage,uncertainty}}.png")
+    return 1 if args.fail_on_unreliable and res.verdict is Verdict.UNRELIABLE else 0
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(rig: Any, target: Any) -> None:
+    _WORKER["rig"], _WORKER["target"] = rig, target
+
+
+def _measure_one(job: tuple[str, str, str, float | None, float | None]) -> Any:
+    from quickhealth.station import vision_io as io
+    from quickhealth.vision.pose7d import measure_stereo
+
+    pid, lp, rp, pan, t = job
+    return pid, measure_stereo(
+        _WORKER["rig"],
+        _WORKER["target"],
+        io.read_gray(Path(lp)),
+        io.read_gray(Path(rp)),
+        pan=pan,
+        time=t,
+    )
+
+
+def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
+    import csv
+
+    import numpy as np
+
+    from quickhealth.identify.errors import InputError
+
+    if not path.is_file():
+        raise InputError(
+            f"{path}: missing (the run folder's image index: pose_id, q1..qN in deg, pan, time)"
+        )
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
+    if len(rows) < 2:
+        raise InputError(f"{path}: no rows")
+    head = [h.strip() for h in rows[0]]
+    qcols = [c for c in head if c.startswith("q") and c[1:].isdigit()]
+    if "pose_id" not in head or not qcols:
+        raise InputError(f"{path}:1: header needs pose_id and q1..qN")
+    qcols.sort(key=lambda c: int(c[1:]))
+    ids, q, pan, time, temp = [], [], [], [], []
+    for ln, r in enumerate(rows[1:], start=2):
+        if len(r) != len(head):
+            raise InputError(f"{path}:{ln}: {len(r)} cells, header has {len(head)}")
+        d = dict(zip(head, (c.strip() for c in r), strict=True))
+        try:
+            q.append([float(d[c]) for c in qcols])
+            pan.append(float(d["pan"]) if "pan" in d else np.nan)
+            time.append(float(d["time"]) if "time" in d else np.nan)
+            temp.append(float(d["temp"]) if "temp" in d else np.nan)
+        except ValueError:
+            bad = next(c for c in head if c != "pose_id" and not _isnum(d[c]))
+            raise InputError(
+                f"{path}:{ln}:{head.index(bad) + 1}: {bad} is not a number ({d[bad]!r})"
+            ) from None
+        ids.append(d["pose_id"])
+    return ids, np.radians(np.array(q)), np.radians(np.array(pan)), np.array(time), np.array(temp)
+
+
+def _isnum(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def run_measure(args: argparse.Namespace) -> int:
+    """Measure every stored pair of a run folder and write its measurement CSV."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    import numpy as np
+
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station import formats
+    from quickhealth.station import vision_io as io
+    from quickhealth.vision.pose7d import PoseMeasurement, to_measurements
+
+    run: Path = args.run_dir
+    if not run.is_dir():
+        raise InputError(f"{run}: not a run folder")
+    if args.jobs < 1:
+        raise InputError(f"--jobs {args.jobs}: need at least 1")
+    cal = args.calibration or (run / "calibration.json")
+    rig = (
+        io.read_rig(cal)
+        if cal.exists() or args.calibration
+        else io.read_rig(io.data_path("reference_rig.json"))
+    )
+    tpath = args.target or (run / "target.json" if (run / "target.json").exists() else None)
+    target = io.read_target(tpath)
+    ids, q, pan, time, temp = _read_index(run / "images" / "index.csv")
+    jobs = []
+    for k, pid in enumerate(ids):
+        lp, rp = run / "images" / f"{pid}_left.png", run / "images" / f"{pid}_right.png"
+        for p in (lp, rp):
+            if not p.is_file():
+                raise InputError(
+                    f"{p}: missing image for pose {pid!r} (listed in images/index.csv)"
+                )
+        jobs.append(
+            (
+                pid,
+                str(lp),
+                str(rp),
+                None if np.isnan(pan[k]) else float(pan[k]),
+                None if np.isnan(time[k]) else float(time[k]),
+            )
+        )
+    # check every image is readable and of the calibrated size before measuring anything
+    w, h = rig.left.image_size
+    for _, lp, rp, _, _ in jobs:
+        for p in (lp, rp):
+            img = io.read_gray(Path(p))
+            if img.shape != (h, w):
+                raise InputError(
+                    f"{p}: image is {img.shape[1]}×{img.shape[0]}, the calibration's cameras {w}×{h}"
+                )
+    results: dict[str, Any] = {}
+    if args.jobs == 1:
+        _init_worker(rig, target)
+        it = map(_measure_one, jobs)
+        pool = None
+    else:
+        pool = ProcessPoolExecutor(args.jobs, initializer=_init_worker, initargs=(rig, target))
+        it = pool.map(_measure_one, jobs, chunksize=4)
+    try:
+        for k, (pid, res) in enumerate(it, start=1):
+            results[pid] = res
+            sys.stderr.write(f"\rmeasuring: {k}/{len(jobs)} pairs")
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    sys.stderr.write("\n")
+    keep = [k for k, pid in enumerate(ids) if isinstance(results[pid], PoseMeasurement)]
+    rejected = [
+        f"{pid}: {results[pid].reason.value} ({results[pid].detail})"
+        for pid in ids
+        if not isinstance(results[pid], PoseMeasurement)
+    ]
+    if not keep:
+        raise InputError(
+            f"{run}: no pose measured in {len(ids)} pairs (first: {rejected[0] if rejected else '-'})"
+        )
+    meta = {
+        "instrument": "quickhealth 7D stereo camera",
+        "calibration": str(cal if cal.exists() else "reference design"),
+    }
+    if rejected:
+        meta["rejected"] = "; ".join(rejected)
+    meas = to_measurements(
+        q[keep], [results[ids[k]] for k in keep],
+        temp=None if np.all(np.isnan(temp)) else temp[keep],
+        pose_id=[ids[k] for k in keep], meta=meta,
+    )  # fmt: skip
+    out = args.out or (run / "measurements.csv")
+    formats.write_measurements(out, meas)
+    print(f"measured {len(keep)}/{len(ids)} poses; rejected {len(rejected)}; wrote {out}")
+    for r in rejected:
+        print(f"  rejected {r}")
+    return 0

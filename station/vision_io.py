@@ -1,0 +1,177 @@
+"""Files of the 7D camera: images, calibration JSON (CAL.json), target description files.
+
+Lengths in files are mm; inside, m.  Every bad input raises :class:`InputError` with one line
+naming the file.  Formats: docs/vision.md.
+"""
+
+from __future__ import annotations
+
+import glob as _glob
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from quickhealth.identify.errors import InputError
+from quickhealth.vision.boards import TargetDescription, reference_target
+from quickhealth.vision.calibrate import CalibrationResult
+from quickhealth.vision.camera import CameraModel, StereoRig
+
+U8 = NDArray[np.uint8]
+
+
+def expand_glob(pattern: str, what: str) -> list[Path]:
+    """Sorted files matching ``pattern``; InputError when none do."""
+    files = sorted(Path(p) for p in _glob.glob(os.path.expanduser(pattern)) if Path(p).is_file())
+    if not files:
+        hint = (
+            " (did the shell expand it? quote the glob)" if any(c in pattern for c in "*?[") else ""
+        )
+        raise InputError(f"{what} {pattern!r}: no image file matches{hint}")
+    return files
+
+
+def read_gray(path: Path) -> U8:
+    """One image as 8-bit grey; InputError for unreadable or corrupt files."""
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    if img is None:
+        raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
+    return img
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file."""
+    img = read_gray(path)
+    return (int(img.shape[1]), int(img.shape[0]))
+
+
+def read_image_set(paths: Sequence[Path]) -> list[U8]:
+    """All images of one camera; InputError if any is unreadable or their sizes differ."""
+    imgs = [read_gray(p) for p in paths]
+    s0 = imgs[0].shape
+    for p, im in zip(paths, imgs, strict=True):
+        if im.shape != s0:
+            raise InputError(
+                f"{p}: image is {im.shape[1]}×{im.shape[0]} but {paths[0].name} is {s0[1]}×{s0[0]}: "
+                "one calibration set needs one image size"
+            )
+    return imgs
+
+
+def write_png(path: Path, img: U8) -> None:
+    """Write an 8-bit image (PNG) atomically."""
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise InputError(f"{path}: could not encode the image")
+    _write_bytes(path, buf.tobytes())
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    import tempfile
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: Path, doc: dict[str, Any]) -> None:
+    """Write a JSON document atomically."""
+    _write_bytes(path, (json.dumps(doc, indent=1) + "\n").encode())
+
+
+def _load_json(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}:{exc.lineno}:{exc.colno}: not valid JSON ({exc.msg})") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a JSON object")
+    return doc
+
+
+def calibration_to_json(result: CalibrationResult) -> dict[str, Any]:
+    """CAL.json content of a calibration (CONTRACTS.md)."""
+    return result.to_dict()
+
+
+def rig_to_json(rig: StereoRig, note: str = "") -> dict[str, Any]:
+    """A stereo rig as a CAL.json document (for the reference design and the simulator)."""
+    T_right_left = rig.T_right_left
+    return {
+        "format": "quickhealth-calibration",
+        "version": 1,
+        "note": note,
+        "rms_px": 0.0,
+        "cameras": [
+            {"K": c.K.tolist(), "dist": c.dist.tolist(), "image_size": list(c.image_size)}
+            for c in rig.cameras
+        ],
+        "R": T_right_left[:3, :3].tolist(),
+        "T": (1000 * T_right_left[:3, 3]).tolist(),
+        "baseline_mm": 1000 * rig.baseline,
+        "views_used": [],
+        "views_rejected": [],
+        "verdict": "ok",
+        "reasons": [],
+    }
+
+
+def read_rig(path: Path) -> StereoRig:
+    """The stereo rig of a stereo CAL.json (R, T: left → right, T in mm)."""
+    doc = _load_json(path)
+    try:
+        cams = [
+            CameraModel(
+                np.asarray(c["K"], float), np.asarray(c["dist"], float), tuple(c["image_size"])
+            )
+            for c in doc["cameras"]
+        ]
+        if len(cams) != 2 or "R" not in doc or "T" not in doc:
+            raise InputError(f"{path}: not a stereo calibration (needs two cameras, 'R' and 'T')")
+        T = np.eye(4)
+        T[:3, :3] = np.asarray(doc["R"], float)
+        T[:3, 3] = np.asarray(doc["T"], float).ravel() / 1000.0
+    except InputError:
+        raise
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: bad calibration file ({type(exc).__name__}: {exc})") from None
+    if doc.get("verdict") == "unreliable":
+        raise InputError(
+            f"{path}: calibration verdict is 'unreliable' ({'; '.join(doc.get('reasons', []))}): recalibrate"
+        )
+    Ti = np.eye(4)
+    Ti[:3, :3] = T[:3, :3].T
+    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return StereoRig(cams[0], cams[1], Ti)
+
+
+def read_target(path: Path | None) -> TargetDescription:
+    """A target description file, or the reference target when ``path`` is None."""
+    if path is None:
+        return reference_target()
+    return TargetDescription.from_dict(_load_json(path), where=str(path))
+
+
+def data_path(name: str) -> Path:
+    """A file shipped in quickhealth/vision/data."""
+    import quickhealth.vision as v
+
+    return Path(v.__file__).parent / "data" / name
