@@ -401,9 +401,31 @@ def calibrate(
             reasons.append(
                 f"only {len(pairs)} pairs show the board in both images; need ≥ {settings.min_views}"
             )
+    warnings: list[str] = []
+    for i, c in enumerate(cams):
+        who = ("left camera: " if i == 0 else "right camera: ") if right is not None else ""
+        cp = c.covered_projection_std_px()
+        if settings.warn_projection_std_px < cp <= settings.max_projection_std_px:
+            warnings.append(
+                f"{who}projection uncertainty reaches {cp:.2f} px (1σ) where the board was seen"
+            )
+        if c.coverage < 0.8:
+            warnings.append(
+                f"{who}no data in {100 * (1 - c.coverage):.0f} % of the image; projection uncertainty there "
+                f"reaches {np.nanmax(c.projection_std_px):.1f} px: avoid those regions or add views"
+            )
     verdict = Verdict.UNRELIABLE if reasons else Verdict.OK
     return CalibrationResult(
-        tuple(cams), R, T, float(rms), stereo_rms, pairs, n_img, verdict, tuple(reasons)
+        tuple(cams),
+        R,
+        T,
+        float(rms),
+        stereo_rms,
+        pairs,
+        n_img,
+        verdict,
+        tuple(reasons),
+        tuple(warnings),
     )
 
 
