@@ -1,0 +1,592 @@
+"""The robot behind a small interface: a reader that cannot move the arm, and a commander.
+
+- :class:`RobotReader` — joints, TCP pose, controller time, robot mode and safety status.
+- :class:`Robot` — a reader that also moves (joint or linear leg to a joint target) and stops.
+- :class:`UrRobot` — the adapter on ur-rtde (``rtde_receive`` + ``rtde_control``), imported
+  lazily.  Moves are sent asynchronously and watched here, so a protective stop, a lost
+  connection or a frozen RTDE stream ends the move within a fraction of a second with a
+  :class:`~quickhealth.identify.errors.HardwareError` that says what to do, never a hang.
+- :class:`FakeRobot` — pure Python, same timing model as the controller simulator, with the
+  same faults; for fast unit tests.
+
+Every move is checked before it is sent: six finite joint angles inside the robot's limits,
+speeds and accelerations positive and bounded.  Only these numbers reach the controller.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from quickhealth.identify.errors import HardwareError, InputError
+from quickhealth.identify.robot import RobotModel, ur5
+
+F = NDArray[np.float64]
+
+MAX_JOINT_SPEED = 3.14  # rad/s, UR5 joint limit
+MAX_JOINT_ACCEL = 40.0  # rad/s²
+MAX_TOOL_SPEED = 3.0  # m/s
+MAX_TOOL_ACCEL = 150.0  # m/s²
+
+
+class Leg(Enum):
+    """How the robot travels to a pose (the plan's ``leg``)."""
+
+    JOINT = "joint"
+    LINEAR = "linear"
+
+
+class SafetyMode(Enum):
+    """UR safety modes (the numbers RTDE reports)."""
+
+    NORMAL = 1
+    REDUCED = 2
+    PROTECTIVE_STOP = 3
+    RECOVERY = 4
+    SAFEGUARD_STOP = 5
+    SYSTEM_EMERGENCY_STOP = 6
+    ROBOT_EMERGENCY_STOP = 7
+    VIOLATION = 8
+    FAULT = 9
+    UNKNOWN = -1
+
+
+class RobotMode(Enum):
+    """UR robot modes (the numbers RTDE reports)."""
+
+    DISCONNECTED = 0
+    CONFIRM_SAFETY = 1
+    BOOTING = 2
+    POWER_OFF = 3
+    POWER_ON = 4
+    IDLE = 5
+    BACKDRIVE = 6
+    RUNNING = 7
+    UPDATING_FIRMWARE = 8
+    UNKNOWN = -1
+
+
+def _enum(cls: type[Enum], v: int) -> Enum:
+    try:
+        return cls(int(v))
+    except ValueError:
+        return cls.UNKNOWN  # type: ignore[attr-defined, no-any-return]
+
+
+@dataclass(frozen=True)
+class RobotStatus:
+    """What the controller says about itself."""
+
+    robot_mode: RobotMode
+    safety_mode: SafetyMode
+    program_running: bool
+    connected: bool = True
+
+    @property
+    def ready(self) -> bool:
+        """Powered, brakes released, no safety stop."""
+        return (
+            self.connected
+            and self.robot_mode is RobotMode.RUNNING
+            and self.safety_mode in (SafetyMode.NORMAL, SafetyMode.REDUCED)
+        )
+
+    def describe(self) -> str:
+        """One line for the user."""
+        if not self.connected:
+            return "robot controller not connected"
+        return (
+            f"robot mode {self.robot_mode.name}, safety {self.safety_mode.name}, "
+            f"program {'running' if self.program_running else 'stopped'}"
+        )
+
+
+class ProtectiveStop(HardwareError):
+    """The controller stopped the arm for safety (protective or emergency stop)."""
+
+
+class ConnectionLost(HardwareError):
+    """The RTDE connection to the controller dropped."""
+
+
+class StreamFrozen(HardwareError):
+    """The controller's RTDE stream stopped advancing (its timestamp froze)."""
+
+
+class ProgramStopped(HardwareError):
+    """The control program on the controller stopped (someone pressed stop?)."""
+
+
+@dataclass(frozen=True)
+class JointSample:
+    """One joint reading from the stream: controller time (s) and joints (rad)."""
+
+    t: float
+    q: F
+
+
+@runtime_checkable
+class RobotReader(Protocol):
+    """Read-only view of a robot: cannot move the arm."""
+
+    model: RobotModel
+
+    def joints(self) -> F:
+        """Actual joints, rad, shape (n,)."""
+        ...
+
+    def sample(self) -> JointSample:
+        """Actual joints with the controller's timestamp."""
+        ...
+
+    def tcp_pose(self) -> F:
+        """The controller's own TCP pose ``T_base_tcp`` (its nominal kinematics), (4, 4)."""
+        ...
+
+    def status(self) -> RobotStatus:
+        """Robot mode, safety mode, program state."""
+        ...
+
+
+@runtime_checkable
+class Robot(RobotReader, Protocol):
+    """A robot that moves: joint or linear leg to a joint target, stop."""
+
+    def move(
+        self, q: ArrayLike, leg: Leg = Leg.JOINT, *, speed: float = 1.0, accel: float = 1.4
+    ) -> None:
+        """Move to joints ``q`` (rad) and return when the controller says the move ended.
+
+        ``speed``/``accel``: rad/s and rad/s² for joint legs, m/s and m/s² for linear legs.
+        Raises :class:`ProtectiveStop`, :class:`ConnectionLost`, :class:`StreamFrozen` or
+        :class:`ProgramStopped` (all ``HardwareError``) when the move cannot finish.
+        """
+        ...
+
+    def stop(self) -> None:
+        """Decelerate the arm to rest now."""
+        ...
+
+    def reader(self) -> RobotReader:
+        """A read-only view of this robot."""
+        ...
+
+    def close(self) -> None:
+        """Stop and release the connection."""
+        ...
+
+
+def check_move(
+    model: RobotModel, q: ArrayLike, leg: Leg, speed: float, accel: float
+) -> tuple[F, Leg, float, float]:
+    """Validate a move's numbers (the only things that ever reach the controller)."""
+    q = np.asarray(q, dtype=float)
+    if q.shape != (model.n_joints,) or not np.all(np.isfinite(q)):
+        raise InputError(f"move needs {model.n_joints} finite joint angles, got {q!r}")
+    if np.any(q < model.q_min - 1e-9) or np.any(q > model.q_max + 1e-9):
+        raise InputError(
+            f"move target {np.degrees(q).round(3).tolist()} deg is outside the joint limits"
+        )
+    leg = Leg(leg)
+    vmax, amax = (
+        (MAX_JOINT_SPEED, MAX_JOINT_ACCEL) if leg is Leg.JOINT else (MAX_TOOL_SPEED, MAX_TOOL_ACCEL)
+    )
+    speed, accel = float(speed), float(accel)
+    if not (0.0 < speed <= vmax and math.isfinite(speed)):
+        raise InputError(f"speed {speed} outside (0, {vmax}]")
+    if not (0.0 < accel <= amax and math.isfinite(accel)):
+        raise InputError(f"acceleration {accel} outside (0, {amax}]")
+    return q, leg, speed, accel
+
+
+class _ReadOnly:
+    """A reader wrapping a robot: exposes only the read methods."""
+
+    def __init__(self, robot: RobotReader) -> None:
+        self._robot = robot
+        self.model = robot.model
+
+    def joints(self) -> F:
+        return self._robot.joints()
+
+    def sample(self) -> JointSample:
+        return self._robot.sample()
+
+    def tcp_pose(self) -> F:
+        return self._robot.tcp_pose()
+
+    def status(self) -> RobotStatus:
+        return self._robot.status()
+
+
+def _pose_to_T(p: ArrayLike) -> F:
+    from quickhealth.identify.transforms import exp_so3, make_T
+
+    p = np.asarray(p, dtype=float)
+    return make_T(exp_so3(p[3:6]), p[:3])
+
+
+# ---------------------------------------------------------------------------------------
+# ur-rtde adapter
+# ---------------------------------------------------------------------------------------
+
+RECOVERY_HINT = "clear the cause, release the stop on the teach pendant, then rerun with --resume"
+
+
+class UrRobot:
+    """A UR robot over ur-rtde (CB3 or e-Series).
+
+    Parameters
+    ----------
+    host : str
+        Controller address.
+    frequency : float
+        RTDE rate, Hz (125 for CB3, up to 500 on e-Series).
+    stale_after : float
+        s without a new RTDE timestamp before the stream counts as frozen.
+    move_timeout : float
+        s a single move may take before the run is stopped.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        *,
+        frequency: float = 125.0,
+        stale_after: float = 0.5,
+        move_timeout: float = 120.0,
+        model: RobotModel | None = None,
+    ) -> None:
+        try:
+            import rtde_control
+            import rtde_receive
+        except ImportError as exc:  # pragma: no cover - ur-rtde is a dependency
+            raise HardwareError(f"ur-rtde is not installed ({exc})") from None
+        self.model = model or ur5()
+        self.host = host
+        self.stale_after = stale_after
+        self.move_timeout = move_timeout
+        self._rc = None
+        try:
+            self._rr = rtde_receive.RTDEReceiveInterface(host, frequency)
+        except RuntimeError as exc:
+            raise ConnectionLost(
+                f"cannot connect to the robot controller at {host}: {exc}"
+            ) from None
+        try:
+            self._rc = rtde_control.RTDEControlInterface(host, frequency)
+        except RuntimeError as exc:
+            self._safe_disconnect(self._rr)
+            raise ConnectionLost(
+                f"cannot start the control interface at {host}: {exc} "
+                "(is the robot in remote control and the dashboard server reachable?)"
+            ) from None
+        self._last_ts = (-1.0, time.monotonic())
+
+    # -- reading ---------------------------------------------------------------------------
+    def _check_stream(self) -> float:
+        if not self._rr.isConnected():
+            raise ConnectionLost(
+                f"lost the RTDE connection to {self.host}: check the network cable and the "
+                f"controller, then rerun with --resume"
+            )
+        ts = float(self._rr.getTimestamp())
+        last, since = self._last_ts
+        now = time.monotonic()
+        if ts != last:
+            self._last_ts = (ts, now)
+        elif now - since > self.stale_after:
+            raise StreamFrozen(
+                f"the controller's RTDE stream froze (timestamp {ts:.3f} s unchanged for "
+                f"{now - since:.1f} s): restart the controller, then rerun with --resume"
+            )
+        return ts
+
+    def joints(self) -> F:
+        self._check_stream()
+        return np.asarray(self._rr.getActualQ(), dtype=float)
+
+    def sample(self) -> JointSample:
+        ts = self._check_stream()
+        return JointSample(ts, np.asarray(self._rr.getActualQ(), dtype=float))
+
+    def tcp_pose(self) -> F:
+        self._check_stream()
+        return _pose_to_T(self._rr.getActualTCPPose())
+
+    def status(self) -> RobotStatus:
+        if not self._rr.isConnected():
+            return RobotStatus(RobotMode.UNKNOWN, SafetyMode.UNKNOWN, False, connected=False)
+        return RobotStatus(
+            _enum(RobotMode, self._rr.getRobotMode()),  # type: ignore[arg-type]
+            _enum(SafetyMode, self._rr.getSafetyMode()),  # type: ignore[arg-type]
+            int(self._rr.getRuntimeState()) == 2,
+        )
+
+    def reader(self) -> RobotReader:
+        return _ReadOnly(self)
+
+    # -- commanding ------------------------------------------------------------------------
+    def move(
+        self, q: ArrayLike, leg: Leg = Leg.JOINT, *, speed: float = 1.0, accel: float = 1.4
+    ) -> None:
+        q, leg, speed, accel = check_move(self.model, q, leg, speed, accel)
+        self._check_ready()
+        qs = [float(v) for v in q]
+        if leg is Leg.JOINT:
+            ok = self._rc.moveJ(qs, speed, accel, True)
+        else:
+            ok = self._rc.moveL_FK(qs, speed, accel, True)
+        if not ok:
+            self._raise_for_state("the controller refused the move")
+        self._wait_move(q)
+
+    def _wait_move(self, q: F) -> None:
+        t0 = time.monotonic()
+        idle_since: float | None = None
+        time.sleep(0.01)
+        while True:
+            self._check_stream()
+            st = self.status()
+            if not st.ready or not st.program_running:
+                self._raise_for_state("the move did not finish")
+            progress = self._rc.getAsyncOperationProgress()
+            if progress < 0:
+                qa = np.asarray(self._rr.getTargetQ(), dtype=float)
+                if np.max(np.abs(qa - q)) < 1e-4:
+                    return
+                # Not there yet: the two RTDE connections may lag each other by a packet, or
+                # the progress register still shows the previous move.  Persisting = stopped.
+                if idle_since is None:
+                    idle_since = time.monotonic()
+                elif time.monotonic() - idle_since > 0.25:
+                    self._raise_for_state("the move ended away from its target")
+            else:
+                idle_since = None
+            if time.monotonic() - t0 > self.move_timeout:
+                self.stop()
+                raise HardwareError(
+                    f"a move took longer than {self.move_timeout:.0f} s: check the robot"
+                )
+            time.sleep(0.004)
+
+    def _check_ready(self) -> None:
+        self._check_stream()
+        st = self.status()
+        if not st.ready:
+            self._raise_for_state("the robot is not ready")
+        if not st.program_running:
+            # The control script stopped (e.g. after a released protective stop): restart it.
+            self._rc.reuploadScript()
+            deadline = time.monotonic() + 5.0
+            while not self._rc.isProgramRunning():
+                if time.monotonic() > deadline:
+                    raise ProgramStopped("the control program on the robot does not start")
+                time.sleep(0.01)
+
+    def _raise_for_state(self, what: str) -> None:
+        self._check_stream()
+        st = self.status()
+        if not st.connected or not self._rc.isConnected():
+            raise ConnectionLost(f"{what}: lost the connection to {self.host}; rerun with --resume")
+        if st.safety_mode in (SafetyMode.PROTECTIVE_STOP, SafetyMode.SAFEGUARD_STOP):
+            raise ProtectiveStop(
+                f"{what}: {st.safety_mode.name.lower().replace('_', ' ')}; {RECOVERY_HINT}"
+            )
+        if st.safety_mode not in (SafetyMode.NORMAL, SafetyMode.REDUCED):
+            raise ProtectiveStop(f"{what}: safety mode {st.safety_mode.name}; {RECOVERY_HINT}")
+        if st.robot_mode is not RobotMode.RUNNING:
+            raise HardwareError(
+                f"{what}: robot mode {st.robot_mode.name}; power on and release the brakes"
+            )
+        if not st.program_running:
+            raise ProgramStopped(
+                f"{what}: the control program stopped (stop pressed on the pendant?); "
+                "rerun with --resume"
+            )
+        raise HardwareError(f"{what}: {st.describe()}")
+
+    def stop(self) -> None:
+        if self._rc is not None and self._rc.isConnected():
+            try:
+                self._rc.stopJ(2.0, False)
+            except RuntimeError:
+                pass
+
+    def close(self) -> None:
+        rc, self._rc = self._rc, None
+        if rc is not None:
+            try:
+                if rc.isConnected() and self._rr.isConnected():
+                    rc.stopScript()
+            except RuntimeError:
+                pass
+            self._safe_disconnect(rc)
+        self._safe_disconnect(self._rr)
+
+    @staticmethod
+    def _safe_disconnect(iface: object) -> None:
+        try:
+            iface.disconnect()  # type: ignore[attr-defined]
+        except RuntimeError:
+            pass
+
+    def __enter__(self) -> UrRobot:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# ---------------------------------------------------------------------------------------
+# Pure-Python fake
+# ---------------------------------------------------------------------------------------
+
+
+class FakeRobot:
+    """A robot in this process: the simulator's arm model, a settable clock speed, faults.
+
+    Parameters
+    ----------
+    q0 : array, rad
+        Start joints.
+    time_scale : float
+        Motions run this many times faster than on the real arm (tests use 20–100).
+    truth : callable, optional
+        ``q -> T_instr_flange`` of the simulated world (for :mod:`cameras`).
+
+    Faults: :meth:`inject` ``("protective_stop" | "connection_drop" | "frozen_stream" |
+    "program_stop", after_moves=n)``.
+    """
+
+    def __init__(
+        self,
+        q0: ArrayLike | None = None,
+        *,
+        time_scale: float = 1.0,
+        model: RobotModel | None = None,
+        truth: Callable[[F], F] | None = None,
+        stale_after: float = 0.5,
+    ) -> None:
+        from .simcontroller import HOME_Q_DEG, Arm
+
+        self.model = model or ur5()
+        q0 = np.radians(HOME_Q_DEG) if q0 is None else np.asarray(q0, dtype=float)
+        self.arm = Arm(self.model, q0, truth=truth)
+        self.time_scale = float(time_scale)
+        self.stale_after = stale_after
+        self._t0 = time.monotonic()
+        self.safety_mode = SafetyMode.NORMAL
+        self.robot_mode = RobotMode.RUNNING
+        self.program_running = True
+        self.connected = True
+        self.frozen_at: float | None = None
+        self.n_moves = 0
+        self._faults: list[tuple[str, int]] = []
+        self.moves: list[tuple[F, Leg]] = []
+
+    def now(self) -> float:
+        """Simulated controller time, s."""
+        return (time.monotonic() - self._t0) * self.time_scale
+
+    def inject(self, kind: str, *, after_moves: int = 0) -> None:
+        """Fault at the start of move number ``n_moves + after_moves + 1`` (0: now)."""
+        if kind not in ("protective_stop", "connection_drop", "frozen_stream", "program_stop"):
+            raise ValueError(f"unknown fault {kind!r}")
+        if after_moves <= 0:
+            self._apply(kind)
+        else:
+            self._faults.append((kind, self.n_moves + after_moves))
+
+    def _apply(self, kind: str) -> None:
+        self.arm.halt(self.now())
+        if kind == "protective_stop":
+            self.safety_mode = SafetyMode.PROTECTIVE_STOP
+            self.program_running = False
+        elif kind == "connection_drop":
+            self.connected = False
+        elif kind == "frozen_stream":
+            self.frozen_at = self.now()
+        elif kind == "program_stop":
+            self.program_running = False
+
+    def release(self) -> None:
+        """Clear every fault (the technician released the stop, the network is back)."""
+        self.safety_mode = SafetyMode.NORMAL
+        self.program_running = True
+        self.connected = True
+        self.frozen_at = None
+
+    def _check_stream(self) -> float:
+        if not self.connected:
+            raise ConnectionLost("lost the RTDE connection to the fake robot; rerun with --resume")
+        if self.frozen_at is not None:
+            raise StreamFrozen(
+                "the controller's RTDE stream froze: restart the controller, then rerun with --resume"
+            )
+        return self.now()
+
+    def joints(self) -> F:
+        return self.arm.actual(self._check_stream())
+
+    def sample(self) -> JointSample:
+        t = self._check_stream()
+        return JointSample(t, self.arm.actual(t))
+
+    def tcp_pose(self) -> F:
+        return self.model.fk(self.joints())
+
+    def status(self) -> RobotStatus:
+        return RobotStatus(
+            self.robot_mode, self.safety_mode, self.program_running, connected=self.connected
+        )
+
+    def reader(self) -> RobotReader:
+        return _ReadOnly(self)
+
+    def move(
+        self, q: ArrayLike, leg: Leg = Leg.JOINT, *, speed: float = 1.0, accel: float = 1.4
+    ) -> None:
+        q, leg, speed, accel = check_move(self.model, q, leg, speed, accel)
+        self._check_stream()
+        self.n_moves += 1
+        for kind, at in list(self._faults):
+            if at <= self.n_moves:
+                self._faults.remove((kind, at))
+                self._apply(kind)
+        self._raise_unless_ready()
+        self.moves.append((q, leg))
+        if leg is Leg.JOINT:
+            m = self.arm.move_joint(q, speed, accel, self.now())
+        else:
+            m = self.arm.move_joint(q, speed * 3.0, accel * 3.0, self.now())  # ≈ tool speed
+        time.sleep(max(m.duration / self.time_scale, 0.0))
+        self.arm.target(self.now())
+
+    def _raise_unless_ready(self) -> None:
+        self._check_stream()
+        if self.safety_mode is not SafetyMode.NORMAL:
+            raise ProtectiveStop(f"the move did not finish: protective stop; {RECOVERY_HINT}")
+        if not self.program_running:
+            raise ProgramStopped(
+                "the move did not finish: the control program stopped; rerun with --resume"
+            )
+
+    def stop(self) -> None:
+        self.arm.halt(self.now())
+
+    def close(self) -> None:
+        self.stop()
+
+    def __enter__(self) -> FakeRobot:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
