@@ -6,7 +6,11 @@ from quickhealth.vision.reference import reference_rig
 
 
 def test_projection_matches_opencv_and_undistort_inverts_distort():
-    cam = CameraModel(np.array([[900.0, 0, 650], [0, 905, 360], [0, 0, 1]]), [0.05, -0.1, 0.001, -0.002, 0.02], (1280, 720))
+    cam = CameraModel(
+        np.array([[900.0, 0, 650], [0, 905, 360], [0, 0, 1]]),
+        [0.05, -0.1, 0.001, -0.002, 0.02],
+        (1280, 720),
+    )
     rng = np.random.default_rng(0)
     p = np.column_stack([rng.uniform(-0.5, 0.5, (50, 2)), rng.uniform(1, 2, 50)])
     ref, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), cam.K, cam.dist)

@@ -5,8 +5,8 @@ from quickhealth.identify.transforms import make_T, rot_x, rot_y, rot_z
 from quickhealth.vision.boards import TargetDescription, reference_target
 from quickhealth.vision.pose7d import (
     PoseMeasurement,
-    RejectReason,
     Rejection,
+    RejectReason,
     measure_stereo,
     pose_crb,
     pose_error,
@@ -22,7 +22,11 @@ TGT = reference_target()
 
 
 def random_pose(rng):
-    R = rot_z(rng.uniform(-0.3, 0.3)) @ rot_y(rng.uniform(-0.5, 0.5)) @ rot_x(rng.uniform(-0.4, 0.4))
+    R = (
+        rot_z(rng.uniform(-0.3, 0.3))
+        @ rot_y(rng.uniform(-0.5, 0.5))
+        @ rot_x(rng.uniform(-0.4, 0.4))
+    )
     t = [rng.uniform(-0.3, 0.3), rng.uniform(-0.2, 0.2), rng.uniform(1.5, 2.5)]
     return T_left_rig() @ make_T(R, t)
 
@@ -32,7 +36,9 @@ def noisy_corners(T, rng, sigma=0.2, target=TGT):
     for i, cam in enumerate(RIG.cameras):
         Tc = T if i == 0 else RIG.T_right_left @ T
         obj = target.corners.reshape(-1, 3)
-        seen.append((obj, cam.project(obj @ Tc[:3, :3].T + Tc[:3, 3]) + rng.normal(0, sigma, (len(obj), 2))))
+        seen.append(
+            (obj, cam.project(obj @ Tc[:3, :3].T + Tc[:3, 3]) + rng.normal(0, sigma, (len(obj), 2)))
+        )
     return seen
 
 
@@ -72,7 +78,20 @@ def test_rendered_pairs_are_measured_accurately_with_roi_hint():
         assert np.linalg.norm(dp) < 0.02e-3 and np.degrees(np.linalg.norm(dw)) < 0.005
         row = m.row()
         assert row["pan"] == pytest.approx(np.radians(20.0)) and row["time"] == 12.5
-        assert set(row) >= {"x", "y", "z", "pitch", "yaw", "roll", "sx", "sy", "sz", "spitch", "syaw", "sroll"}
+        assert set(row) >= {
+            "x",
+            "y",
+            "z",
+            "pitch",
+            "yaw",
+            "roll",
+            "sx",
+            "sy",
+            "sz",
+            "spitch",
+            "syaw",
+            "sroll",
+        }
 
 
 def test_rejections_say_why():
@@ -81,13 +100,20 @@ def test_rejections_say_why():
     seen = noisy_corners(T, rng)
     empty = (np.zeros((0, 3)), np.zeros((0, 2)))
     r = solve_stereo_pose(RIG, [seen[0], empty], pan=0.5)
-    assert isinstance(r, Rejection) and r.reason is RejectReason.ONE_CAMERA and "right" in r.detail and r.pan == 0.5
+    assert (
+        isinstance(r, Rejection)
+        and r.reason is RejectReason.ONE_CAMERA
+        and "right" in r.detail
+        and r.pan == 0.5
+    )
     assert solve_stereo_pose(RIG, [empty, empty]).reason is RejectReason.NOT_DETECTED
     few = [(s[0][:8], s[1][:8]) for s in seen]
     assert solve_stereo_pose(RIG, few).reason is RejectReason.TOO_FEW_CORNERS
     # one row of markers: collinear-ish corners
     row = TGT.corners[:8].reshape(-1, 3)
-    line = TargetDescription("row", "DICT_4X4_50", np.arange(8), TGT.corners[:8], TGT.plate, [0, 1, 0])
+    line = TargetDescription(
+        "row", "DICT_4X4_50", np.arange(8), TGT.corners[:8], TGT.plate, [0, 1, 0]
+    )
     seen_line = noisy_corners(T, rng, target=line)
     seen_line = [(row[:, :] * [1, 0.02, 1], px) for _, px in seen_line]
     assert solve_stereo_pose(RIG, seen_line).reason is RejectReason.COLLINEAR
