@@ -83,6 +83,7 @@ class PlanView:
     n_joint: int
     coverage: tuple[JointCoverage, ...]
     evenness: float | None = None
+    loop_time_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -162,6 +163,7 @@ class Health:
     std_mm: float
     max_mm: float
     threshold_mm: float
+    threshold_figure: str  # which figure the threshold applies to: "mean", "std" or "max"
     verdict: str  # "healthy" or "degraded"
     baseline_mean_mm: float | None
     hist_counts: tuple[int, ...]
@@ -170,11 +172,12 @@ class Health:
     worst: tuple[Region, ...]
     rms_pos_mm: float
     n_poses: int
+    effects: tuple[str, ...] = ()
     pngs: tuple[str, ...] = ()
 
     @property
     def change_mm(self) -> float | None:
-        """Mean workspace error minus the baseline's, or None without a baseline."""
+        """Mean workspace error minus the baseline's (mm), or None without a baseline."""
         if self.baseline_mean_mm is None:
             return None
         return self.mean_mm - self.baseline_mean_mm

@@ -52,9 +52,9 @@ class DiagnoseScreen(Screen[None]):
     def on_mount(self) -> None:
         res = self.query_one("#residuals", DataTable)
         res.add_column("Pose", key="pose")
-        res.add_column("meas x,y,z mm", key="meas")
-        res.add_column("model−meas mm", key="diff")
         res.add_column("err mm", key="err")
+        res.add_column("model−meas x y z mm", key="diff")
+        res.add_column("measured x y z mm", key="meas")
         cand = self.query_one("#candidates", DataTable)
         cand.add_column("#", key="rank")
         cand.add_column("Effect", key="effect")
@@ -106,7 +106,7 @@ class DiagnoseScreen(Screen[None]):
                 c.effect,
                 f"{c.score:.1f}",
                 f"{c.predicted_rms_drop_mm:.3f}",
-                c.evidence,
+                c.evidence.split(": score test")[0],
                 key=c.effect,
             )
         if d.candidates:
@@ -125,9 +125,9 @@ class DiagnoseScreen(Screen[None]):
             diff = tuple(m - s for m, s in zip(r.model_mm, r.measured_mm, strict=True))
             res.add_row(
                 r.pose_id,
-                " ".join(f"{v:7.1f}" for v in r.measured_mm),
-                " ".join(f"{v:+.3f}" for v in diff),
                 f"{r.err_mm:.3f}",
+                " ".join(f"{v:+.3f}" for v in diff),
+                " ".join(f"{v:7.1f}" for v in r.measured_mm),
                 key=r.pose_id,
             )
 

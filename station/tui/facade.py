@@ -1,0 +1,588 @@
+"""The Station facade: the only thing the technician's App talks to.
+
+It wraps the pieces the screens show and returns the small frozen records of
+:mod:`quickhealth.station.tui.views`:
+
+- devices and their state, pre-flight, run control (``station.hardware``, ``station.run``);
+- the plan and its dry run (``station.planning``);
+- results: BIC order selection and the ML fit (``identify.select``, ``identify.fit``), the
+  workspace error and the joint curves with bands (``identify.workspace``, ``identify.trend``);
+- diagnosis and the add-an-effect refit with held-out error before and after
+  (``identify.diagnose``, ``identify.fit``);
+- history: the archive and the trend (``station.archive``, ``identify.trend``).
+
+Every method may block (motion, fits); the App calls them from thread workers.  Run control
+(:meth:`pause`, :meth:`resume`, :meth:`abort`) is thread-safe and returns at once; ``abort``
+stops the robot before anything else.  Plots that matter are written as PNG into the run
+folder as well.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from quickhealth.identify.errormodel import MOTION_WORDS
+from quickhealth.identify.errors import InputError
+from quickhealth.identify.measurements import Measurements
+from quickhealth.identify.robot import RobotModel
+
+from . import jobs
+from .offload import offload, warm_up
+from .views import (
+    Candidate,
+    Check,
+    Connection,
+    Diagnosis,
+    DryRun,
+    Health,
+    History,
+    HistoryRow,
+    JointCoverage,
+    JointCurve,
+    PlanView,
+    PoseResidual,
+    PoseStatus,
+    Preflight,
+    Refit,
+)
+
+MOTIONS = ("dx", "dy", "dz", "ex", "ey", "ez")
+MOTION_UNITS = {"dx": "mm", "dy": "mm", "dz": "mm", "ex": "mrad", "ey": "mrad", "ez": "mrad"}
+
+
+@dataclass
+class _Model:
+    """The current fit of the current data (mutable session state, not a result)."""
+
+    fitted: object
+    effects: tuple[str, ...]
+    n_poses: int
+
+
+def _slug(name: str) -> str:
+    return name.replace(":", "_")
+
+
+def _save(fig, path: Path) -> str:  # type: ignore[no-untyped-def]
+    """Write a matplotlib Figure as PNG (Agg, no display needed)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    return str(path)
+
+
+class Analysis:
+    """Fit, results, diagnosis and refit of one data set (a run's measurements).
+
+    ``heldout`` is data of the same robot and set-up the fit never sees (e.g. a second
+    measurement file); without it the before/after comparison cross-validates the run.
+    ``out_dir``, when set, receives the PNG figures.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        meas: Measurements,
+        heldout: Measurements | None = None,
+        *,
+        max_order: int = 4,
+        effects: tuple[str, ...] = (),
+    ) -> None:
+        self.robot = robot
+        self.meas = meas
+        self.heldout = heldout
+        self.max_order = max_order
+        self.effects = tuple(effects)
+        self._lock = threading.Lock()
+        self._model: _Model | None = None
+        self._diag = None
+        self.out_dir: Path | None = None
+
+    # ----- fitting ---------------------------------------------------------------------------
+    def fit(self, effects: tuple[str, ...] | None = None):  # type: ignore[no-untyped-def]
+        """BIC order selection and ML fit with ``effects`` (default: the current ones)."""
+        eff = self.effects if effects is None else effects
+        return offload(jobs.fit_job, self.robot, self.meas, eff, self.max_order)
+
+    def model(self):  # type: ignore[no-untyped-def]
+        """The current model of all the data (fitted once, refitted when effects change)."""
+        with self._lock:
+            m = self._model
+            if m is None or m.effects != self.effects or m.n_poses != self.meas.n_poses:
+                m = _Model(self.fit(), self.effects, self.meas.n_poses)
+                self._model = m
+            return m.fitted
+
+    # ----- screens ---------------------------------------------------------------------------
+    def health(
+        self,
+        *,
+        run_id: str,
+        robot_name: str,
+        threshold_mm: float,
+        threshold_figure: str = "max",
+        baseline_mean_mm: float | None = None,
+    ) -> tuple[Health, dict]:
+        """The health summary of the current model, and the numbers for report.json."""
+        fitted = self.model()
+        ws, jcs, worst = offload(jobs.workspace_job, fitted)
+        curves = []
+        for jc in jcs:
+            for m, motion in enumerate(MOTIONS):
+                if not np.any(jc.values[m]) and not np.any(jc.half_width[m]):
+                    continue  # not in the model
+                curves.append(
+                    JointCurve(
+                        joint=f"j{jc.joint}",
+                        motion=motion,
+                        words=MOTION_WORDS[motion],
+                        unit=MOTION_UNITS[motion],
+                        q_deg=np.degrees(jc.theta),
+                        value=jc.values[m] * 1e3,
+                        band=jc.half_width[m] * 1e3,
+                    )
+                )
+        figures = {"mean": ws.mean * 1e3, "std": ws.std * 1e3, "max": ws.max * 1e3}
+        verdict = "healthy" if figures[threshold_figure] <= threshold_mm else "degraded"
+        h = Health(
+            run_id=run_id,
+            robot=robot_name,
+            mean_mm=figures["mean"],
+            std_mm=figures["std"],
+            max_mm=figures["max"],
+            threshold_mm=threshold_mm,
+            threshold_figure=threshold_figure,
+            verdict=verdict,
+            baseline_mean_mm=baseline_mean_mm,
+            hist_counts=tuple(int(c) for c in ws.hist_counts),
+            hist_edges_mm=tuple(float(e) * 1e3 for e in ws.hist_edges),
+            curves=tuple(curves),
+            worst=worst,
+            rms_pos_mm=float(fitted.rms_pos * 1e3),
+            n_poses=self.meas.n_poses,
+            effects=tuple(e.name for e in fitted.effects),
+        )
+        report = {
+            "n_poses": self.meas.n_poses,
+            "n_params": int(fitted.n_free),
+            "bic": float(fitted.bic),
+            "chi2": float(fitted.chi2),
+            "rms_pos_mm": float(fitted.rms_pos * 1e3),
+            "workspace": ws.as_dict(),
+            "verdict": verdict,
+            "threshold_mm": threshold_mm,
+            "threshold_figure": threshold_figure,
+            "effects": list(h.effects),
+            "curves": [jc.as_dict() for jc in jcs],
+        }
+        if fitted.rms_rot is not None:
+            report["rms_rot_deg"] = float(np.degrees(fitted.rms_rot))
+        return h, report
+
+    def diagnose(self) -> Diagnosis:
+        """Residuals per pose and the ranked candidate effects of the current model."""
+        fitted = self.model()
+        diag = offload(jobs.diagnose_job, fitted, self.meas)
+        self._diag = diag
+        res = fitted.residual_pos * 1e3  # measured − model, mm
+        pos = self.meas.pos * 1e3
+        ids = self.meas.pose_id or tuple(f"p{i:04d}" for i in range(self.meas.n_poses))
+        residuals = tuple(
+            PoseResidual(
+                pose_id=ids[i],
+                measured_mm=tuple(float(v) for v in pos[i]),  # type: ignore[arg-type]
+                model_mm=tuple(float(v) for v in pos[i] - res[i]),  # type: ignore[arg-type]
+                err_mm=float(np.linalg.norm(res[i])),
+            )
+            for i in range(self.meas.n_poses)
+        )
+        cands = tuple(
+            Candidate(c.effect, float(c.score), float(c.predicted_rms_drop_mm), c.evidence)
+            for c in diag.candidates[:12]
+            if c.significant or len(diag.candidates) <= 12
+        )
+        return Diagnosis(str(diag.verdict.value), self.effects, residuals, cands)
+
+    def add_effect(
+        self, effect: str, on_step: Callable[[int, int, str], None] | None = None
+    ) -> Refit:
+        """Fit without and with ``effect``; held-out (or cross-validated) error before and after.
+
+        The effect then stays in the model, so the next diagnosis looks for what is still
+        missing.  ``on_step(done, total, what)`` reports each fit.
+        """
+        step = on_step or (lambda done, total, what: None)
+        folds = 5
+        total = 2 if self.heldout is not None else 2 + 2 * folds
+        done = [0]
+
+        def progress(line: str) -> None:
+            done[0] = min(done[0] + 1, total)
+            step(done[0], total, line)
+
+        step(0, total, f"fitting with {effect}…")
+        cmp, fig = offload(
+            jobs.compare_job,
+            self.model(),
+            self.meas,
+            effect,
+            self.heldout,
+            folds,
+            progress=progress,
+        )
+        with self._lock:
+            self.effects = tuple(e.name for e in cmp.fitted_after.effects)
+            self._model = _Model(cmp.fitted_after, self.effects, self.meas.n_poses)
+        if self.out_dir is not None:
+            _save(fig, self.out_dir / f"refit_{_slug(effect)}.png")
+        step(total, total, "done")
+        b, a = cmp.before, cmp.after
+        return Refit(
+            effects_before=self.effects[: -len(cmp.effects)],
+            effects_after=self.effects,
+            before_mm=b.pos_mm,
+            after_mm=a.pos_mm,
+            before_axes_mm=(b.x_mm, b.y_mm, b.z_mm),
+            after_axes_mm=(a.x_mm, a.y_mm, a.z_mm),
+            heldout=f"{cmp.method}, {cmp.n_eval} poses",
+        )
+
+
+# ------------------------------------------------------------------------------------------
+# The station
+# ------------------------------------------------------------------------------------------
+
+
+class Station:
+    """Everything the technician's App can ask of the station (see the module docstring).
+
+    Build it with :meth:`open` (the command line), :meth:`simulated` (the built-in simulated
+    cell) or :meth:`from_data` (an existing measurement file, e.g. to diagnose it).
+    """
+
+    def __init__(
+        self,
+        *,
+        robot: RobotModel,
+        robot_name: str,
+        archive_root: Path,
+        run_id: str,
+        cell_name: str = "reference",
+        threshold_mm: float = 2.0,
+        threshold_figure: str = "max",
+        analysis: Analysis | None = None,
+        sim: bool = True,
+        cell=None,  # type: ignore[no-untyped-def]
+        plan=None,  # type: ignore[no-untyped-def]
+        plan_path: Path | None = None,
+    ) -> None:
+        from quickhealth.station.archive import Archive
+
+        self.robot = robot
+        self.robot_name = robot_name
+        self.archive = Archive.open(archive_root)
+        self.run_id = run_id
+        self.run_dir = self.archive.run_path(robot_name, run_id)
+        self.cell_name = cell_name
+        self.threshold_mm = float(threshold_mm)
+        self.threshold_figure = threshold_figure
+        self.sim = sim
+        self.analysis = analysis
+        if analysis is not None:
+            analysis.out_dir = self.run_dir
+        warm_up()
+        self.cell = cell
+        self.plan = plan
+        self.plan_path = plan_path
+        self._lock = threading.RLock()
+        self._health: Health | None = None
+
+    @classmethod
+    def from_data(
+        cls,
+        measurements: str | Path,
+        heldout: str | Path | None = None,
+        *,
+        robot: str = "ur5",
+        robot_name: str = "ur5",
+        archive_root: str | Path = "archive",
+        run_id: str | None = None,
+        threshold_mm: float = 2.0,
+    ) -> Station:
+        """A station on an existing measurement file (CSV v1): results, diagnose, history."""
+        from quickhealth.station.formats import load_robot, read_measurements
+
+        model = load_robot(robot)
+        meas = read_measurements(measurements, model.n_joints)
+        held = None if heldout is None else read_measurements(heldout, model.n_joints)
+        rid = run_id or meas.meta.get("run_id") or Path(measurements).resolve().parent.name
+        return cls(
+            robot=model,
+            robot_name=robot_name,
+            archive_root=Path(archive_root),
+            run_id=rid,
+            cell_name=meas.meta.get("cell", "–"),
+            threshold_mm=threshold_mm,
+            analysis=Analysis(model, meas, held),
+            sim=False,
+        )
+
+    # ----- words for the screens -------------------------------------------------------------
+    def title(self) -> str:
+        """One line: robot, cell, simulated or real."""
+        return f"{self.robot_name} · {self.cell_name} cell · {'simulated' if self.sim else 'real'}"
+
+    def cell_line(self) -> str:
+        """The Station screen's first line: cell, plan, run folder (Rich markup)."""
+        return f"Robot [b]{self.robot_name}[/b] · cell [b]{self.cell_name}[/b] · run [b]{self.run_id}[/b]"
+
+    # ----- devices ---------------------------------------------------------------------------
+    def connect(self) -> tuple[Connection, ...]:
+        """Connect (or reconnect) every device; their state afterwards."""
+        if self.cell is not None:
+            self.cell.connect()
+        return self.connections()
+
+    def connections(self) -> tuple[Connection, ...]:
+        """Robot (mode and safety), stereo camera, pan motor, and whether each answers."""
+        if self.cell is None:
+            why = "no station: opened on a measurement file"
+            return (
+                Connection("robot", "down", why),
+                Connection("stereo camera", "down", why),
+                Connection("pan motor", "down", why),
+            )
+        return self.cell.connections()
+
+    def preflight(self) -> Preflight:
+        """Every check that must pass before the arm moves (none moves it)."""
+        if self.cell is None:
+            return Preflight(
+                (Check("station", False, "opened on a measurement file: nothing to run"),)
+            )
+        return self.cell.preflight(self.plan)
+
+    # ----- plan ------------------------------------------------------------------------------
+    def plan_view(self) -> PlanView:
+        """The frozen plan as the planner summarised it, with per-joint coverage histograms."""
+        plan = self.plan
+        if plan is None:
+            raise InputError("no plan: start with --plan PLAN.json, or with --sim to plan the cell")
+        summ = plan.summary
+        joints = summ.get("joints", {})
+        bins = int(joints.get("bins", 12)) * 2
+        lo = np.asarray(joints.get("usable_min_deg", np.degrees(plan.robot.q_min)), float)
+        hi = np.asarray(joints.get("usable_max_deg", np.degrees(plan.robot.q_max)), float)
+        cover = joints.get("coverage", [float("nan")] * len(lo))
+        q = np.degrees(plan.q)
+        coverage = tuple(
+            JointCoverage(
+                joint=f"j{j + 1}",
+                counts=tuple(
+                    int(c) for c in np.histogram(q[:, j], bins=bins, range=(lo[j], hi[j]))[0]
+                ),
+                lo_deg=float(lo[j]),
+                hi_deg=float(hi[j]),
+                covered=float(cover[j]),
+            )
+            for j in range(q.shape[1])
+        )
+        legs = summ.get("legs", {})
+        dropped = {k: int(v) for k, v in summ.get("dropped", {}).items() if v}
+        ev = joints.get("evenness")
+        return PlanView(
+            cell=plan.cell_name,
+            path=str(self.plan_path or "(planned now)"),
+            plan_hash=plan.hash.removeprefix("sha256:"),
+            n_generated=int(summ.get("generated", len(plan.poses))),
+            n_kept=len(plan.poses),
+            dropped=dropped,
+            n_linear=int(legs.get("linear", 0)),
+            n_joint=int(legs.get("joint", 0)),
+            coverage=coverage,
+            evenness=None if ev is None else float(np.mean(ev)),
+            loop_time_s=float(summ.get("loop_time_s", float("nan"))),
+        )
+
+    def dry_run(self) -> DryRun:
+        """Drive the plan's legs on the simulated arm (no capture): does every move go through?
+
+        Runs on a pure-Python simulated controller at 50× speed from the first pose, so the
+        reported loop time is the simulated arm's, scaled back to real time.
+        """
+        from quickhealth.station.hardware.robot import FakeRobot, Leg
+
+        plan = self.plan
+        if plan is None:
+            raise InputError("no plan to dry-run")
+        scale = 50.0
+        robot = FakeRobot(plan.poses[0].q, time_scale=scale, model=plan.robot)
+        m = plan.motion
+        problems: list[str] = []
+        t0 = robot.now()
+        for p in plan.poses[1:]:
+            linear = p.leg.value == "linear"
+            try:
+                robot.move(
+                    p.q,
+                    Leg.LINEAR if linear else Leg.JOINT,
+                    speed=m.linear_speed if linear else m.joint_speed,
+                    accel=m.linear_accel if linear else m.joint_accel,
+                )
+            except Exception as exc:  # the dry run reports every refusal, it does not stop
+                problems.append(f"{p.name}: {exc}")
+        duration = robot.now() - t0 + len(plan.poses) * m.settle_s
+        robot.close()
+        return DryRun(not problems, len(plan.poses), duration, tuple(problems))
+
+    # ----- results ---------------------------------------------------------------------------
+    def has_measurements(self) -> bool:
+        """True when there is data to fit."""
+        return self.analysis is not None and self.analysis.meas.n_poses > 0
+
+    def results_stale(self) -> bool:
+        """True when the data or the effects changed since the last :meth:`results`."""
+        h = self._health
+        a = self.analysis
+        return a is not None and (
+            h is None or h.n_poses != a.meas.n_poses or h.effects != a.effects
+        )
+
+    def _baseline_mean(self) -> float | None:
+        try:
+            base = self.archive.baseline(self.robot_name)
+        except InputError:  # no runs yet
+            return None
+        if base is None or base.run_id == self.run_id:
+            return None
+        return float(base.mean_mm)
+
+    def results(self) -> Health:
+        """Fit the run, write model.json, report.json and the PNGs, archive it, summarise."""
+        from quickhealth.station.formats import write_model, write_report
+
+        from . import figures
+
+        if self.analysis is None:
+            raise InputError("no measurements yet: run the plan first")
+        h, report = self.analysis.health(
+            run_id=self.run_id,
+            robot_name=self.robot_name,
+            threshold_mm=self.threshold_mm,
+            threshold_figure=self.threshold_figure,
+            baseline_mean_mm=self._baseline_mean(),
+        )
+        d = self.run_dir
+        d.mkdir(parents=True, exist_ok=True)
+        pngs = (
+            figures.histogram_png(
+                h.hist_counts, h.hist_edges_mm, self.threshold_mm, d / "workspace_error.png"
+            ),
+            figures.curves_png(h.curves, d / "joint_curves.png"),
+        )
+        report["healthy"] = h.verdict == "healthy"
+        report["run_id"] = self.run_id
+        report["robot"] = self.robot_name
+        write_model(d / "model.json", self.analysis.model())
+        write_report(d / "report.json", report)
+        if not (d / "measurements.csv").exists():
+            from quickhealth.station.formats import write_measurements
+
+            write_measurements(d / "measurements.csv", self.analysis.meas)
+        self.archive.add_run(self.robot_name, d, run_id=self.run_id, healthy=h.verdict == "healthy")
+        from dataclasses import replace
+
+        h = replace(h, pngs=pngs)
+        self._health = h
+        return h
+
+    def diagnose(self) -> Diagnosis:
+        """Measured versus model per pose and the ranked candidate effects."""
+        if self.analysis is None:
+            raise InputError("no measurements yet: run the plan first")
+        return self.analysis.diagnose()
+
+    def add_effect(
+        self, effect: str, on_step: Callable[[int, int, str], None] | None = None
+    ) -> Refit:
+        """Add ``effect`` to the model; held-out error before and after."""
+        if self.analysis is None:
+            raise InputError("no measurements yet: run the plan first")
+        return self.analysis.add_effect(effect, on_step)
+
+    # ----- history ---------------------------------------------------------------------------
+    def history(self) -> History:
+        """This robot's archived runs, oldest first, and the trend of the main figures."""
+        from quickhealth.identify.trend import assess_trend
+
+        from . import figures
+
+        try:
+            recs = self.archive.runs(self.robot_name)
+        except InputError:
+            return History(self.robot_name, (), "no runs archived yet")
+        rows = tuple(
+            HistoryRow(
+                run_id=r.run_id,
+                when=r.time_utc[:16].replace("T", " "),
+                mean_mm=r.mean_mm,
+                std_mm=r.std_mm,
+                max_mm=r.max_mm,
+                verdict="healthy" if r.healthy is not False else "degraded",
+                baseline=r.baseline,
+            )
+            for r in recs
+        )
+        base = next((i for i, r in enumerate(recs) if r.baseline), 0)
+        result = assess_trend(
+            [self.archive.run_state(r) for r in recs],
+            base,
+            threshold_mm=self.threshold_mm,
+            threshold_figure=self.threshold_figure,
+        )
+        flags = result.flags()
+        prog = result.prognoses.get(self.threshold_figure)
+        words = "; ".join(flags[:2]) if flags else "no significant change since the baseline"
+        if prog is not None and len(recs) > 2:
+            words += "; " + prog.words()
+        png = figures.trend_png(rows, self.threshold_mm, self.run_dir / "trend.png")
+        return History(self.robot_name, rows, words, flagged=result.flagged, pngs=(png,))
+
+    # ----- run -------------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        """True while a run is moving the arm (or paused between poses)."""
+        return self.cell is not None and self.cell.running
+
+    @property
+    def paused(self) -> bool:
+        """True when the run waits between poses."""
+        return self.cell is not None and self.cell.paused
+
+    def pose_table(self) -> tuple[PoseStatus, ...]:
+        """Every pose of the plan (or of the measured data) with its status so far."""
+        if self.cell is not None and self.plan is not None:
+            return self.cell.pose_table(self.plan)
+        if self.analysis is not None:
+            ids = self.analysis.meas.pose_id or tuple(
+                f"p{i:04d}" for i in range(self.analysis.meas.n_poses)
+            )
+            q = np.degrees(self.analysis.meas.q)
+            return tuple(
+                PoseStatus(i, pid, "done", tuple(float(v) for v in q[i]))
+                for i, pid in enumerate(ids)
+            )
+        return ()
+
+    def n_remaining(self) -> int:
+        """Poses of the plan not measured yet."""
+        return sum(p.status not in ("done", "failed") for p in self.pose_table())
+
+    def shutdown(self) -> None:
+        """Stop the robot if a run is going and close the devices (the App is quitting)."""
+        if self.cell is not None:
+            self.cell.close()

@@ -1,0 +1,105 @@
+"""The heavy computations behind the screens, as pure module-level functions.
+
+Each takes plain data (robot, measurements, fitted model, names) and a ``progress`` callback,
+and returns picklable results, so :func:`~quickhealth.station.tui.offload.offload` can run
+it in a child process.  Nothing here reads or writes files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from quickhealth.identify.measurements import Measurements
+from quickhealth.identify.robot import RobotModel
+
+from .views import Region
+
+Progress = Callable[[str], None]
+
+
+def fit_job(
+    robot: RobotModel,
+    meas: Measurements,
+    effects: Sequence[str],
+    max_order: int,
+    progress: Progress | None = None,
+) -> Any:
+    """BIC order selection and ML fit with ``effects``: the FittedModel."""
+    from quickhealth.identify.effects import parse_effects
+    from quickhealth.identify.select import select_orders
+
+    eff = parse_effects(list(effects), robot)
+    return select_orders(robot, meas, eff, max_order=max_order, progress=progress).fitted
+
+
+def diagnose_job(fitted: Any, meas: Measurements, progress: Progress | None = None) -> Any:
+    """The diagnosis (``identify.diagnose.Diagnosis``) of ``fitted`` on ``meas``."""
+    from quickhealth.identify.diagnose import diagnose, state_from_fitted
+
+    return diagnose(state_from_fitted(fitted), meas)
+
+
+def compare_job(
+    fitted: Any,
+    meas: Measurements,
+    effect: str,
+    heldout: Measurements | None,
+    folds: int,
+    progress: Progress | None = None,
+) -> Any:
+    """``identify.compare.compare_effect`` and its before/after figure (a Comparison, Figure)."""
+    from quickhealth.identify.compare import compare_effect, plot_comparison
+
+    cmp = compare_effect(fitted, meas, effect, heldout=heldout, folds=folds, progress=progress)
+    return cmp, plot_comparison(cmp)
+
+
+def workspace_job(fitted: Any, progress: Progress | None = None) -> tuple[Any, Any, Any]:
+    """Workspace error, every joint's curves with bands, and the worst regions."""
+    from quickhealth.identify.workspace import all_joint_curves, workspace_error
+
+    ws = workspace_error(fitted, n_samples=4000)
+    curves = all_joint_curves(fitted, n_points=61)
+    return ws, curves, worst_regions(fitted)
+
+
+def worst_regions(
+    fitted: Any, n_samples: int = 4000, seed: int = 1, top: int = 5
+) -> tuple[Region, ...]:
+    """Where in the workspace the model's TCP error is largest, in words a technician can use.
+
+    Commands are drawn uniformly over the model's joint ranges; the target's nominal position
+    in the robot base frame is binned by side (front/left/back/right of the base, 90° sectors),
+    height (low/mid/high thirds of the sampled heights) and reach (near/far half); the regions
+    with the largest mean error come first.
+    """
+    rng = np.random.default_rng(seed)
+    spec = fitted.spec
+    q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
+    err = fitted.tcp_error(q, approach=np.ones_like(q)) * 1e3
+    p = (fitted.robot.fk(q) @ fitted.T_flange_target0)[:, :3, 3]
+    az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+    side = np.digitize((az + 45.0) % 360.0, [90.0, 180.0, 270.0])
+    height = np.digitize(p[:, 2], np.quantile(p[:, 2], [1 / 3, 2 / 3]))
+    reach = np.hypot(p[:, 0], p[:, 1])
+    far = (reach > np.median(reach)).astype(int)
+    key = side * 6 + height * 2 + far
+    sides = ("front (+x)", "left (+y)", "back (−x)", "right (−y)")
+    heights = ("low", "mid", "high")
+    out = []
+    for k in np.unique(key):
+        sel = key == k
+        if sel.sum() < n_samples // 100:
+            continue
+        s, h, f = k // 6, (k % 6) // 2, k % 2
+        zs = p[sel, 2] * 1e3
+        where = (
+            f"{sides[s]}, {heights[h]} (z {zs.min():.0f}…{zs.max():.0f} mm), "
+            f"{'far' if f else 'near'} reach"
+        )
+        out.append(Region(where, float(np.mean(err[sel]))))
+    out.sort(key=lambda r: -r.err_mm)
+    return tuple(out[:top])

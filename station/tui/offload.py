@@ -1,0 +1,106 @@
+"""Run a CPU-heavy pure function in a child process, so the terminal UI stays live.
+
+A thread worker alone is not enough for the fits: they are long stretches of Python and numpy
+that hold the interpreter lock, and the UI thread then waits milliseconds for every small
+step of handling a key (seconds per key press, measured).  :func:`offload` runs the function
+in a process forked from a *forkserver* that has already imported the identification
+modules (tens of milliseconds per call), passes arguments and result by pickle (frozen
+dataclasses and arrays), and forwards progress lines over a pipe.  The calling thread only
+waits on the pipe, which releases the lock.
+
+The function must be importable (module level) and accept a ``progress`` keyword.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from quickhealth.identify.errors import HardwareError
+
+PRELOAD = [
+    "numpy",
+    "scipy.linalg",
+    "quickhealth.identify.fit",
+    "quickhealth.identify.select",
+    "quickhealth.identify.diagnose",
+    "quickhealth.identify.compare",
+    "quickhealth.identify.workspace",
+    "quickhealth.station.tui.jobs",
+]
+
+_ctx_lock = threading.Lock()
+_ctx: Any = None
+
+
+def _context() -> Any:
+    global _ctx
+    with _ctx_lock:
+        if _ctx is None:
+            ctx = mp.get_context("forkserver")
+            ctx.set_forkserver_preload(PRELOAD)
+            _ctx = ctx
+        return _ctx
+
+
+def warm_up() -> None:
+    """Start the forkserver (and the resource tracker) now, from the main thread.
+
+    Call before the App takes over the terminal: both pass the process's stderr to the
+    server they start, and a terminal UI (or its test driver) replaces stderr with an object
+    that has no file descriptor.
+    """
+    from multiprocessing import forkserver
+
+    _context()
+    forkserver.ensure_running()
+
+
+def _child(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+    def progress(line: str) -> None:
+        conn.send(("progress", line))
+
+    try:
+        result = fn(*args, progress=progress)
+    except BaseException as exc:  # sent back and raised in the parent
+        try:
+            conn.send(("error", exc))
+        except Exception:  # an exception that does not pickle
+            conn.send(("error", RuntimeError(f"{type(exc).__name__}: {exc}")))
+    else:
+        conn.send(("ok", result))
+    finally:
+        conn.close()
+
+
+def offload(
+    fn: Callable[..., Any], *args: Any, progress: Callable[[str], None] | None = None
+) -> Any:
+    """``fn(*args, progress=…)`` in a child process; its result, or its exception re-raised."""
+    ctx = _context()
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(send, fn, args), daemon=True)
+    proc.start()
+    send.close()
+    try:
+        while True:
+            try:
+                kind, payload = recv.recv()
+            except EOFError:
+                raise HardwareError(
+                    f"the computation process ended without an answer (exit code {proc.exitcode})"
+                ) from None
+            if kind == "progress":
+                if progress is not None:
+                    progress(payload)
+            elif kind == "ok":
+                return payload
+            else:
+                raise payload
+    finally:
+        recv.close()
+        proc.join(timeout=10)
+        if proc.is_alive():
+            proc.kill()

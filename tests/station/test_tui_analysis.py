@@ -1,0 +1,131 @@
+"""TUI on a measured data set: results, the diagnose loop on a hidden effect, history, UI liveness.
+
+The data come from the digital twin with a hidden backlash on joint 2 (training and held-out
+files in CSV v1); the App is driven with textual's pilot, through the real facade, fit,
+diagnosis and archive.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import pytest
+from textual.widgets import Static
+from textual.worker import WorkerState
+
+from quickhealth.identify.twin import make_twin, random_joints
+from quickhealth.station.formats import write_measurements
+from quickhealth.station.tui.app import QuickhealthApp
+from quickhealth.station.tui.facade import Station
+
+
+def hidden_effect_files(tmp: Path, n_train: int = 60, n_held: int = 60) -> tuple[Path, Path]:
+    """Twin UR5 with a hidden backlash on joint 2 (~4× the noise floor), train + held-out CSVs."""
+    twin = make_twin(seed=11, effects={"backlash:j2": 4e-4})
+    q = random_joints(twin.robot, n_train + n_held, seed=12, T_instr_base=twin.truth.T_instr_base)
+    run = tmp / "run-hidden"
+    run.mkdir()
+    train, held = run / "measurements.csv", tmp / "heldout.csv"
+    write_measurements(train, twin.measure(q[:n_train], seed=13, meta={"run_id": "hidden"}))
+    write_measurements(held, twin.measure(q[n_train:], seed=14))
+    return train, held
+
+
+async def settle(app: QuickhealthApp, pilot) -> None:  # type: ignore[no-untyped-def]
+    """Let every worker finish and the screen refresh."""
+    for _ in range(3):
+        await pilot.pause()
+        await app.workers.wait_for_complete()
+    await pilot.pause()
+
+
+def text_of(app: QuickhealthApp, selector: str) -> str:
+    return str(app.screen.query_one(selector, Static).render())
+
+
+@pytest.mark.slow
+async def test_diagnose_loop_on_hidden_effect_lowers_heldout_error(tmp_path: Path) -> None:
+    train, held = hidden_effect_files(tmp_path)
+    station = Station.from_data(train, held, archive_root=tmp_path / "archive", robot_name="ur5-t")
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(120, 40)) as pilot:
+        await pilot.press("5")
+        await settle(app, pilot)
+        screen = app.screen
+        assert app.current_mode == "diagnose"
+        diag = screen.diagnosis
+        assert diag is not None and diag.verdict == "missing-effect"
+        assert diag.candidates[0].effect == "backlash:j2"
+        # where the model fails: the per-pose table sorted worst first
+        assert screen.query_one("#residuals").row_count == 60
+        errs = [r.err_mm for r in diag.residuals]
+        first = screen.query_one("#residuals").get_row_at(0)
+        assert float(first[1]) == pytest.approx(max(errs), abs=1e-3)
+        await pilot.press("s")  # by pose
+        await pilot.pause()
+        assert screen.query_one("#residuals").get_row_at(0)[0] == diag.residuals[0].pose_id
+        # add the chosen (top) effect: background refit, before/after side by side
+        await pilot.press("a")
+        await settle(app, pilot)
+        refit = screen.refit
+        assert refit is not None and refit.effects_after == ("backlash:j2",)
+        assert refit.after_mm < 0.7 * refit.before_mm
+        shown = text_of(app, "#before-after")
+        assert "Held-out error" in shown
+        assert f"{refit.before_mm:.3f}" in shown and f"{refit.after_mm:.3f}" in shown
+        # the model now has the effect; the new diagnosis no longer asks for it
+        assert "backlash:j2" in text_of(app, "#diag-verdict")
+        assert all(c.effect != "backlash:j2" for c in screen.diagnosis.candidates)
+        assert (station.run_dir / "refit_backlash_j2.png").is_file()
+
+
+@pytest.mark.slow
+async def test_ui_answers_keys_while_a_fit_runs(tmp_path: Path) -> None:
+    train, held = hidden_effect_files(tmp_path)
+    station = Station.from_data(train, held, archive_root=tmp_path / "archive")
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await pilot.press("4")  # Results: starts the fit in a worker
+        await pilot.pause()
+        fit = [w for w in app.workers if w.group == "fit"]
+        assert fit and fit[0].state in (WorkerState.PENDING, WorkerState.RUNNING)
+        await pilot.press("m")  # a key of the Results screen …
+        assert app.screen.motion == 0
+        await pilot.press("6")  # … and a screen switch, both while the fit runs
+        await pilot.pause()
+        assert app.current_mode == "history"
+        assert fit[0].state is WorkerState.RUNNING
+        await settle(app, pilot)
+        await pilot.press("4")
+        await settle(app, pilot)
+        h = app.screen.health
+        assert h is not None and h.n_poses == 60
+        assert "Workspace TCP error" in text_of(app, "#summary")
+
+
+@pytest.mark.slow
+async def test_results_written_archived_and_shown_in_history(tmp_path: Path) -> None:
+    train, held = hidden_effect_files(tmp_path, n_train=40, n_held=10)
+    station = Station.from_data(train, held, archive_root=tmp_path / "archive", threshold_mm=5.0)
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(120, 40)) as pilot:
+        await pilot.press("4")
+        await settle(app, pilot)
+        h = app.screen.health
+        assert h.verdict == "healthy" and 0 < h.mean_mm < h.max_mm < 5.0
+        summary = text_of(app, "#summary")
+        assert "HEALTHY" in summary and f"{h.max_mm:7.3f}" in summary
+        assert len(h.worst) >= 3 and h.worst[0].err_mm >= h.worst[-1].err_mm
+        for name in ("model.json", "report.json", "workspace_error.png", "joint_curves.png"):
+            assert (station.run_dir / name).is_file(), name
+        await pilot.press("j")  # next joint in the curve plot
+        assert app.screen.joint == 1
+        await pilot.press("6")
+        await settle(app, pilot)
+        hist = app.screen.history
+        assert [r.run_id for r in hist.rows] == ["hidden"]
+        assert hist.rows[0].baseline
+        assert app.screen.query_one("#runs").row_count == 1
+        assert (station.run_dir / "trend.png").is_file()
+    await asyncio.sleep(0)
