@@ -65,10 +65,11 @@ def run(args: argparse.Namespace) -> int:
     tty = sys.stderr.isatty()
 
     def progress(stage: str, done: int, total: int) -> None:
-        if done == total:
-            sys.stderr.write(f"{stage}: {done}/{total}\n")
-        elif tty:
-            sys.stderr.write(f"{stage}: {done}/{total}\r")
+        # progress on a terminal only, overwritten in place: errors stay one line
+        if tty and total:
+            end = "\r\033[K" if done == total else "\r"
+            sys.stderr.write(f"{stage}: {done}/{total}{end}")
+            sys.stderr.flush()
 
     res = plan_loop(cell, args.n, args.seed, progress)
     doc = plan_to_dict(res)

@@ -242,6 +242,34 @@ class CollisionWorld:
             if not (sname == TABLE and names[i] == "base_link")
         ]
         self._req = fcl.CollisionRequest()
+        # broadphase: a bounding sphere per object, tested for all samples at once in numpy
+        centres, radii = [], []
+        for path in ch.mesh_files:
+            v, _ = _mesh_data(str(path))
+            c = (v.min(0) + v.max(0)) / 2
+            centres.append(c)
+            radii.append(float(np.linalg.norm(v - c, axis=1).max()))
+        centres.append(np.zeros(3))
+        radii.append(float(np.linalg.norm(cell.target_body_size) / 2))
+        self._c_local = np.array(centres)  # (8, 3)
+        self._r = np.array(radii) + 1e-3
+        s_c, s_r = [], []
+        for o in cell.obstacles:
+            s_c.append(o.T_world_obstacle[:3, 3])
+            if o.shape == "box":
+                assert o.size is not None
+                s_r.append(float(np.linalg.norm(o.size + 2 * g) / 2))
+            else:
+                s_r.append(float(np.hypot(o.radius + g, o.length / 2 + g)))
+        self._s_c = np.array(s_c).reshape(-1, 3)
+        self._s_r = np.array(s_r) + 1e-3
+        self._table_lo = np.r_[cell.table_min_xy, cell.table_top_z - cell.table_thickness] - 1e-3
+        self._table_hi = np.r_[cell.table_max_xy, cell.table_top_z + g] + 1e-3
+        self._pairs: list[tuple[int, fcl.CollisionObject, str]] = [
+            (i, self.moving[j][1], f"{names[i]}|{names[j]}") for i, j in self.self_pairs
+        ] + [
+            (i, self.static[k][1], f"{names[i]}|{self.static[k][0]}") for i, k in self.static_pairs
+        ]
 
     def frames(self, q: F) -> F:
         """``T_world_x`` of the 7 links' meshes and the target body, (m, 8, 4, 4)."""
@@ -251,9 +279,40 @@ class CollisionWorld:
         out[:, 7] = L[:, 6] @ self._T_wrist3_body
         return out
 
-    def _place(self, Tm: F) -> None:
-        for (_, obj), T in zip(self.moving, Tm, strict=True):
-            obj.setTransform(_tf(T))
+    def _candidates(self, Tall: F) -> NDArray[np.bool_]:
+        """Pairs whose bounding spheres touch, per sample: (m, n_pairs) bool."""
+        C = np.einsum("mkij,kj->mki", Tall[..., :3, :3], self._c_local) + Tall[..., :3, 3]
+        out = []
+        for i, j in self.self_pairs:
+            d = np.linalg.norm(C[:, i] - C[:, j], axis=1)
+            out.append(d <= self._r[i] + self._r[j])
+        n_obs = len(self._s_c)
+        for i, k in self.static_pairs:
+            if k < n_obs:
+                d = np.linalg.norm(C[:, i] - self._s_c[k], axis=1)
+                out.append(d <= self._r[i] + self._s_r[k])
+            else:  # the table: exact sphere-to-box distance
+                e = np.maximum(np.maximum(self._table_lo - C[:, i], C[:, i] - self._table_hi), 0.0)
+                out.append(np.linalg.norm(e, axis=1) <= self._r[i])
+        return np.stack(out, axis=1)
+
+    def _check(self, Tm: F, cand: NDArray[np.bool_], first_only: bool) -> list[str]:
+        idx = np.flatnonzero(cand)
+        if len(idx) == 0:
+            return []
+        placed: set[int] = set()
+        hits: list[str] = []
+        for p in idx:
+            i, other, label = self._pairs[p]
+            for o in (i, self.self_pairs[p][1] if p < len(self.self_pairs) else -1):
+                if o >= 0 and o not in placed:
+                    self.moving[o][1].setTransform(_tf(Tm[o]))
+                    placed.add(o)
+            if fcl.collide(self.moving[i][1], other, self._req, fcl.CollisionResult()):
+                hits.append(label)
+                if first_only:
+                    break
+        return hits
 
     def contacts(self, q: F, first_only: bool = True) -> list[list[str]]:
         """Colliding pairs per configuration, as ``"a|b"`` strings (empty list: free).
@@ -264,51 +323,34 @@ class CollisionWorld:
         first_only : bool
             Stop at the first colliding pair of each configuration.
         """
-        q = np.atleast_2d(q)
-        Tall = self.frames(q)
-        out: list[list[str]] = []
-        for Tm in Tall:
-            self._place(Tm)
-            hits: list[str] = []
-            for i, j in self.self_pairs:
-                if fcl.collide(
-                    self.moving[i][1], self.moving[j][1], self._req, fcl.CollisionResult()
-                ):
-                    hits.append(f"{self.moving[i][0]}|{self.moving[j][0]}")
-                    if first_only:
-                        break
-            if not (hits and first_only):
-                for i, k in self.static_pairs:
-                    if fcl.collide(
-                        self.moving[i][1], self.static[k][1], self._req, fcl.CollisionResult()
-                    ):
-                        hits.append(f"{self.moving[i][0]}|{self.static[k][0]}")
-                        if first_only:
-                            break
-            out.append(hits)
-        return out
+        Tall = self.frames(np.atleast_2d(q))
+        cand = self._candidates(Tall)
+        return [self._check(Tm, c, first_only) for Tm, c in zip(Tall, cand, strict=True)]
 
     def collides(self, q: F) -> NDArray[np.bool_]:
         """True per configuration (m, 6) that collides (self, obstacles or table)."""
         return np.array([bool(h) for h in self.contacts(q)], dtype=bool)
 
     def first_collision(self, q: F) -> int:
-        """Index of the first colliding configuration of a sequence, or -1."""
-        q = np.atleast_2d(q)
-        Tall = self.frames(q)
-        for n, Tm in enumerate(Tall):
-            self._place(Tm)
-            for i, j in self.self_pairs:
-                if fcl.collide(
-                    self.moving[i][1], self.moving[j][1], self._req, fcl.CollisionResult()
-                ):
-                    return n
-            for i, k in self.static_pairs:
-                if fcl.collide(
-                    self.moving[i][1], self.static[k][1], self._req, fcl.CollisionResult()
-                ):
-                    return n
+        """Index of a colliding configuration of a sequence (m, 6), or -1 when all are free.
+
+        Samples are visited coarse to fine (every 16th first), so a colliding leg is
+        usually refuted after a few checks.
+        """
+        Tall = self.frames(np.atleast_2d(q))
+        cand = self._candidates(Tall)
+        rows = np.flatnonzero(cand.any(axis=1))
+        if len(rows) == 0:
+            return -1
+        order = np.argsort((rows % 16 != 0).astype(int), kind="stable")
+        for n in rows[order]:
+            if self._check(Tall[n], cand[n], True):
+                return int(n)
         return -1
+
+    def _place(self, Tm: F) -> None:
+        for (_, obj), T in zip(self.moving, Tm, strict=True):
+            obj.setTransform(_tf(T))
 
     def sight_blockers(self, q: F, p_from: F, p_to: F, radius: float) -> list[str | None]:
         """What blocks the beam from ``p_from`` to ``p_to`` (world, m) per configuration.

@@ -250,7 +250,11 @@ def _check_camera_view(cell: Cell, world: CollisionWorld) -> None:
                 world.static_sight_blocker(c + 0.05 * u, p - 0.05 * u, cell.planner.sight_radius)
             )
         if all(b is not None for b in blockers):
-            names = sorted({b for b in blockers if b is not None})
+            counts: dict[str, int] = {}
+            for b in blockers:
+                if b is not None:
+                    counts[b] = counts.get(b, 0) + 1
+            names = sorted(counts, key=lambda x: (-counts[x], x))
             raise InputError(
                 f"{cell.source}: camera.{side}: view of the work volume blocked by {', '.join(repr(x) for x in names)}"
                 f" (0 of {len(probes)} probe lines clear); move the camera or the obstacle"
