@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from quickhealth.identify.robot import RobotModel, ur5
+from quickhealth.identify.robot import RobotModel
 from quickhealth.identify.transforms import exp_so3, log_so3, make_T
 
 HOST = "127.0.0.1"
@@ -305,7 +305,7 @@ class Motion:
         return (1.0 - w) * self.path[i] + w * self.path[i + 1], f >= 1.0
 
 
-Truth = Callable[[np.ndarray], np.ndarray]
+Truth = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (q, approach) -> T_instr_target
 
 
 class Arm:
@@ -326,6 +326,7 @@ class Arm:
         self.rng = np.random.default_rng(7)
         self.lock = threading.RLock()
         self.tcp = np.eye(4)
+        self.approach = np.ones(len(q0))  # direction each joint last moved in (+1 / -1)
 
     def target(self, now: float) -> tuple[np.ndarray, bool]:
         """Commanded joints now and whether the current motion (if any) is finished."""
@@ -339,6 +340,10 @@ class Arm:
                 self.motion = None
                 return self.q_cmd.copy(), True
             return q, False
+
+    def _set_approach(self, q0: np.ndarray, q1: np.ndarray) -> None:
+        d = np.asarray(q1) - np.asarray(q0)
+        self.approach = np.where(np.abs(d) > 1e-9, np.sign(d), self.approach)
 
     def _start_ringing(self, now: float, motion: Motion) -> None:
         d = motion.path[-1] - motion.path[max(0, motion.path.shape[0] - 2)]
@@ -371,6 +376,7 @@ class Arm:
             D = float(np.max(np.abs(q - q0)))
             dur = trapezoid_duration(D, speed, accel)
             m = Motion(now, dur, np.stack([q0, np.asarray(q, float)]), max(D, 1e-12), accel)
+            self._set_approach(q0, q)
             self.motion = m
             return m
 
@@ -410,6 +416,7 @@ class Arm:
             D = max(L, 0.1 * float(np.linalg.norm(dr)), 1e-12)
             dur = trapezoid_duration(D, speed, accel)
             m = Motion(now, dur, path_a, D, accel)
+            self._set_approach(path_a[-2] if len(path_a) > 1 else q0, path_a[-1])
             self.motion = m
             return m
 
@@ -462,6 +469,7 @@ class Controller:
         self.n_moves = 0
         self.log: list[str] = []
         self.stop_event = threading.Event()
+        self.world: Any = None  # the simulated cell's ground truth (world.SimWorld)
 
     # -- time and state -------------------------------------------------------------
     def now(self) -> float:
@@ -1020,9 +1028,21 @@ def _control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
         with ctrl.lock:
             t = ctrl.now()
             q = ctrl.arm.actual(t)
+            approach = ctrl.arm.approach.copy()
+            moving = ctrl.arm.moving(t)
         truth = ctrl.arm.truth
-        T = truth(q) if truth is not None else ctrl.arm.robot.fk(q)
-        return {"t": t, "q": list(map(float, q)), "T_instr_flange": np.asarray(T).tolist()}
+        T = truth(q, approach) if truth is not None else ctrl.arm.robot.fk(q)
+        return {
+            "t": t,
+            "q": list(map(float, q)),
+            "approach": list(map(float, approach)),
+            "moving": moving,
+            "T_instr_target0": np.asarray(T).tolist(),
+        }
+    if cmd == "twin":
+        if ctrl.world is None:
+            raise ValueError("this simulator has no digital twin")
+        return {"truth": ctrl.world.twin.truth.to_dict()}
     if cmd == "set_q":
         q = np.asarray(req["q"], dtype=float)
         if q.shape != (6,) or not np.all(np.isfinite(q)):
@@ -1141,9 +1161,13 @@ class SimControllerHandle:
         self.request("fault", kind=kind, **when)
 
     def truth(self) -> tuple[np.ndarray, np.ndarray]:
-        """Actual joints (rad) and the true ``T_instr_flange`` of the arm right now."""
+        """Actual joints (rad) and the true target frame at pan 0, ``T_instr_target0``, now."""
         out = self.request("truth")
-        return np.asarray(out["q"]), np.asarray(out["T_instr_flange"])
+        return np.asarray(out["q"]), np.asarray(out["T_instr_target0"])
+
+    def twin_truth(self) -> dict[str, Any]:
+        """The digital twin's truth document (``TwinTruth.to_dict``)."""
+        return self.request("twin")["truth"]
 
     def state(self) -> dict[str, Any]:
         """Modes, joints and whether the arm moves."""
@@ -1190,9 +1214,9 @@ def start_sim_controller(
     *,
     control_port: int = CONTROL_PORT,
     q0_deg: list[float] | None = None,
-    twin: str = "default",
+    twin_seed: int = 1,
     cell: str = "reference",
-    timeout: float = 10.0,
+    timeout: float = 15.0,
     verbose: bool = False,
 ) -> SimControllerHandle:
     """Start the simulator as a separate process and wait until it answers.
@@ -1220,8 +1244,8 @@ def start_sim_controller(
         "quickhealth.station.hardware.simcontroller",
         "--control-port",
         str(control_port),
-        "--twin",
-        twin,
+        "--twin-seed",
+        str(twin_seed),
         "--cell",
         cell,
     ]
@@ -1252,16 +1276,19 @@ def build_controller(
     *,
     control_port: int = CONTROL_PORT,
     q0_deg: list[float] | None = None,
-    twin: str = "default",
+    twin_seed: int = 1,
     cell: str = "reference",
     verbose: bool = False,
 ) -> Controller:
-    """A controller whose arm is the digital twin (``twin="none"``: the nominal arm)."""
-    from .world import load_truth
+    """A controller whose arm is the digital twin of ``twin_seed`` placed in ``cell``."""
+    from .world import build_world
 
+    world = build_world(cell, twin_seed=twin_seed)
     q0 = np.radians(q0_deg if q0_deg is not None else HOME_Q_DEG)
-    arm = Arm(ur5(), q0, truth=load_truth(twin, cell))
-    return Controller(arm, control_port=control_port, verbose=verbose)
+    arm = Arm(world.twin.robot, q0, truth=world.T_instr_target0)
+    ctrl = Controller(arm, control_port=control_port, verbose=verbose)
+    ctrl.world = world
+    return ctrl
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -1286,9 +1313,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--q0-deg", default=None, help="start joints, comma-separated degrees")
     p.add_argument(
-        "--twin",
-        default="default",
-        help="the arm's truth: 'default' (the digital twin) or 'none' (nominal)",
+        "--twin-seed",
+        type=int,
+        default=1,
+        help="seed of the digital twin whose errors the arm has (default %(default)s)",
     )
     p.add_argument("--cell", default="reference", help="cell name or file (camera placement)")
     p.add_argument("--verbose", action="store_true", help="log controller events to stderr")
@@ -1311,7 +1339,7 @@ def run_from_args(args: argparse.Namespace) -> int:
     ctrl = build_controller(
         control_port=args.control_port,
         q0_deg=q0,
-        twin=args.twin,
+        twin_seed=args.twin_seed,
         cell=args.cell,
         verbose=args.verbose,
     )

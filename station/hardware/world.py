@@ -1,113 +1,123 @@
-"""The simulated cell's ground truth: where the robot base, the smart-target mount and the
-reference marker board really are, and the arm's true kinematics (the digital twin).
+"""The simulated cell's ground truth (``--sim`` only; real hardware never imports it).
 
-Used by the controller simulator (``truth``: joints → true ``T_instr_flange``) and by the
-simulated cameras (``T_instr_target`` = truth · mount · pan).  Real hardware never imports it.
+What is really where: the robot is the digital twin (:mod:`quickhealth.identify.twin`, with
+its true geometric and position-dependent errors), placed in the cell (planning/cell.py) in
+front of the stereo rig of the vision reference design; the smart target turns on its pan
+motor; the reference marker board of the instrument self-check stands beside the robot.
 
-The instrument frame is the left camera's frame (x right, y down, z along the optical axis).
+The instrument frame is the left camera's frame.  The right camera sits where the rig's
+calibration puts it (``T_left_right``), so the rendered images agree with the rig the
+measurement uses.
+
+SYNOPSIS
+    >>> world = build_world("reference", twin_seed=1)
+    >>> T = world.T_instr_plate(q, pan=0.3, approach=np.ones(6))
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from quickhealth.identify.robot import RobotModel, ur5
-from quickhealth.identify.transforms import exp_so3, inv_T, make_T
+from quickhealth.identify.transforms import inv_T, make_T
+from quickhealth.identify.twin import Twin, make_twin
+from quickhealth.vision.boards import TargetDescription, _grid_markers
+from quickhealth.vision.boards import reference_target as _reference_target
+from quickhealth.vision.camera import StereoRig
+from quickhealth.vision.reference import reference_rig
+
+from .target import T_target_plate
 
 F = NDArray[np.float64]
 
 
-def look_at(eye: F, target: F, up: F | None = None) -> F:
-    """``T_base_cam`` of a camera at ``eye`` looking at ``target`` (x right, y down, z forward)."""
-    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=float)
-    z = np.asarray(target, float) - np.asarray(eye, float)
-    z /= np.linalg.norm(z)
-    x = np.cross(-up, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return make_T(np.stack([x, y, z], axis=1), np.asarray(eye, float))
+def reference_board() -> TargetDescription:
+    """The fixed self-check board: 6×6 DICT_5X5_50 markers, 36 mm on a 48 mm pitch.
+
+    A different dictionary from the smart target's, so the two are never confused.
+    """
+    ids, corners = _grid_markers(6, 6, 0.036, 0.048, 0)
+    plate = np.array([[-0.15, -0.16], [0.15, 0.16]])
+    return TargetDescription(
+        "selfcheck-6x6-5x5", "DICT_5X5_50", ids, corners, plate, np.array([0.0, 1.0, 0.0])
+    )
+
+
+def reference_target() -> TargetDescription:
+    """The smart target on the pan motor (vision's reference design)."""
+    return _reference_target()
+
+
+# Board frame in world axes: x = +y_world, y = −z_world (down), z = −x_world (into the
+# plate, away from the cameras that stand at +x).
+_R_WORLD_BOARD = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 @dataclass(frozen=True, eq=False)
-class CellGeometry:
-    """Nominal geometry of the measurement cell (SI).
+class SimWorld:
+    """Ground truth of the simulated cell (SI)."""
 
-    Attributes
-    ----------
-    T_instr_base : ndarray (4, 4)
-        Robot base in the instrument (left camera) frame.
-    T_flange_mount : ndarray (4, 4)
-        Pan-motor mount on the flange; the target turns about the target's pan axis there.
-    T_instr_board : ndarray (4, 4)
-        Fixed reference marker board (instrument self-check) in the instrument frame.
-    """
+    twin: Twin
+    rig: StereoRig
+    target: TargetDescription
+    board: TargetDescription
+    T_world_base: F
+    T_world_instr: F  # the left camera
+    T_world_board: F
 
-    T_instr_base: F
-    T_flange_mount: F
-    T_instr_board: F
+    @property
+    def T_instr_world(self) -> F:
+        """World (table) in the instrument frame."""
+        return inv_T(self.T_world_instr)
 
+    @property
+    def T_instr_board(self) -> F:
+        """The self-check board in the instrument frame."""
+        return self.T_instr_world @ self.T_world_board
 
-def reference_geometry() -> CellGeometry:
-    """The paper's set-up: UR5 on a table, stereo camera ≈ 2 m in front, board beside the arm."""
-    T_base_cam = look_at(np.array([2.0, 0.0, 0.55]), np.array([0.35, 0.0, 0.35]))
-    T_instr_base = inv_T(T_base_cam)
-    # Mount: 60 mm out along the flange axis; target y (its pan axis) along the flange z axis,
-    # target normal (z) along flange -x at pan = 0.
-    R = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])  # columns: target axes
-    R = R @ exp_so3(np.array([-np.pi / 2, 0.0, 0.0]))
-    T_flange_mount = make_T(R, np.array([0.0, 0.0, 0.06]))
-    # Board: 0.5 m beside the robot on the table, facing the camera.
-    p = np.array([0.6, 0.75, 0.1])
-    T_base_board = look_at(np.array([2.0, 0.0, 0.55]), p)  # same orientation as a camera…
-    T_base_board[:3, :3] = T_base_board[:3, :3] @ np.diag([-1.0, 1.0, -1.0])  # …facing back
-    T_base_board[:3, 3] = p
-    return CellGeometry(T_instr_base, T_flange_mount, T_instr_base @ T_base_board)
+    def T_instr_target0(self, q: ArrayLike, approach: ArrayLike | None = None) -> F:
+        """True target frame at pan 0 for encoder joints ``q`` (6,), rad."""
+        q = np.asarray(q, dtype=float).reshape(1, -1)
+        app = None if approach is None else np.asarray(approach, dtype=float).reshape(1, -1)
+        return self.twin.true_pose(q, approach=app)[0]
+
+    def T_instr_plate(self, q: ArrayLike, pan: float, approach: ArrayLike | None = None) -> F:
+        """True pose of the printed plate (what the cameras see) with the motor at ``pan`` rad."""
+        return self.T_instr_target0(q, approach) @ T_target_plate(pan)
 
 
-Truth = Callable[[F], F]
+def build_world(cell: str = "reference", *, twin_seed: int = 1) -> SimWorld:
+    """The simulated cell for a cell name or file, with a twin drawn from ``twin_seed``."""
+    from quickhealth.station.planning import load_cell
+
+    c = load_cell(cell)
+    rig = reference_rig()
+    T_world_instr = c.T_world_cam_left
+    twin = make_twin(
+        c.robot,
+        seed=twin_seed,
+        T_instr_base=inv_T(T_world_instr) @ c.T_world_base,
+        T_flange_target=c.T_flange_target,
+    )
+    board_center = _board_center(c)
+    T_world_board = make_T(_R_WORLD_BOARD, board_center)
+    return SimWorld(
+        twin=twin,
+        rig=rig,
+        target=reference_target(),
+        board=reference_board(),
+        T_world_base=c.T_world_base,
+        T_world_instr=T_world_instr,
+        T_world_board=T_world_board,
+    )
 
 
-def nominal_truth(robot: RobotModel, geometry: CellGeometry) -> Truth:
-    """``q -> T_instr_flange`` of the nominal arm (no robot error)."""
-
-    def truth(q: F) -> F:
-        return geometry.T_instr_base @ robot.fk(np.asarray(q, dtype=float))
-
-    return truth
-
-
-def load_truth(twin: str = "default", cell: str = "reference") -> Truth:
-    """The arm's true ``q -> T_instr_flange``: the digital twin, or ``"none"`` for nominal.
-
-    The digital twin (``quickhealth.identify.twin``) is used when it is installed; without it
-    the arm is nominal, which keeps the station usable while the twin is developed.
-    """
-    geometry = reference_geometry() if cell == "reference" else reference_geometry()
-    robot = ur5()
-    if twin == "none":
-        return nominal_truth(robot, geometry)
-    try:
-        from quickhealth.identify import twin as twin_mod  # noqa: F401
-    except ImportError:
-        return nominal_truth(robot, geometry)
-    return _twin_truth(twin_mod, robot, geometry, twin)
-
-
-def _twin_truth(twin_mod: object, robot: RobotModel, geometry: CellGeometry, name: str) -> Truth:
-    """Adapter to the digital twin module (kept in one place so the swap is one line)."""
-    make = getattr(twin_mod, "reference_twin", None) or getattr(twin_mod, "default_twin", None)
-    if make is None:
-        return nominal_truth(robot, geometry)
-    tw = make()
-    fk = getattr(tw, "T_base_flange", None) or getattr(tw, "fk", None)
-    if fk is None:
-        return nominal_truth(robot, geometry)
-
-    def truth(q: F) -> F:
-        return geometry.T_instr_base @ np.asarray(fk(np.asarray(q, dtype=float)))
-
-    return truth
+def _board_center(cell: object) -> F:
+    """Face of the cell's ``reference board`` obstacle towards the cameras (world, m)."""
+    for o in getattr(cell, "obstacles", ()):
+        if "board" in o.name and o.size is not None:
+            T = o.T_world_obstacle
+            return T[:3, 3] + T[:3, :3] @ np.array([o.size[0] / 2 + 0.001, 0.0, 0.0])
+    return np.array([0.711, -0.52, 0.16])

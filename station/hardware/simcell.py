@@ -1,0 +1,112 @@
+"""The built-in simulated cell (``--sim``): controller simulator, emulated pan motor, cameras.
+
+:func:`start_sim_cell` starts the UR controller simulator in its own process, the pan-motor
+emulator on a pseudo-terminal, and connects the *real* drivers to them: :class:`~.robot.UrRobot`
+on ur-rtde and :class:`~.motor.SerialPanMotor` on pyserial.  The simulated stereo camera
+renders what is really there: it asks the controller simulator for the arm's true target
+pose (the digital twin at the actual joints) and the motor emulator for the true pan angle.
+
+SYNOPSIS
+    >>> with start_sim_cell(image_scale=0.25) as cell:          # doctest: +SKIP
+    ...     cell.robot.move(q); cell.motor.move_to(0.2); frame = cell.camera.capture()
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .cameras import SimStereoCamera, scaled_rig
+from .motor import SerialPanMotor
+from .motor_emulator import MotorEmulator
+from .robot import UrRobot
+from .target import T_target_plate
+from .simcontroller import CONTROL_PORT, SimControllerHandle, start_sim_controller
+from .world import SimWorld, build_world
+
+
+@dataclass
+class SimCell:
+    """Everything of a running simulated cell; :meth:`close` stops it all."""
+
+    world: SimWorld
+    controller: SimControllerHandle
+    emulator: MotorEmulator
+    robot: UrRobot
+    motor: SerialPanMotor
+    camera: SimStereoCamera
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def true_plate(self) -> np.ndarray:
+        """True ``T_instr_plate`` right now (arm and pan as they really are)."""
+        _, T0 = self.controller.truth()
+        return T0 @ T_target_plate(math.radians(self.emulator.position_deg()))
+
+    def close(self) -> None:
+        """Disconnect the drivers first (ur-rtde must never outlive its server), then stop."""
+        for f in (self.robot.close, self.motor.close, self.camera.close):
+            try:
+                f()
+            except Exception:  # noqa: BLE001 - best effort while tearing down
+                pass
+        self.controller.stop()
+        self.emulator.stop()
+
+    def __enter__(self) -> SimCell:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def start_sim_cell(
+    cell: str = "reference",
+    *,
+    twin_seed: int = 1,
+    image_scale: float = 0.5,
+    q0_deg: list[float] | None = None,
+    control_port: int = CONTROL_PORT,
+    camera_seed: int = 0,
+) -> SimCell:
+    """Start the simulated cell and connect the real drivers to it.
+
+    Parameters
+    ----------
+    cell : str
+        Cell name or file (camera and board placement).
+    twin_seed : int
+        The digital twin's seed (its true errors).
+    image_scale : float
+        Simulated sensor size relative to the reference cameras (1 = 4000×3000 px).
+    """
+    world = build_world(cell, twin_seed=twin_seed)
+    sim = start_sim_controller(
+        control_port=control_port, q0_deg=q0_deg, twin_seed=twin_seed, cell=cell
+    )
+    emu = MotorEmulator().start()
+    robot = motor = None
+    try:
+        robot = UrRobot("127.0.0.1")
+        motor = SerialPanMotor(emu.port)
+        rig = scaled_rig(world.rig, image_scale)
+
+        def scene() -> list[tuple[np.ndarray, Any]]:
+            _, T0 = sim.truth()
+            pan = math.radians(emu.position_deg())
+            return [(T0 @ T_target_plate(pan), world.target)]
+
+        camera = SimStereoCamera(
+            rig, scene, static=[(world.T_instr_board, world.board)], seed=camera_seed
+        )
+    except BaseException:
+        if robot is not None:
+            robot.close()
+        if motor is not None:
+            motor.close()
+        sim.stop()
+        emu.stop()
+        raise
+    return SimCell(world, sim, emu, robot, motor, camera)
