@@ -167,6 +167,27 @@ def _coverage_figure(robot: Any, q: F, q_lo: F, q_hi: F) -> Figure:
     return fig
 
 
+def _joint_figure(curves: Any) -> Figure:
+    """One joint's six error motions with bands, in one row (compact; no tight_layout)."""
+    from quickhealth.identify.errormodel import MOTION_WORDS, MOTIONS
+
+    fig = Figure(figsize=(12.0, 2.4))
+    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.2, top=0.8, wspace=0.45)
+    th = np.degrees(curves.theta)
+    for m in range(6):
+        ax = fig.add_subplot(1, 6, m + 1)
+        v = curves.values[m] * 1e3
+        h = curves.half_width[m] * 1e3
+        ax.fill_between(th, v - h, v + h, color="#88ccee", alpha=0.6, lw=0)
+        ax.plot(th, v, color="#224488", lw=1.2)
+        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=7)
+        ax.set_ylabel("mm" if m < 3 else "mrad", fontsize=7, labelpad=1)
+        ax.set_xlabel("deg", fontsize=7, labelpad=1)
+        ax.tick_params(labelsize=6, pad=1)
+    fig.suptitle(f"Joint {curves.joint}: error motions with {curves.level:.0%} bands", fontsize=9)
+    return fig
+
+
 def _iso_figure(stats: list[PoseStats]) -> Figure:
     fig = Figure(figsize=(8.0, 3.2))
     ax = fig.add_subplot(111)
@@ -255,7 +276,7 @@ def build_report(
     InputError
         The folder has no ``model.json`` (nothing to report).
     """
-    from quickhealth.identify.report import joint_curve_figure, residual_plot, workspace_histogram
+    from quickhealth.identify.report import residual_plot, workspace_histogram
     from quickhealth.identify.workspace import all_joint_curves, workspace_error
     from quickhealth.station import formats
 
@@ -343,7 +364,7 @@ def build_report(
             "Error motions of every joint, 95 % bands (paper Fig. 8)",
             ("bands: sampling uncertainty of the estimate; model error is not in them",),
             plots=tuple(
-                Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(joint_curve_figure(c)))
+                Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(_joint_figure(c)))
                 for c in curves
             ),
             data={"joint_curves": [c.as_dict() for c in curves]},

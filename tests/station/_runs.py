@@ -34,10 +34,12 @@ def make_run(
     time_utc: str = "2026-01-01T08:00:00Z",
     meta: dict[str, str] | None = None,
     order: int = 1,
+    light: bool = False,
 ) -> Path:
     """Write one run folder; ``degrade`` adds to true coefficients (e.g. ``{"j2.ex.c0": 3e-4}``).
 
     ``repeats`` > 0 visits the first 5 poses that many extra times (ISO 9283 repeatability).
+    ``light``: a smaller workspace sample and no joint curves in report.json (fast fleets).
     """
     twin = make_twin(seed=1, position_dependent=False)
     if degrade:
@@ -58,7 +60,8 @@ def make_run(
     folder.mkdir(parents=True, exist_ok=True)
     formats.write_measurements(folder / "measurements.csv", meas)
     formats.write_model(folder / "model.json", fitted)
-    ws = workspace_error(fitted, n_samples=2000)
+    ws = workspace_error(fitted, n_samples=500 if light else 2000)
+    curves = [] if light else [c.as_dict() for c in all_joint_curves(fitted, n_points=31)]
     formats.write_report(
         folder / "report.json",
         {
@@ -71,7 +74,7 @@ def make_run(
             "robot": "ur5",
             "summary": fitted.summary(),
             "workspace": ws.as_dict(),
-            "joint_curves": [c.as_dict() for c in all_joint_curves(fitted, n_points=31)],
+            "joint_curves": curves,
         },
     )
     plan = {

@@ -1,0 +1,503 @@
+"""Monitoring commands: archive runs, watch the trend, act on the model, report, reprocess.
+
+quickhealth archive add RUN_DIR --robot NAME [--run-id ID] [--time ISO] [--baseline] ...
+quickhealth archive baseline ROBOT RUN_ID | ROBOT --clear
+quickhealth archive list [ROBOT]
+quickhealth trend ROBOT [--threshold-mm X] [--figure max] [--tolerance-mm X] [--json OUT] [--plot PNG]
+    Exit 1 when the latest run is flagged: above the threshold, outside its control limits,
+    or with an error curve that changed beyond the combined uncertainty (--fail-on threshold:
+    only the threshold counts).
+quickhealth export MODEL.json [--urdf OUT.urdf] [--ur-calibration OUT.conf] [--json OUT.json]
+quickhealth compensate MODEL.json PROGRAM --out NEW_PROGRAM [--errors ERR.csv] [--tcp-mm X,Y,Z]
+quickhealth report RUN_DIR [--out report.html] [--archive DIR --robot NAME]
+quickhealth reprocess [ROBOT] [--runs IDS] [--calibration CAL.json] [--scheduler ADDRESS] [--workers N]
+
+Every command takes --archive DIR (default $QUICKHEALTH_ARCHIVE, else ~/quickhealth-archive)
+and --db URL (an SQLAlchemy URL, e.g. postgresql+psycopg://host/db, for a shared index).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def _archive_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--archive",
+        default=None,
+        help="archive folder (default $QUICKHEALTH_ARCHIVE, else ~/quickhealth-archive)",
+    )
+    p.add_argument("--db", default=None, help="SQLAlchemy URL of a shared index (default SQLite)")
+
+
+def _open(args: argparse.Namespace) -> Any:
+    from quickhealth.station.archive import Archive
+
+    return Archive.open(args.archive, args.db)
+
+
+def register(subparsers: Any) -> None:
+    """Add ``archive``, ``trend``, ``export``, ``compensate``, ``report`` and ``reprocess``."""
+    # ---- archive
+    p = subparsers.add_parser("archive", help="archive runs; set a robot's baseline; list runs")
+    sub = p.add_subparsers(dest="archive_command", metavar="SUBCOMMAND")
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+    a = sub.add_parser("add", help="copy a run folder into the archive and index it")
+    a.add_argument("run_dir")
+    a.add_argument("--robot", required=True, help="robot name (letters, digits, . _ -)")
+    a.add_argument("--run-id", default=None, help="default: the run's metadata or folder name")
+    a.add_argument("--time", default=None, help="ISO 8601 UTC time of the run")
+    for k in ("plan-hash", "cell", "calibration-id", "software-version"):
+        a.add_argument(f"--{k}", default=None, help=f"override the run's {k.replace('-', ' ')}")
+    h = a.add_mutually_exclusive_group()
+    h.add_argument("--healthy", dest="healthy", action="store_const", const=True, default=None)
+    h.add_argument("--unhealthy", dest="healthy", action="store_const", const=False)
+    a.add_argument("--baseline", action="store_true", help="make this run the robot's baseline")
+    _archive_args(a)
+    a.set_defaults(func=_archive_add)
+    b = sub.add_parser("baseline", help="set (or --clear) a robot's baseline run")
+    b.add_argument("robot")
+    b.add_argument("run_id", nargs="?")
+    b.add_argument("--clear", action="store_true", help="back to the first healthy run")
+    _archive_args(b)
+    b.set_defaults(func=_archive_baseline)
+    ls = sub.add_parser("list", help="robots, or one robot's runs")
+    ls.add_argument("robot", nargs="?")
+    _archive_args(ls)
+    ls.set_defaults(func=_archive_list)
+
+    # ---- trend
+    t = subparsers.add_parser(
+        "trend",
+        help="a robot's runs over time against its baseline; exit 1 when flagged",
+        description=(
+            "Workspace error figures, error-curve changes judged against the combined "
+            "uncertainty, EWMA control limits, prognosis and root-cause hints. Exit status 1 "
+            "when the latest run is flagged."
+        ),
+    )
+    t.add_argument("robot")
+    _archive_args(t)
+    t.add_argument("--threshold-mm", type=float, default=None, help="flag a run above this")
+    t.add_argument(
+        "--figure",
+        choices=("mean", "std", "max"),
+        default="max",
+        help="figure the threshold applies to (max)",
+    )
+    t.add_argument(
+        "--tolerance-mm",
+        type=float,
+        default=None,
+        help="level the prognosis extrapolates to (default: the threshold)",
+    )
+    t.add_argument(
+        "--alpha",
+        type=float,
+        default=1e-3,
+        help="false-alarm probability of the curve test per run (1e-3)",
+    )
+    t.add_argument(
+        "--min-change-mm",
+        type=float,
+        default=0.01,
+        help="smallest translation change that counts (0.01)",
+    )
+    t.add_argument(
+        "--min-change-mrad",
+        type=float,
+        default=0.02,
+        help="smallest rotation change that counts (0.02)",
+    )
+    t.add_argument(
+        "--fail-on",
+        choices=("any", "threshold"),
+        default="any",
+        help="what makes the exit status 1 (any flag)",
+    )
+    t.add_argument("--json", default=None, help="write the trend as JSON here")
+    t.add_argument("--plot", default=None, help="write the trend figure (PNG) here")
+    t.set_defaults(func=_trend)
+
+    # ---- export
+    e = subparsers.add_parser("export", help="corrected URDF and UR-style DH deltas from a model")
+    e.add_argument("model", help="model.json")
+    e.add_argument("--urdf", default=None, help="corrected URDF (joint origins) to write")
+    e.add_argument(
+        "--ur-calibration",
+        default=None,
+        help="UR-style kinematics deltas (calibration.conf layout) to write",
+    )
+    e.add_argument("--json", default=None, help="the deltas and residuals as JSON")
+    e.set_defaults(func=_export)
+
+    # ---- compensate
+    c = subparsers.add_parser(
+        "compensate", help="rewrite a program's joint targets so the modelled TCP hits them"
+    )
+    c.add_argument("model", help="model.json")
+    c.add_argument("program", help="URScript (.script) or CSV of joint columns q1..qN (deg)")
+    c.add_argument("--out", required=True, help="the compensated program")
+    c.add_argument("--errors", default=None, help="CSV of predicted error per target")
+    c.add_argument("--tcp-mm", default="0,0,0", help="tool centre point on the flange, mm")
+    c.set_defaults(func=_compensate)
+
+    # ---- report
+    r = subparsers.add_parser("report", help="the run's self-contained HTML report")
+    r.add_argument("run_dir")
+    r.add_argument("--out", default=None, help="HTML file (default RUN_DIR/report.html)")
+    r.add_argument("--robot", default=None, help="the robot in the archive (trend section)")
+    r.add_argument("--run-id", default=None, help="the run's id in the archive")
+    r.add_argument("--threshold-mm", type=float, default=None)
+    r.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis if missing")
+    _archive_args(r)
+    r.set_defaults(func=_report)
+
+    # ---- reprocess
+    rp = subparsers.add_parser(
+        "reprocess", help="refit (and re-detect) archived runs, in parallel or on Dask"
+    )
+    rp.add_argument("robot", nargs="?", help="default: every robot")
+    _archive_args(rp)
+    rp.add_argument("--runs", default=None, help="comma-separated run ids (default all)")
+    rp.add_argument("--calibration", default=None, help="new camera calibration: re-detect")
+    rp.add_argument("--orders", choices=("keep", "select"), default="keep")
+    rp.add_argument("--max-order", type=int, default=6)
+    rp.add_argument("--tag", default="reprocessed", help="output folder name in each run")
+    rp.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)")
+    rp.add_argument("--workers", type=int, default=None, help="local processes (CPU count)")
+    rp.add_argument("--workspace-samples", type=int, default=5000)
+    rp.add_argument(
+        "--update-index",
+        action="store_true",
+        help="replace the indexed figures with the reprocessed ones",
+    )
+    rp.set_defaults(func=_reprocess)
+
+
+# ------------------------------------------------------------------------- archive
+
+
+def _archive_add(args: argparse.Namespace) -> int:
+    arch = _open(args)
+    meta = {
+        k: v
+        for k, v in (
+            ("plan_hash", args.plan_hash),
+            ("cell", args.cell),
+            ("calibration_id", args.calibration_id),
+            ("software_version", args.software_version),
+        )
+        if v is not None
+    }
+    rec = arch.add_run(
+        args.robot,
+        args.run_dir,
+        run_id=args.run_id,
+        time_utc=args.time,
+        meta=meta,
+        healthy=args.healthy,
+    )
+    if args.baseline:
+        arch.set_baseline(rec.robot, rec.run_id)
+    print(f"archived {rec.robot}/{rec.run_id} ({rec.time_utc}) in {arch.folder(rec)}")
+    return 0
+
+
+def _archive_baseline(args: argparse.Namespace) -> int:
+    from quickhealth.identify.errors import InputError
+
+    arch = _open(args)
+    if args.clear == (args.run_id is not None):
+        raise InputError("give either a RUN_ID or --clear")
+    arch.set_baseline(args.robot, None if args.clear else args.run_id)
+    b = arch.baseline(args.robot)
+    print(f"baseline of {args.robot}: {b.run_id if b else '(none)'}")
+    return 0
+
+
+def _archive_list(args: argparse.Namespace) -> int:
+    arch = _open(args)
+    if args.robot is None:
+        for r in arch.robots():
+            runs = arch.runs(r)
+            b = next((x.run_id for x in runs if x.baseline), "-")
+            print(f"{r}: {len(runs)} runs, baseline {b}, latest {runs[-1].run_id}")
+        return 0
+    print(
+        f"{'run':<24} {'time (UTC)':<21} {'mean':>7} {'std':>7} {'max':>7}  plan / cell / calibration"
+    )
+    for x in arch.runs(args.robot):
+        mark = "*" if x.baseline else " "
+        print(
+            f"{mark}{x.run_id:<23} {x.time_utc:<21} {x.mean_mm:7.3f} {x.std_mm:7.3f} "
+            f"{x.max_mm:7.3f}  {x.plan_hash[:12]} / {x.cell} / {x.calibration_id}"
+        )
+    return 0
+
+
+# --------------------------------------------------------------------------- trend
+
+
+def trend_for(arch: Any, robot: str, **kwargs: Any) -> Any:
+    """:func:`~quickhealth.identify.trend.assess_trend` over a robot's archived runs."""
+    from quickhealth.identify.errors import InputError
+    from quickhealth.identify.trend import assess_trend
+
+    recs = arch.runs(robot)
+    b = next((i for i, r in enumerate(recs) if r.baseline), None)
+    if b is None:
+        raise InputError(
+            f"robot {robot!r} has no healthy run to be its baseline: "
+            "quickhealth archive baseline ROBOT RUN_ID"
+        )
+    states = [arch.run_state(r) for r in recs]
+    return assess_trend(states, b, **kwargs)
+
+
+def _trend(args: argparse.Namespace) -> int:
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station.report_html import trend_figure, trend_json
+
+    for name in ("threshold_mm", "tolerance_mm"):
+        v = getattr(args, name)
+        if v is not None and not v > 0:
+            raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
+    if not 0 < args.alpha < 1:
+        raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
+    arch = _open(args)
+    res = trend_for(
+        arch,
+        args.robot,
+        threshold_mm=args.threshold_mm,
+        threshold_figure=args.figure,
+        tolerance_mm=args.tolerance_mm,
+        alpha=args.alpha,
+        min_change_m=args.min_change_mm * 1e-3,
+        min_change_rad=args.min_change_mrad * 1e-3,
+    )
+    recs = arch.runs(args.robot)
+    print(f"{args.robot}: {len(recs)} runs, baseline {res.run_ids[res.baseline_index]}")
+    print(f"  {'run':<24} {'time (UTC)':<21} {'mean':>7} {'std':>7} {'max':>7}  verdict")
+    for i, r in enumerate(recs):
+        v = (
+            "baseline"
+            if i == res.baseline_index
+            else ("-" if i < res.baseline_index else ("FLAGGED" if res.flags(i) else "ok"))
+        )
+        f = res.figures_mm
+        print(
+            f"  {r.run_id:<24} {r.time_utc:<21} {f['mean'][i]:7.3f} {f['std'][i]:7.3f} "
+            f"{f['max'][i]:7.3f}  {v}"
+        )
+    for w in res.warnings:
+        print(f"warning: {w}")
+    flags = res.flags()
+    print(f"latest run {res.run_ids[-1]}: " + ("FLAGGED" if flags else "healthy"))
+    for line in flags:
+        print(f"  - {line}")
+    for p in res.prognoses.values():
+        print(f"prognosis: {p.words()}")
+    if args.json:
+        from quickhealth.station.formats import write_text_atomic
+
+        write_text_atomic(args.json, json.dumps(_plain(trend_json(res)), indent=1) + "\n")
+    if args.plot:
+        trend_figure(res).savefig(args.plot, dpi=100)
+    if args.fail_on == "threshold":
+        return 1 if res.breaches[-1] else 0
+    return 1 if flags else 0
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_plain(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+# ------------------------------------------------------------------ export, compensate
+
+
+def _export(args: argparse.Namespace) -> int:
+    from quickhealth.identify.compensate import (
+        corrected_robot,
+        dh_deltas,
+        ur_calibration_text,
+        urdf_text,
+    )
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station.formats import read_model, write_text_atomic
+
+    if not (args.urdf or args.ur_calibration or args.json):
+        raise InputError("nothing to export: give --urdf, --ur-calibration and/or --json")
+    fm = read_model(args.model)
+    if args.urdf:
+        write_text_atomic(args.urdf, urdf_text(corrected_robot(fm.robot, fm.spec, fm.coeffs)))
+        print(f"wrote {args.urdf} (joint origins with the identified constant joint errors)")
+    if args.ur_calibration or args.json:
+        try:
+            cal = dh_deltas(fm.robot, fm.spec, fm.coeffs)
+        except ValueError as exc:
+            raise InputError(f"{args.model}: {exc}") from None
+        print(
+            f"DH deltas: corrected kinematics differ from nominal by "
+            f"{cal.nominal_residual_pos_rms * 1e3:.4f} mm rms; DH cannot express "
+            f"{cal.residual_pos_rms * 1e3:.4f} mm rms of it"
+        )
+        if args.ur_calibration:
+            write_text_atomic(args.ur_calibration, ur_calibration_text(cal))
+            print(f"wrote {args.ur_calibration}")
+        if args.json:
+            doc = {
+                "units": "m, rad",
+                "delta_theta": cal.delta_theta.tolist(),
+                "delta_a": cal.delta_a.tolist(),
+                "delta_d": cal.delta_d.tolist(),
+                "delta_alpha": cal.delta_alpha.tolist(),
+                "residual_pos_rms_mm": cal.residual_pos_rms * 1e3,
+                "residual_rot_rms_mrad": cal.residual_rot_rms * 1e3,
+            }
+            write_text_atomic(args.json, json.dumps(doc, indent=1) + "\n")
+            print(f"wrote {args.json}")
+    return 0
+
+
+def _compensate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from quickhealth.identify.compensate import (
+        compensate_joints,
+        urscript_joint_targets,
+        urscript_replace_targets,
+    )
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station import formats
+
+    fm = formats.read_model(args.model)
+    nj = fm.robot.n_joints
+    try:
+        tcp = np.array([float(v) for v in args.tcp_mm.split(",")]) * 1e-3
+    except ValueError:
+        raise InputError(f"--tcp-mm must be X,Y,Z in mm, got {args.tcp_mm!r}") from None
+    if tcp.shape != (3,):
+        raise InputError(f"--tcp-mm must be X,Y,Z in mm, got {args.tcp_mm!r}")
+    T_tcp = np.eye(4)
+    T_tcp[:3, 3] = tcp
+    prog = Path(args.program)
+    if prog.suffix.lower() in (".script", ".urscript", ".urp"):
+        try:
+            text = prog.read_text()
+        except FileNotFoundError:
+            raise InputError(f"{prog}: file not found") from None
+        spans, q = urscript_joint_targets(text, nj)
+        if not len(q):
+            raise InputError(f"{prog}: no movej/movel joint-list targets with {nj} joints")
+    else:
+        meas = formats.read_measurements(prog, nj, joints_only=True)
+        q = meas.q
+    comp = compensate_joints(fm.robot, fm.spec, fm.coeffs, q, T_tcp)
+    if prog.suffix.lower() in (".script", ".urscript", ".urp"):
+        formats.write_text_atomic(args.out, urscript_replace_targets(text, spans, comp.q))
+    else:
+        lines = [",".join(f"q{j + 1}" for j in range(nj))]
+        lines += [",".join(f"{v:.9f}" for v in np.degrees(row)) for row in comp.q]
+        formats.write_text_atomic(args.out, "\n".join(lines) + "\n")
+    if args.errors:
+        rows = ["target,err_before_mm,err_after_mm,rot_after_mrad,max_dq_deg,converged"]
+        dq = np.degrees(np.abs(comp.q - q)).max(axis=1)
+        for i in range(len(q)):
+            rows.append(
+                f"{i + 1},{comp.error_before_pos[i] * 1e3:.6f},{comp.residual_pos[i] * 1e3:.6f},"
+                f"{comp.residual_rot[i] * 1e3:.6f},{dq[i]:.6f},{int(comp.converged[i])}"
+            )
+        formats.write_text_atomic(args.errors, "\n".join(rows) + "\n")
+    print(
+        f"{len(q)} targets: predicted TCP error {comp.error_before_pos.mean() * 1e3:.4f} mm mean "
+        f"({comp.error_before_pos.max() * 1e3:.4f} max) before, "
+        f"{comp.residual_pos.max() * 1e3:.6f} mm max after compensation"
+    )
+    if not comp.converged.all():
+        bad = np.flatnonzero(~comp.converged) + 1
+        print(
+            f"warning: targets {', '.join(map(str, bad[:10]))} did not converge (near a singularity?)",
+            file=sys.stderr,
+        )
+    print(f"wrote {args.out}" + (f", {args.errors}" if args.errors else ""))
+    return 0
+
+
+# -------------------------------------------------------------------------- report
+
+
+def _report(args: argparse.Namespace) -> int:
+    from quickhealth.station import formats
+    from quickhealth.station.report_html import build_report, render_html, report_json
+
+    d = Path(args.run_dir)
+    arch = _open(args) if args.robot else None
+    rep = build_report(
+        d,
+        archive=arch,
+        robot=args.robot,
+        run_id=args.run_id,
+        threshold_mm=args.threshold_mm,
+        diagnose_if_missing=not args.no_diagnose,
+    )
+    out = Path(args.out) if args.out else d / "report.html"
+    formats.write_text_atomic(out, render_html(rep))
+    # report.json gains the report's sections that the fit did not write (never loses keys)
+    rp = d / "report.json"
+    doc = formats.read_report(rp) if rp.is_file() else {}
+    doc.pop("schema", None)
+    content = report_json(rep)["sections"]
+    for key in ("coverage", "diagnosis", "trend", "iso9283"):
+        s = content[key]
+        doc[key] = s["data"] if not s["missing"] else {"missing": s["missing"]}
+    formats.write_report(rp, doc)
+    print(f"wrote {out} ({len(rep.plots)} plots) and updated {rp}")
+    return 0
+
+
+# ------------------------------------------------------------------------ reprocess
+
+
+def _reprocess(args: argparse.Namespace) -> int:
+    from quickhealth.station.reprocess import jobs_for_archive, reprocess
+
+    arch = _open(args)
+    runs = None if args.runs is None else [r.strip() for r in args.runs.split(",") if r.strip()]
+    jobs = jobs_for_archive(
+        arch,
+        args.robot,
+        run_ids=runs,
+        tag=args.tag,
+        calibration=args.calibration,
+        orders=args.orders,
+        max_order=args.max_order,
+        workspace_samples=args.workspace_samples,
+    )
+    where = f"Dask scheduler {args.scheduler}" if args.scheduler else "local processes"
+    print(f"reprocessing {len(jobs)} runs on {where}", file=sys.stderr)
+
+    def progress(k: int, n: int, r: Any) -> None:
+        print(f"  [{k}/{n}] {r.robot}/{r.run_id} {'ok' if r.ok else 'FAILED'}", file=sys.stderr)
+
+    results = reprocess(jobs, scheduler=args.scheduler, workers=args.workers, progress=progress)
+    for r in results:
+        print(r.line())
+        if r.ok and args.update_index:
+            arch.update_figures(r.robot, r.run_id, r.figures_mm)
+    failed = sum(not r.ok for r in results)
+    if failed:
+        print(f"{failed} of {len(results)} runs failed", file=sys.stderr)
+        return 3
+    return 0

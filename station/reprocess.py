@@ -1,0 +1,291 @@
+"""Offline reprocessing of many archived runs: re-detect with a new calibration, refit.
+
+A fleet's archive grows to thousands of runs; a better camera calibration or a new model
+version means doing them again.  Each run is one independent job (``reprocess_run``, a plain
+function of a frozen :class:`ReprocessJob`, so it pickles to any worker):
+
+1. re-detect (optional, ``calibration`` given): the station's own re-detection of the run's
+   stored stereo images with the new rig (``quickhealth.station.run.redetect_run``), giving
+   new measurements;
+2. refit: the run's measurements with the archived model's orders and effects (``keep``), or
+   a fresh BIC order search (``select``);
+3. write ``OUT/model.json``, ``OUT/report.json`` and ``OUT/reprocess.json`` (what was done,
+   from which inputs) and return the main figures.
+
+``reprocess`` runs the jobs in parallel: local processes by default, a Dask cluster when a
+scheduler address (or a ``distributed.Client``) is given.  The results are the same either
+way (each job is deterministic), in job order.
+
+SYNOPSIS::
+
+    jobs = jobs_for_archive(archive, "ur5-cell3", tag="cal-2026-11")
+    results = reprocess(jobs, scheduler="tcp://10.0.0.5:8786")
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from quickhealth.identify.errors import InputError, QuickhealthError
+
+from .archive import Archive, safe_name
+
+
+@dataclass(frozen=True)
+class ReprocessJob:
+    """One run to reprocess (paths absolute, so any worker on the shared file system can do it)."""
+
+    robot: str
+    run_id: str
+    run_dir: str
+    out_dir: str
+    calibration: str | None = None  # CAL.json / rig file for re-detection
+    orders: str = "keep"  # "keep" the archived model's orders, or "select" anew
+    max_order: int = 6
+    workspace_samples: int = 5000
+
+
+@dataclass(frozen=True)
+class ReprocessResult:
+    """What one job produced (figures in mm), or why it failed."""
+
+    robot: str
+    run_id: str
+    out_dir: str
+    ok: bool
+    error: str = ""
+    redetected: bool = False
+    n_poses: int = 0
+    rms_pos_mm: float = float("nan")
+    figures_mm: dict[str, float] = field(default_factory=dict)
+    coeffs: tuple[float, ...] = ()
+
+    def line(self) -> str:
+        """One line for the command line."""
+        if not self.ok:
+            return f"{self.robot}/{self.run_id}: FAILED: {self.error}"
+        f = self.figures_mm
+        return (
+            f"{self.robot}/{self.run_id}: {self.n_poses} poses, rms {self.rms_pos_mm:.4f} mm; "
+            f"workspace mean {f['mean']:.3f} std {f['std']:.3f} max {f['max']:.3f} mm"
+            + (" (re-detected)" if self.redetected else "")
+        )
+
+
+def jobs_for_archive(
+    archive: Archive,
+    robot: str | None = None,
+    *,
+    run_ids: Sequence[str] | None = None,
+    tag: str = "reprocessed",
+    calibration: str | Path | None = None,
+    orders: str = "keep",
+    max_order: int = 6,
+    workspace_samples: int = 5000,
+) -> list[ReprocessJob]:
+    """Jobs for every run of ``robot`` (or of every robot), output in ``RUN/reprocessed/TAG``."""
+    tag = safe_name(tag, "tag")
+    if orders not in ("keep", "select"):
+        raise InputError(f"--orders must be keep or select, got {orders!r}")
+    cal = None
+    if calibration is not None:
+        cp = Path(calibration).resolve()
+        if not cp.is_file():
+            raise InputError(f"{calibration}: calibration file not found")
+        cal = str(cp)
+    jobs = []
+    for r in [robot] if robot else archive.robots():
+        for rec in archive.runs(r):
+            if run_ids is not None and rec.run_id not in run_ids:
+                continue
+            folder = archive.folder(rec)
+            jobs.append(
+                ReprocessJob(
+                    robot=rec.robot,
+                    run_id=rec.run_id,
+                    run_dir=str(folder),
+                    out_dir=str(folder / "reprocessed" / tag),
+                    calibration=cal,
+                    orders=orders,
+                    max_order=max_order,
+                    workspace_samples=workspace_samples,
+                )
+            )
+    if run_ids is not None:
+        missing = set(run_ids) - {j.run_id for j in jobs}
+        if missing:
+            raise InputError(f"runs not in the archive: {', '.join(sorted(missing))}")
+    return jobs
+
+
+def reprocess_run(job: ReprocessJob) -> ReprocessResult:
+    """Do one job; failures come back as a result with ``ok=False``, never as an exception."""
+    try:
+        return _reprocess_run(job)
+    except (QuickhealthError, ValueError, OSError) as exc:
+        return ReprocessResult(job.robot, job.run_id, job.out_dir, ok=False, error=str(exc))
+
+
+def _redetect(run_dir: Path, calibration: str) -> Any:
+    try:
+        from quickhealth.station import run as station_run  # type: ignore[attr-defined]
+    except ImportError:
+        station_run = None
+    fn = getattr(station_run, "redetect_run", None)
+    if fn is None:
+        raise InputError(
+            f"{run_dir}: this installation cannot re-detect stored images "
+            "(quickhealth.station.run.redetect_run is missing)"
+        )
+    return fn(run_dir, Path(calibration))
+
+
+def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
+    import numpy as np
+
+    from quickhealth.identify.fit import fit_model
+    from quickhealth.identify.workspace import all_joint_curves, workspace_error
+    from quickhealth.station import formats
+
+    src = Path(job.run_dir)
+    old = formats.read_model(src / "model.json")
+    if job.calibration:
+        meas = _redetect(src, job.calibration)
+    else:
+        meas = formats.read_measurements(src / "measurements.csv", old.robot.n_joints)
+    if job.orders == "select":
+        from quickhealth.identify.select import select_orders
+
+        fitted = select_orders(
+            old.robot, meas, list(old.effects), noise=old.noise, max_order=job.max_order
+        ).fitted
+    else:
+        fitted = fit_model(old.robot, meas, old.spec, old.effects, old.noise, old.prior)
+    ws = workspace_error(fitted, n_samples=job.workspace_samples)
+    report = {
+        "n_poses": fitted.n_poses,
+        "n_params": fitted.n_free,
+        "bic": fitted.bic,
+        "chi2": fitted.chi2_data,
+        "rms_pos_mm": fitted.rms_pos * 1e3,
+        "converged": fitted.converged,
+        "robot": fitted.robot.name,
+        "summary": fitted.summary(),
+        "workspace": ws.as_dict(),
+        "joint_curves": [c.as_dict() for c in all_joint_curves(fitted, n_points=61)],
+    }
+    if fitted.rms_rot is not None:
+        report["rms_rot_deg"] = float(np.degrees(fitted.rms_rot))
+    out = Path(job.out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".reprocess-", dir=out.parent))
+    try:
+        formats.write_model(tmp / "model.json", fitted)
+        formats.write_report(tmp / "report.json", report)
+        if job.calibration:
+            formats.write_measurements(tmp / "measurements.csv", meas)
+        formats.write_text_atomic(
+            tmp / "reprocess.json",
+            json.dumps({"job": asdict(job), "source_model": str(src / "model.json")}, indent=1),
+        )
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return ReprocessResult(
+        robot=job.robot,
+        run_id=job.run_id,
+        out_dir=str(out),
+        ok=True,
+        redetected=bool(job.calibration),
+        n_poses=fitted.n_poses,
+        rms_pos_mm=fitted.rms_pos * 1e3,
+        figures_mm={"mean": ws.mean * 1e3, "std": ws.std * 1e3, "max": ws.max * 1e3},
+        coeffs=tuple(map(float, fitted.coeffs)),
+    )
+
+
+def reprocess(
+    jobs: Sequence[ReprocessJob],
+    *,
+    scheduler: Any = None,
+    workers: int | None = None,
+    progress: Callable[[int, int, ReprocessResult], None] | None = None,
+) -> list[ReprocessResult]:
+    """Run the jobs in parallel; results in job order.
+
+    Parameters
+    ----------
+    jobs : sequence of ReprocessJob
+    scheduler : str or distributed.Client, optional
+        A Dask scheduler address (``tcp://host:8786``) or a connected client; None runs local
+        worker processes.
+    workers : int, optional
+        Local processes (default: the CPU count, at most the number of jobs; 1 = in this
+        process, no pool).
+    progress : callable(done, total, result), optional
+
+    Returns
+    -------
+    list of ReprocessResult
+
+    Raises
+    ------
+    HardwareError
+        The Dask scheduler cannot be reached.
+    """
+    jobs = list(jobs)
+    n = len(jobs)
+    results: list[ReprocessResult | None] = [None] * n
+
+    def done(i: int, r: ReprocessResult, k: int) -> None:
+        results[i] = r
+        if progress is not None:
+            progress(k, n, r)
+
+    if not jobs:
+        return []
+    if scheduler is not None:
+        _run_dask(jobs, scheduler, done)
+    else:
+        w = max(1, min(workers or os.cpu_count() or 1, n))
+        if w == 1:
+            for i, j in enumerate(jobs):
+                done(i, reprocess_run(j), i + 1)
+        else:
+            with ProcessPoolExecutor(max_workers=w) as ex:
+                futs = {ex.submit(reprocess_run, j): i for i, j in enumerate(jobs)}
+                from concurrent.futures import as_completed
+
+                for k, f in enumerate(as_completed(futs), 1):
+                    done(futs[f], f.result(), k)
+    return [r for r in results if r is not None]
+
+
+def _run_dask(jobs: list[ReprocessJob], scheduler: Any, done: Callable[..., None]) -> None:
+    from distributed import Client, as_completed
+
+    from quickhealth.identify.errors import HardwareError
+
+    own = not isinstance(scheduler, Client)
+    try:
+        client = Client(scheduler, timeout="10s") if own else scheduler
+    except (OSError, TimeoutError) as exc:
+        raise HardwareError(f"cannot reach the Dask scheduler {scheduler}: {exc}") from None
+    try:
+        futs = client.map(reprocess_run, jobs, pure=False)
+        index = {f.key: i for i, f in enumerate(futs)}
+        for k, f in enumerate(as_completed(futs), 1):
+            done(index[f.key], f.result(), k)
+    finally:
+        if own:
+            client.close()

@@ -1,0 +1,188 @@
+"""The HTML report opened in headless Chromium: every section there, every plot rendered."""
+
+import importlib.util
+import json
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from quickhealth.station.archive import Archive
+from quickhealth.station.cli import main
+from quickhealth.station.report_html import iso9283_pose_stats
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMEDRIVER = Path("/usr/bin/chromedriver")
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+SECTIONS = [
+    "summary",
+    "coverage",
+    "workspace",
+    "curves",
+    "residuals",
+    "diagnosis",
+    "trend",
+    "iso9283",
+]
+
+_spec = importlib.util.spec_from_file_location("_runs", Path(__file__).with_name("_runs.py"))
+_runs = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_runs)
+
+
+@pytest.fixture(scope="module")
+def archived(tmp_path_factory):
+    """Three archived runs of one robot; the last has repeated poses and a degraded joint 2."""
+    base = tmp_path_factory.mktemp("rep")
+    a = Archive.open(base / "arch")
+    for i in range(3):
+        d = _runs.make_run(
+            base / f"r{i}",
+            i,
+            n_poses=40,
+            repeats=3 if i == 2 else 0,
+            degrade={"j2.ex.c0": 4e-4} if i == 2 else None,
+            time_utc=f"2026-0{i + 1}-01T08:00:00Z",
+        )
+        a.add_run("ur5-a", d)
+    return a
+
+
+def _browser_query(page: Path) -> dict:
+    """Open the page in headless Chromium; return what the DOM says about plots and sections."""
+    script = """
+        const imgs = Array.from(document.querySelectorAll('img.plot'));
+        return JSON.stringify({
+          imgs: imgs.map(i => ({id: i.id, complete: i.complete, w: i.naturalWidth, h: i.naturalHeight})),
+          sections: Array.from(document.querySelectorAll('section')).map(s => s.id),
+          missing: Array.from(document.querySelectorAll('.missing')).map(m => m.textContent),
+          json: Object.keys(JSON.parse(document.getElementById('report-json').textContent).sections),
+          external: Array.from(document.querySelectorAll('[src]')).filter(
+              e => !e.getAttribute('src').startsWith('data:')).length,
+        });
+    """
+    profile = tempfile.mkdtemp(prefix="qh-chromium-")
+    try:
+        try:
+            from selenium import webdriver
+            from selenium.webdriver.chrome.service import Service
+        except ImportError:
+            webdriver = None
+        if webdriver is not None and CHROMEDRIVER.exists():
+            opts = webdriver.ChromeOptions()
+            opts.binary_location = str(CHROMIUM)
+            for f in [*FLAGS, f"--user-data-dir={profile}"]:
+                opts.add_argument(f)
+            drv = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
+            try:
+                drv.get(page.as_uri())
+                return json.loads(drv.execute_script(script))
+            finally:
+                drv.quit()
+        # no selenium: let the page write the answer into its DOM, then dump the DOM
+        probe = page.with_name("probe.html")
+        probe.write_text(
+            page.read_text().replace(
+                "</body>",
+                "<script>window.addEventListener('load',()=>{const r=(()=>{"
+                + script
+                + "})();document.body.setAttribute('data-probe',r);});</script></body>",
+            )
+        )
+        out = subprocess.run(
+            [
+                str(CHROMIUM),
+                *FLAGS,
+                f"--user-data-dir={profile}",
+                "--virtual-time-budget=5000",
+                "--dump-dom",
+                probe.as_uri(),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=True,
+        ).stdout
+        import html
+        import re
+
+        m = re.search(r'data-probe="([^"]*)"', out)
+        assert m, "Chromium did not run the probe script"
+        return json.loads(html.unescape(m.group(1)))
+    finally:
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def reported(archived):
+    """``quickhealth report`` on the degraded run: its folder with report.html and report.json."""
+    rec = archived.runs("ur5-a")[-1]
+    d = archived.folder(rec)
+    argv = ["report", str(d), "--archive", str(archived.root), "--robot", "ur5-a"]
+    assert main([*argv, "--threshold-mm", "5"]) == 0
+    return d
+
+
+@pytest.mark.slow
+def test_report_renders_every_plot_in_chromium(reported):
+    if not CHROMIUM.exists():
+        pytest.skip(
+            "headless Chromium not installed (/usr/bin/chromium missing): "
+            "apt-get install -y chromium chromium-driver"
+        )
+    page = reported / "report.html"
+    dom = _browser_query(page)
+    assert dom["sections"] == SECTIONS
+    assert dom["missing"] == []
+    assert dom["external"] == 0  # self-contained
+    assert sorted(dom["json"]) == sorted(SECTIONS)
+    # coverage, histogram, 6 joints' curves, residuals, trend, ISO 9283
+    want = {"plot-coverage", "plot-workspace_hist", "plot-residuals", "plot-trend", "plot-iso9283"}
+    want |= {f"plot-curves_j{j}" for j in range(1, 7)}
+    assert {i["id"] for i in dom["imgs"]} == want
+    for i in dom["imgs"]:
+        assert i["complete"] and i["w"] > 100 and i["h"] > 100, i
+
+
+@pytest.mark.slow
+def test_report_command_extends_report_json(reported):
+    doc = json.loads((reported / "report.json").read_text())
+    assert doc["n_poses"] == 55 and "workspace" in doc  # the fit's keys stay
+    tr = doc["trend"]
+    assert tr["flagged"] is True and tr["baseline"] == "r0"
+    assert any(h.startswith("joint 2 tilt about x grew by") for h in tr["hints"])
+    assert {p["pose_id"] for p in doc["iso9283"]["poses"]} == {f"P{i:03d}" for i in range(5)}
+    assert all(p["n"] == 4 and p["rp_mm"] < 0.3 for p in doc["iso9283"]["poses"])
+    assert doc["diagnosis"]["verdict"] in ("adequate", "missing-effect")
+    assert len(doc["coverage"]["range_share"]) == 6
+
+
+def test_iso9283_figures_of_repeated_poses():
+    import numpy as np
+
+    ids = ("A", "B", "A", "A", "B", "C")
+    cmd = np.zeros((6, 3))
+    att = np.array([[1, 0, 0], [0, 0, 0], [1, 0.2, 0], [1, -0.2, 0], [0, 0, 0.1], [5, 5, 5]]) * 1e-3
+    st = iso9283_pose_stats(ids, att, cmd)
+    assert [s.pose_id for s in st] == ["A", "B"]  # C visited once
+    a = st[0]
+    assert a.n == 3 and a.accuracy == pytest.approx(1e-3)
+    l = np.array([0.0, 0.2, 0.2]) * 1e-3
+    assert a.repeatability == pytest.approx(l.mean() + 3 * l.std(ddof=1))
+
+
+def test_report_command_without_model_is_one_line_error(tmp_path, capsys):
+    assert main(["report", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no model.json" in err[0]

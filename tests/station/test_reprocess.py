@@ -1,0 +1,112 @@
+"""Fleet reprocessing: 20 archived runs on a Dask LocalCluster give what the local path gives."""
+
+import importlib.util
+import pickle
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quickhealth.station.archive import Archive
+from quickhealth.station.cli import main
+from quickhealth.station.reprocess import jobs_for_archive, reprocess, reprocess_run
+
+_spec = importlib.util.spec_from_file_location("_runs", Path(__file__).with_name("_runs.py"))
+_runs = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_runs)
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    """Two robots, 10 runs each (small runs: 25 poses, order-1 model)."""
+    base = tmp_path_factory.mktemp("fleet")
+    a = Archive.open(base / "arch")
+    for k in range(20):
+        d = _runs.make_run(
+            base / f"src{k}", k, n_poses=25, time_utc=f"2026-01-{k + 1:02d}T08:00:00Z", light=True
+        )
+        a.add_run(f"ur5-{k % 2}", d, run_id=f"run{k:02d}")
+    return a
+
+
+def _same(a, b):
+    assert [(r.robot, r.run_id, r.ok) for r in a] == [(r.robot, r.run_id, r.ok) for r in b]
+    for x, y in zip(a, b, strict=True):
+        assert x.ok, x.error
+        np.testing.assert_allclose(x.coeffs, y.coeffs, rtol=0, atol=1e-12)
+        for f in ("mean", "std", "max"):
+            assert x.figures_mm[f] == pytest.approx(y.figures_mm[f], abs=1e-12)
+
+
+@pytest.mark.slow
+def test_localcluster_equals_local_path(fleet):
+    from distributed import Client, LocalCluster
+
+    jobs = jobs_for_archive(fleet, tag="t1", workspace_samples=1000)
+    assert len(jobs) == 20
+    t0 = time.perf_counter()
+    local = reprocess(jobs, workers=2)
+    t1 = time.perf_counter()
+    # threads keep the test fast; the jobs and results must still pickle for remote workers
+    assert pickle.loads(pickle.dumps(jobs)) == jobs
+    assert pickle.loads(pickle.dumps(local)) == local
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cl:
+        with Client(cl) as client:
+            seen = []
+            dask = reprocess(jobs, scheduler=client, progress=lambda k, n, r: seen.append(k))
+    t2 = time.perf_counter()
+    print(f"local {t1 - t0:.1f} s, LocalCluster {t2 - t1:.1f} s for {len(jobs)} runs")
+    _same(local, dask)
+    assert sorted(seen) == list(range(1, 21))
+    # and both equal a plain in-process loop, and the original fits (same data, same orders)
+    serial = [reprocess_run(j) for j in jobs[:3]]
+    _same(serial, local[:3])
+    orig = fleet.run_state(fleet.runs("ur5-0")[0])
+    np.testing.assert_allclose(local[0].coeffs, orig.coeffs, atol=1e-9)
+    assert Path(local[0].out_dir, "model.json").is_file()
+
+
+def test_reprocess_command_local_and_failures(fleet, capsys):
+    rc = main(
+        [
+            "reprocess",
+            "ur5-1",
+            "--archive",
+            str(fleet.root),
+            "--runs",
+            "run01,run03",
+            "--workers",
+            "1",
+            "--tag",
+            "cli",
+            "--workspace-samples",
+            "500",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert rc == 0 and out.count("ur5-1/run0") == 2
+    assert (
+        fleet.folder(fleet.get("ur5-1", "run03")) / "reprocessed" / "cli" / "report.json"
+    ).is_file()
+    # a calibration but no stored images to re-detect: the job fails, the command says so
+    cal = fleet.root / "cal.json"
+    cal.write_text("{}")
+    rc = main(
+        [
+            "reprocess",
+            "ur5-1",
+            "--archive",
+            str(fleet.root),
+            "--runs",
+            "run01",
+            "--workers",
+            "1",
+            "--calibration",
+            str(cal),
+        ]
+    )
+    assert rc == 3
+    assert "FAILED" in capsys.readouterr().out
