@@ -31,7 +31,11 @@ def write_figures(res: PlanResult, out_dir: Path) -> list[Path]:
     names = cell.robot.joint_names
     fig, axes = plt.subplots(2, 3, figsize=(12, 6.5), constrained_layout=True)
     for j, ax in enumerate(axes.flat):
-        ax.hist(q[:, j], bins=c.bins, range=(lo[j], hi[j]), color="tab:blue", edgecolor="white")
+        w = (hi[j] - lo[j]) / c.bins  # the evenness bins, extended over any kept value outside
+        k0 = int(np.floor((min(q[:, j].min(), lo[j]) - lo[j]) / w))
+        k1 = int(np.ceil((max(q[:, j].max(), hi[j]) - lo[j]) / w))
+        edges = lo[j] + w * np.arange(k0, k1 + 1)
+        ax.hist(q[:, j], bins=edges, color="tab:blue", edgecolor="white")
         ax.axvspan(lo[j], hi[j], color="tab:green", alpha=0.08, label="usable range")
         ax.set_xlim(np.degrees(cell.robot.q_min[j]), np.degrees(cell.robot.q_max[j]))
         ax.set_title(
