@@ -76,18 +76,18 @@ def random_case(rng: np.random.Generator) -> tuple[str, float]:
     """An effect, joint and size drawn at random (sizes in the 1.5–5× floor band)."""
     fam = rng.choice(["compliance", "backlash", "cyclic", "thermal", "drift", "depthscale"])
     if fam == "compliance":
-        return f"compliance:j{rng.choice([2, 3])}", float(rng.uniform(1.5e-5, 4e-5))
+        return f"compliance:j{rng.choice([2, 3])}", float(rng.uniform(2e-5, 4e-5))
     if fam == "backlash":
-        return f"backlash:j{rng.integers(1, 4)}", float(rng.uniform(3e-4, 8e-4))
+        return f"backlash:j{rng.integers(1, 4)}", float(rng.uniform(3.5e-4, 8e-4))
     if fam == "cyclic":
         return f"cyclic:j{rng.integers(1, 4)}:h{rng.integers(5, 21)}", float(
-            rng.uniform(1.5e-4, 4e-4)
+            rng.uniform(1.8e-4, 4e-4)
         )
     if fam == "thermal":
-        return "thermal", float(rng.uniform(3e-5, 8e-5))
+        return "thermal", float(rng.uniform(5e-5, 9e-5))
     if fam == "drift":
-        return "drift", float(rng.uniform(1.5e-7, 4e-7))
-    return "depthscale", float(rng.uniform(3e-4, 8e-4))
+        return "drift", float(rng.uniform(2e-7, 4e-7))
+    return "depthscale", float(rng.uniform(4e-4, 8e-4))
 
 
 def main(argv: list[str] | None = None) -> int:

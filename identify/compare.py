@@ -83,7 +83,7 @@ class EffectPanel:
     x_label: str
     before: F  # effect quantity implied by the residual of the model without the effect
     after: F  # … by the residual of the model with it (what is left: flat if it worked)
-    predicted: F  # the fitted effect
+    predicted: F  # what adding the effect removed from the residual (before − after)
     y_label: str
 
 
@@ -336,10 +336,10 @@ def _panels(
     names = [e.name for e in fitted_after.effects]
     for e in new:
         p = fitted_after.effect_params[names.index(e.name)]
-        y0, pred, label = implied_channel(e, p, ctx, sens, T, res0, sigma)
+        y0, _, label = implied_channel(e, p, ctx, sens, T, res0, sigma)
         y1, _, _ = implied_channel(e, p, ctx, sens, T, res1, sigma)
         x, xlabel = regressor_values(e, ctx, T)
-        out.append(EffectPanel(e.name, np.asarray(x, float), xlabel, y0, y1, pred, label))
+        out.append(EffectPanel(e.name, np.asarray(x, float), xlabel, y0, y1, y0 - y1, label))
     return tuple(out)
 
 
@@ -363,7 +363,7 @@ def plot_comparison(cmp: Comparison) -> Any:
         ):
             ax.scatter(pnl.x, np.clip(y, -lim, lim), s=8, alpha=0.6, label="implied by residual")
             if ax is axes[i, 0]:
-                ax.plot(pnl.x, pnl.predicted, ".", color="C3", ms=3, label="fitted effect")
+                ax.plot(pnl.x, pnl.predicted, ".", color="C3", ms=3, label="removed by the effect")
             ax.axhline(0.0, color="0.5", lw=0.8)
             ax.set_xlabel(pnl.x_label)
             ax.set_title(f"{title} ({cmp.method})", fontsize=9)

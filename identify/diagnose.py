@@ -876,7 +876,9 @@ class EffectView:
     implied : ndarray, shape (n,)
         The effect's quantity the residual of each pose implies (``y_label``).
     predicted : ndarray, shape (n,)
-        The same quantity from the effect at ``params``.
+        What the effect explains of it: for an effect not in the model, the part of the
+        residual a one-step refit with it removes (what the Chebyshev terms could already
+        absorb is not counted); for an effect in the model, the fitted effect itself.
     y_label : str
     params : ndarray
         The effect's parameters used for ``predicted`` (SI).
@@ -907,9 +909,11 @@ def implied_channel(
     residual: F,
     sigma: F,
 ) -> tuple[F, F, str]:
-    """Per-pose value of the effect's quantity implied by ``residual`` (n, c), and predicted.
+    """Per-pose value of the effect's quantity implied by ``residual`` (n, c).
 
-    Returns ``(implied, predicted, label)`` in display units (see :class:`EffectView`).
+    Returns ``(implied, effect, label)`` in display units (see :class:`EffectView`):
+    ``effect`` is the quantity the effect itself gives at ``params``.  (``params`` also
+    fixes the drift's direction.)
     """
     n, c = residual.shape
     p = effect.perturbation(ctx, np.asarray(params, float))
@@ -955,16 +959,20 @@ def effect_view(state: LoopState, meas: Measurements, effect_name: str) -> Effec
     effect = parse_effect(effect_name, state.robot)
     wp = whitened(state, meas)
     res = wp.r.reshape(-1, wp.n_comp) * wp.sigma
-    if effect.name in state.effect_names:
+    x, xlabel = regressor_values(effect, wp.ctx, wp.T_model)
+    if effect.name in state.effect_names:  # in the model: show it with what is left around it
         theta = np.asarray(state.effect_params[state.effect_names.index(effect.name)], float)
-    else:
+        y, pred, ylabel = implied_channel(effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.sigma)
+        y = y + pred
+    else:  # not in the model: the residual, and what a one-step refit would explain of it
         Q = _orthonormal_basis(wp.J)
         one = _one_step(wp, Q, wp.r - Q @ (Q.T @ wp.r), effect)
         theta = np.zeros(effect.n_params) if one is None else one[2]
-    y, pred, ylabel = implied_channel(effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.sigma)
-    x, xlabel = regressor_values(effect, wp.ctx, wp.T_model)
-    if effect.name in state.effect_names:  # residual is what is left: show effect + residual
-        y = y + pred
+        explained = np.zeros_like(res) if one is None else one[3]
+        y, _, ylabel = implied_channel(effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.sigma)
+        pred, _, _ = implied_channel(
+            effect, theta, wp.ctx, wp.sens, wp.T_model, explained, wp.sigma
+        )
     return EffectView(effect.name, np.asarray(x, float), xlabel, y, pred, ylabel, theta)
 
 
@@ -980,7 +988,7 @@ def plot_candidate(state: LoopState, meas: Measurements, effect_name: str) -> An
     ax = fig.add_subplot()
     lim = np.percentile(np.abs(v.implied), 98) * 1.3 if v.implied.size else 1.0
     ax.scatter(v.x, np.clip(v.implied, -lim, lim), s=9, alpha=0.6, label="implied by the residual")
-    ax.plot(v.x, v.predicted, ".", color="C3", ms=4, label=f"{v.effect} (estimate)")
+    ax.plot(v.x, v.predicted, ".", color="C3", ms=4, label=f"explained by {v.effect}")
     ax.axhline(0.0, color="0.5", lw=0.8)
     ax.set_xlabel(v.x_label)
     ax.set_ylabel(v.y_label)

@@ -1,0 +1,179 @@
+"""Diagnosis on twin data with a hidden effect: the right effect first, noise stays quiet.
+
+The model here is fitted by the product's estimator (``fit_model``) with the twin's true
+Chebyshev orders (order selection has its own tests and the full pipeline, with
+``select_orders``, runs in benchmarks/diagnose_table.py); then the effect is hidden from it.
+"""
+
+import json
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from quickhealth.identify.compare import compare_effect, plot_comparison
+from quickhealth.identify.diagnose import (
+    Verdict,
+    diagnose,
+    effect_view,
+    plot_candidate,
+    plot_spectrum,
+    pose_residuals,
+    rms_pos_mm,
+    state_from_fitted,
+)
+from quickhealth.identify.errormodel import ErrorModelSpec
+from quickhealth.identify.fit import fit_model
+from quickhealth.identify.twin import make_twin, random_joints, schedules
+
+FIXED = [
+    ("compliance:j2", 2.5e-5),
+    ("backlash:j3", 4e-4),
+    ("cyclic:j1:h9", 2e-4),
+    ("thermal", 5e-5),
+    ("drift", 2e-7),
+    ("depthscale", 4e-4),
+]
+
+
+def make_case(effect, size, seed, n_train=150, n_held=300, orientation=True):
+    twin = make_twin(seed=seed, effects={effect: size} if effect else {})
+    q = random_joints(
+        twin.robot, n_train + n_held, seed=seed + 1, T_instr_base=twin.truth.T_instr_base
+    )
+    train = twin.measure(q[:n_train], *schedules(n_train), seed=seed + 2, orientation=orientation)
+    held = twin.measure(q[n_train:], *schedules(n_held), seed=seed + 3, orientation=orientation)
+    orders = twin.truth.orders.copy()
+    orders[[0, -1]] = 0
+    spec = ErrorModelSpec(orders, q.min(0) - 0.02, q.max(0) + 0.02)
+    fitted = fit_model(twin.robot, train, spec)
+    return twin, train, held, fitted
+
+
+def floor_mm(twin, held):
+    return rms_pos_mm(pose_residuals(held, twin.true_pose(held.q, held.time, held.temp)))
+
+
+@pytest.mark.parametrize(("effect", "size"), FIXED)
+def test_hidden_effect_is_ranked_first(effect, size) -> None:
+    twin, train, _, fitted = make_case(effect, size, seed=40)
+    diag = diagnose(state_from_fitted(fitted), train)
+    assert diag.verdict is Verdict.MISSING_EFFECT
+    top = diag.candidates[0]
+    assert top.effect == effect, diag.summary(4)
+    assert top.significant and top.p_value < 1e-6
+    assert top.predicted_rms_drop_mm > 0
+    assert diag.suggested[0] == effect
+    # the one-step estimate is the true parameter to a few standard errors
+    true = np.asarray(twin.truth.effects[effect])
+    est = np.asarray(top.params)
+    if true.size == 1:
+        assert est[0] == pytest.approx(true[0], rel=0.35)
+    assert "Bonferroni" in top.evidence
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_noise_only_data_is_adequate(seed) -> None:
+    _, train, _, fitted = make_case(None, 0.0, seed=seed, orientation=seed != 3)
+    diag = diagnose(state_from_fitted(fitted), train)
+    assert diag.verdict is Verdict.ADEQUATE, diag.summary(3)
+    assert not any(c.significant for c in diag.candidates)
+    assert diag.suggested == ()
+    assert 0.8 < diag.noise_scale < 1.2
+    assert diag.n_tested > 150
+
+
+def test_high_harmonic_found_from_the_residual_spectrum() -> None:
+    _, train, _, fitted = make_case("cyclic:j2:h13", 1.5e-4, seed=21)
+    diag = diagnose(state_from_fitted(fitted), train)
+    assert diag.candidates[0].effect == "cyclic:j2:h13"
+    spectrum = np.asarray(diag.spectra["j2"])
+    assert int(np.argmax(spectrum)) + 1 == 13
+    assert "peaks at 13 cycles/rev" in diag.candidates[0].evidence
+
+
+def test_position_only_data_finds_backlash() -> None:
+    _, train, _, fitted = make_case("backlash:j2", 5e-4, seed=8, orientation=False)
+    diag = diagnose(state_from_fitted(fitted), train)
+    assert diag.rms_rot_mrad is None
+    assert diag.candidates[0].effect == "backlash:j2"
+
+
+def test_uniform_scale_is_explained_not_tested() -> None:
+    _, train, _, fitted = make_case(None, 0.0, seed=5, n_train=80, n_held=2)
+    diag = diagnose(state_from_fitted(fitted), train, candidates=["uniformscale", "depthscale"])
+    assert [c.effect for c in diag.candidates] == ["depthscale"]
+    assert any("indistinguishable" in s for s in diag.not_identifiable)
+    assert diag.n_tested == 1
+
+
+def _random_case(rng):
+    fam = rng.choice(["compliance", "backlash", "cyclic", "thermal", "drift", "depthscale"])
+    if fam == "compliance":
+        return f"compliance:j{rng.choice([2, 3])}", rng.uniform(2e-5, 4e-5)
+    if fam == "backlash":
+        return f"backlash:j{rng.integers(1, 4)}", rng.uniform(3.5e-4, 8e-4)
+    if fam == "cyclic":
+        return f"cyclic:j{rng.integers(1, 4)}:h{rng.integers(5, 21)}", rng.uniform(1.8e-4, 4e-4)
+    if fam == "thermal":
+        return "thermal", rng.uniform(5e-5, 9e-5)
+    if fam == "drift":
+        return "drift", rng.uniform(2e-7, 4e-7)
+    return "depthscale", rng.uniform(4e-4, 8e-4)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("draw", range(4))
+def test_random_effects_and_sizes_diagnosed_and_fixed(draw) -> None:
+    rng = np.random.default_rng(1000 + draw)
+    effect, size = _random_case(rng)
+    twin, train, held, fitted = make_case(effect, float(size), seed=int(rng.integers(1, 10_000)))
+    diag = diagnose(state_from_fitted(fitted), train)
+    assert diag.candidates[0].effect == effect, (effect, size, diag.summary(3))
+    cmp = compare_effect(fitted, train, effect, heldout=held)
+    fl = floor_mm(twin, held)
+    assert cmp.before.pos_mm > 1.3 * fl, (effect, size)  # the effect was there to find
+    assert cmp.after.pos_mm <= 1.3 * fl, (effect, size, cmp.summary())
+
+
+def test_compare_held_out_and_cross_validated() -> None:
+    twin, train, held, fitted = make_case("backlash:j2", 4e-4, seed=12)
+    cmp = compare_effect(fitted, train, ["backlash:j2"], heldout=held)
+    fl = floor_mm(twin, held)
+    assert cmp.method == "held-out" and cmp.n_eval == 300
+    assert cmp.before.pos_mm > 1.5 * fl and cmp.after.pos_mm < 1.3 * fl
+    assert cmp.after.rot_mrad < cmp.before.rot_mrad
+    assert cmp.params["backlash:j2"][0] == pytest.approx(
+        4e-4, abs=4 * cmp.param_sigma["backlash:j2"][0]
+    )
+    cv = compare_effect(fitted, train, "backlash:j2", folds=3)
+    assert cv.method.startswith("cross-validation") and cv.n_eval == 150
+    assert cv.after.pos_mm < 0.7 * cv.before.pos_mm
+    doc = json.loads(json.dumps(cv.to_dict()))
+    assert doc["before"]["pos_mm"] > doc["after"]["pos_mm"]
+    assert any("held-out" in line or "cross" in line for line in cmp.summary())
+    pnl = cmp.panels[0]
+    # before: the residual splits by approach direction; after: it does not
+    up, down = pnl.x > 0, pnl.x < 0
+    assert abs(pnl.before[up].mean() - pnl.before[down].mean()) > 0.2  # mrad (b = 0.4)
+    assert abs(pnl.after[up].mean() - pnl.after[down].mean()) < 0.05
+    assert isinstance(plot_comparison(cmp), Figure)
+
+
+def test_views_and_figures_show_the_effect() -> None:
+    _, train, _, fitted = make_case("compliance:j2", 3e-5, seed=30, n_train=120, n_held=2)
+    state = state_from_fitted(fitted)
+    v = effect_view(state, train, "compliance:j2")
+    assert v.x_label.startswith("gravity torque of joint 2")
+    # the residual follows what the effect explains of it, and the estimate is the truth
+    assert np.corrcoef(v.implied, v.predicted)[0, 1] > 0.5
+    assert v.params[0] == pytest.approx(3e-5, rel=0.35)
+    fig = plot_candidate(state, train, "compliance:j2")
+    assert isinstance(fig, Figure) and fig.axes[0].get_xlabel() == v.x_label
+    diag = diagnose(state, train, candidates=["cyclic:j1:h5", "cyclic:j1:h6", "compliance:j2"])
+    assert isinstance(plot_spectrum(diag), Figure)
+    doc = json.loads(json.dumps(diag.to_dict()))
+    assert doc["verdict"] == "missing-effect"
+    assert set(doc["candidates"][0]) >= {"effect", "score", "predicted_rms_drop_mm", "evidence"}
+    scores = [c["score"] for c in doc["candidates"]]
+    assert scores == sorted(scores, reverse=True)

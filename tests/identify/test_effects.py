@@ -1,0 +1,218 @@
+"""Effects library: physics of each perturbation, Jacobians against finite differences."""
+
+import numpy as np
+import pytest
+
+from quickhealth.identify.diagnose import (
+    LoopState,
+    chebyshev_jacobian,
+    context_for,
+    effect_jacobian,
+    model_pose,
+    sensitivities,
+)
+from quickhealth.identify.effects import (
+    EffectContext,
+    parse_effect,
+    parse_effects,
+    total_perturbation,
+)
+from quickhealth.identify.effects._base import perturbed_loop_pose
+from quickhealth.identify.errormodel import ErrorModelSpec, loop_pose
+from quickhealth.identify.errors import InputError
+from quickhealth.identify.measurements import Measurements
+from quickhealth.identify.robot import gravity_torques, ur5
+from quickhealth.identify.transforms import log_so3
+from quickhealth.identify.twin import camera_pose, random_joints
+
+ALL = [
+    "compliance:j2",
+    "compliance:j3",
+    "backlash:j1",
+    "cyclic:j3:h7",
+    "thermal",
+    "drift",
+    "depthscale",
+]
+
+
+@pytest.fixture(scope="module")
+def setup():
+    robot = ur5()
+    T_ib = camera_pose()
+    q = random_joints(robot, 40, seed=3, T_instr_base=T_ib)
+    n = q.shape[0]
+    meas = Measurements(
+        q=q,
+        pos=np.zeros((n, 3)),
+        rpy=np.zeros((n, 3)),
+        time=np.linspace(0, 600, n),
+        temp=np.linspace(21, 27, n),
+    )
+    rng = np.random.default_rng(0)
+    spec = ErrorModelSpec.uniform(6, 2, q.min(0) - 0.01, q.max(0) + 0.01)
+    coeffs = rng.normal(0, 1e-4, spec.n_params)
+    T_ft = np.eye(4)
+    T_ft[:3, 3] = [0.04, 0.0, 0.06]
+    # a model that already has two effects, so Jacobians are taken at a perturbed state
+    effects = tuple(parse_effects("backlash:j2,thermal", robot))
+    state = LoopState(
+        robot, spec, coeffs, T_ib, T_ft, effects, (np.array([3e-4]), np.array([2e-5]))
+    )
+    return robot, meas, state
+
+
+def _pose6(T1, T0, h):
+    dp = (T1[:, :3, 3] - T0[:, :3, 3]) / h
+    dw = log_so3(T1[:, :3, :3] @ np.swapaxes(T0[:, :3, :3], -1, -2)) / h
+    return np.concatenate([dp, dw], axis=1)
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_effect_jacobian_matches_finite_differences(setup, name) -> None:
+    robot, meas, state = setup
+    effect = parse_effect(name, robot)
+    ctx = context_for(robot, meas)
+    J = effect_jacobian(effect, ctx, sensitivities(state, ctx))
+    p0 = 0.5 * np.asarray(effect.prior_sigma) * 1e-2  # evaluate away from zero
+
+    def pose(p):
+        return model_pose(state.with_effect(effect, p), ctx)
+
+    for i in range(effect.n_params):
+        h = effect.prior_sigma[i] * 1e-3
+        dp = np.zeros(effect.n_params)
+        dp[i] = h
+        fd = _pose6(pose(p0 + dp), pose(p0 - dp), 2 * h)
+        scale = np.abs(fd).max()
+        assert scale > 0
+        np.testing.assert_allclose(J[:, :, i], fd, atol=2e-3 * scale)
+
+
+def test_chebyshev_jacobian_matches_finite_differences(setup) -> None:
+    robot, meas, state = setup
+    ctx = context_for(robot, meas)
+    J = chebyshev_jacobian(state, ctx, sensitivities(state, ctx))
+    rng = np.random.default_rng(1)
+    for i in rng.choice(state.spec.n_params, 12, replace=False):
+        h = 1e-6
+        cp, cm = state.coeffs.copy(), state.coeffs.copy()
+        cp[i] += h
+        cm[i] -= h
+        Tp = model_pose(LoopState(**{**state.__dict__, "coeffs": cp}), ctx)
+        Tm = model_pose(LoopState(**{**state.__dict__, "coeffs": cm}), ctx)
+        fd = _pose6(Tp, Tm, 2 * h)
+        np.testing.assert_allclose(J[:, :, i], fd, atol=1e-6 * max(np.abs(fd).max(), 1.0))
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_perturbation_is_linear_in_params(setup, name) -> None:
+    robot, meas, _ = setup
+    e = parse_effect(name, robot)
+    ctx = context_for(robot, meas)
+    rng = np.random.default_rng(2)
+    a, b = rng.normal(size=e.n_params), rng.normal(size=e.n_params)
+    pa, pb, pab = (e.perturbation(ctx, x) for x in (a, b, 2 * a - 3 * b))
+    for field in ("dq", "link_scale", "base_twist", "instr_scale_z"):
+        fa, fb, fab = (getattr(p, field) for p in (pa, pb, pab))
+        if fab is None:
+            assert fa is None and fb is None
+            continue
+        np.testing.assert_allclose(fab, 2 * fa - 3 * fb, atol=1e-15)
+    assert e.regressor(ctx).shape == (ctx.n_poses,)
+    assert len(e.param_names) == len(e.param_units) == e.n_params == e.prior_sigma.size
+
+
+def test_effects_compose_with_each_other_and_the_chebyshev_model(setup) -> None:
+    robot, meas, state = setup
+    ctx = context_for(robot, meas)
+    effs = parse_effects("compliance:j2,cyclic:j3:h7,drift,depthscale", robot)
+    params = [np.array([2e-5]), np.array([1e-4, -2e-4]), np.full(6, 1e-7), np.array([3e-4])]
+    total = total_perturbation(effs, params, ctx)
+    summed = effs[0].perturbation(ctx, params[0])
+    for e, p in zip(effs[1:], params[1:], strict=True):
+        summed = summed + e.perturbation(ctx, p)
+    np.testing.assert_array_equal(total.dq, summed.dq)
+    np.testing.assert_array_equal(total.base_twist, summed.base_twist)
+    # the joint perturbations of compliance and cyclic add on the same dq array
+    np.testing.assert_allclose(total.dq[:, 1], 2e-5 * ctx.gravity_torque[:, 1])
+    assert np.all(total.dq[:, 2] != 0)
+    # to first order the pose changes add up (small effects: cross terms are second order)
+    T0 = model_pose(state, ctx)
+    T_all = perturbed_loop_pose(
+        robot,
+        state.spec,
+        state.coeffs,
+        state.T_instr_base0,
+        state.T_flange_target0,
+        ctx.q,
+        total_perturbation(state.effects, state.effect_params, ctx) + total,
+    )
+    d_sum = sum(
+        model_pose(state.with_effect(e, p), ctx)[:, :3, 3] - T0[:, :3, 3]
+        for e, p in zip(effs, params, strict=True)
+    )
+    np.testing.assert_allclose(
+        T_all[:, :3, 3] - T0[:, :3, 3], d_sum, atol=1e-3 * np.abs(d_sum).max()
+    )
+
+
+def test_each_effect_follows_its_physics(setup) -> None:
+    robot, meas, _ = setup
+    ctx = context_for(robot, meas)
+    n = ctx.n_poses
+    tau = gravity_torques(robot, meas.q)
+    c = parse_effect("compliance:j3", robot).perturbation(ctx, np.array([1e-5]))
+    np.testing.assert_allclose(c.dq[:, 2], 1e-5 * tau[:, 2])
+    assert np.all(c.dq[:, [0, 1, 3, 4, 5]] == 0)
+    b = parse_effect("backlash:j1", robot).perturbation(ctx, np.array([4e-4]))
+    np.testing.assert_allclose(b.dq[:, 0], 2e-4 * meas.approach_sign()[:, 0])
+    y = parse_effect("cyclic:j3:h7", robot).perturbation(ctx, np.array([1.0, 2.0]))
+    np.testing.assert_allclose(y.dq[:, 2], np.sin(7 * meas.q[:, 2]) + 2 * np.cos(7 * meas.q[:, 2]))
+    t = parse_effect("thermal", robot).perturbation(ctx, np.array([2e-5]))
+    np.testing.assert_allclose(t.link_scale, 2e-5 * (meas.temp - 20.0))
+    xi = np.array([1e-6, 2e-6, 3e-6, 4e-6, 5e-6, 6e-6])
+    d = parse_effect("drift", robot).perturbation(ctx, xi)
+    np.testing.assert_allclose(d.base_twist, meas.time[:, None] * xi[None])
+    s = parse_effect("depthscale", robot).perturbation(ctx, np.array([1e-3]))
+    np.testing.assert_allclose(s.instr_scale_z, np.full(n, 1e-3))
+
+
+def test_perturbed_loop_applies_depth_scale_and_link_growth() -> None:
+    robot = ur5()
+    q = random_joints(robot, 5, seed=1)
+    spec = ErrorModelSpec.uniform(6, 0, np.full(6, -7.0), np.full(6, 7.0))
+    coeffs = np.zeros(spec.n_params)
+    T_ib = camera_pose()
+    from quickhealth.identify.effects import Perturbation
+
+    T0 = loop_pose(robot, spec, coeffs, T_ib, np.eye(4), q)
+    Ts = perturbed_loop_pose(
+        robot, spec, coeffs, T_ib, np.eye(4), q, Perturbation(instr_scale_z=np.full(5, 1e-3))
+    )
+    np.testing.assert_allclose(Ts[:, 2, 3], 1.001 * T0[:, 2, 3])
+    np.testing.assert_allclose(Ts[:, :2, 3], T0[:, :2, 3])
+    # a uniform link growth of g scales the flange position in the base frame by 1 + g
+    Tg = perturbed_loop_pose(
+        robot, spec, coeffs, np.eye(4), np.eye(4), q, Perturbation(link_scale=np.full(5, 1e-3))
+    )
+    T1 = loop_pose(robot, spec, coeffs, np.eye(4), np.eye(4), q)
+    np.testing.assert_allclose(Tg[:, :3, 3], 1.001 * T1[:, :3, 3], atol=1e-12)
+
+
+def test_names_are_checked_and_uniform_scale_is_explained() -> None:
+    robot = ur5()
+    assert parse_effect(" cyclic:j6:h11 ", robot).name == "cyclic:j6:h11"
+    with pytest.raises(InputError, match="j7 does not exist"):
+        parse_effect("backlash:j7", robot)
+    with pytest.raises(InputError, match="at least 1"):
+        parse_effect("cyclic:j1:h0", robot)
+    with pytest.raises(InputError, match="indistinguishable"):
+        parse_effect("uniformscale", robot)
+    with pytest.raises(InputError, match="given twice"):
+        parse_effects("thermal,thermal", robot)
+    ctx = EffectContext(robot, np.zeros((2, 6)), np.ones((2, 6)))
+    with pytest.raises(InputError, match="temp"):
+        parse_effect("thermal", robot).perturbation(ctx, np.array([1e-5]))
+    with pytest.raises(InputError, match="time"):
+        parse_effect("drift", robot).regressor(ctx)
