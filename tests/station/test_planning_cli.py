@@ -22,6 +22,7 @@ def _one_line_error(capsys, rc, pattern):
     assert re.search(pattern, err[0]), err[0]
 
 
+@pytest.mark.slow
 def test_small_plan_writes_everything(tmp_path, capsys):
     out = tmp_path / "p"
     rc = main(["plan", "--cell", "reference", "--n", "16", "--seed", "2", "--out", str(out)])
