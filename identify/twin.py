@@ -258,6 +258,18 @@ class Twin:
                     raise ValueError(f"the twin's effect {e.name} needs a {col!r} schedule")
 
 
+def simulate(
+    twin: Twin,
+    q: ArrayLike,
+    time: ArrayLike | None = None,
+    temp: ArrayLike | None = None,
+    seed: int | None = None,
+    orientation: bool = True,
+) -> tuple[Measurements, TwinTruth]:
+    """Measurements of ``twin`` at joints ``q`` (execution order) and the truth behind them."""
+    return twin.measure(q, time, temp, seed=seed, orientation=orientation), twin.truth
+
+
 def approach_from_order(q: ArrayLike) -> F:
     """Approach direction (+1/−1) of every joint from the previous row (CSV v1 rule)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))

@@ -77,6 +77,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="hidden effects NAME=SIZE, comma-separated, e.g. backlash:j2=0.02,thermal=2e-5",
     )
     t.add_argument("--n", type=int, default=150, help="poses (default 150)")
+    t.add_argument(
+        "--plan",
+        type=Path,
+        help="plan.json: measure its poses (q_deg, in order) instead of random ones",
+    )
     t.add_argument("--seed", type=int, default=0, help="seed of the twin and its data")
     t.add_argument(
         "--heldout", type=int, default=0, help="also write N2 held-out poses (OUT.heldout.csv)"
@@ -181,6 +186,27 @@ def parse_twin_effects(text: str, robot: object) -> dict[str, float]:
     return out
 
 
+def _plan_joints(path: Path) -> object:
+    """Joint sets (rad) of a plan.json, in execution order."""
+    import numpy as np
+
+    from quickhealth.identify.errors import InputError
+
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
+    try:
+        q = np.radians(np.array([p["q_deg"] for p in doc["poses"]], dtype=float))
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{path}: expected {{'poses': [{{'q_deg': [...]}}, ...]}}") from None
+    if q.ndim != 2 or q.shape[1] != 6 or q.shape[0] == 0 or not np.all(np.isfinite(q)):
+        raise InputError(f"{path}: poses must each have 6 finite joint angles (q_deg)")
+    return q
+
+
 def run_twin(args: argparse.Namespace) -> int:
     """``quickhealth twin``."""
     import numpy as np
@@ -203,9 +229,23 @@ def run_twin(args: argparse.Namespace) -> int:
         sigma_rot=args.sigma_rot_mrad * 1e-3,
         sigma_q=float(np.radians(args.sigma_q_deg)),
     )
-    q = random_joints(
-        twin.robot, args.n + args.heldout, seed=args.seed + 1, T_instr_base=twin.truth.T_instr_base
-    )
+    if args.plan:
+        q_plan = _plan_joints(args.plan)
+        args.n = q_plan.shape[0]
+        q_extra = random_joints(
+            twin.robot,
+            max(args.heldout, 1),
+            seed=args.seed + 1,
+            T_instr_base=twin.truth.T_instr_base,
+        )
+        q = np.concatenate([q_plan, q_extra[: args.heldout]])
+    else:
+        q = random_joints(
+            twin.robot,
+            args.n + args.heldout,
+            seed=args.seed + 1,
+            T_instr_base=twin.truth.T_instr_base,
+        )
     meta = {"robot": "ur5 (digital twin)", "twin_effects": ",".join(effects) or "none"}
     files = [(args.out, q[: args.n], args.seed + 2)]
     if args.heldout:
