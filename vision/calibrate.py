@@ -9,12 +9,15 @@ exceeds ``max(5 σ̂, 0.1 px)`` (4 in a million false rejections for Gaussian no
 dropped when more than half of its corners are outliers or fewer than ``min_corners`` remain.
 The fit is repeated until nothing changes (at most 5 rounds).
 
-Uncertainty: the full covariance of the 9 intrinsics (fx fy cx cy k1 k2 p1 p2 k3) is
-``σ̂² (S)⁻¹`` with S the Schur complement of the view poses in JᵀJ, so the correlation with
-the board poses is accounted for.  Projection uncertainty is the worst-direction standard
-deviation of the projection of a fixed direction in the camera frame (points at infinity),
-mapped over the image.  Like mrcal's, it measures sampling error from corner noise, not a
-wrong lens model; unlike mrcal it does not re-align the camera frame, so it errs high.
+Uncertainty: the full covariance of the 9 intrinsics (fx fy cx cy k1 k2 p1 p2 k3) comes from
+``σ̂² (JᵀJ)⁻¹`` over the whole problem (intrinsics + 6 per view), so the correlation with the
+board poses is accounted for (its diagonal equals OpenCV's ``stdDeviationsIntrinsics``).
+Projection uncertainty is the worst-direction standard deviation of projecting a direction
+(a point at infinity) held fixed in the boards' reference frame, mapped over the image; the
+reference frame's rotation follows the least-squares rigid fit of every observed board
+point's displacement, as mrcal aligns the perturbed frame, so a principal-point shift that
+the board poses absorb by turning is not counted.  Like mrcal's, it measures sampling error
+from corner noise, not a wrong lens model.
 
 SYNOPSIS
     >>> views = [detect_board(board, img) for img in images]
@@ -33,7 +36,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.transforms import log_so3
+from quickhealth.identify.transforms import log_so3, skew
 
 from .boards import BoardKind, BoardSpec
 from .camera import CameraModel
@@ -570,17 +573,21 @@ def _intrinsics_cov(
     rvecs: F,
     tvecs: F,
 ) -> F:
-    """Covariance (12×12) of the 9 intrinsics and the mean rotation ω̄ of the board poses
-    (camera frame, rad): ``σ̂² G (JᵀJ)⁻¹ Gᵀ`` over the full problem (intrinsics + 6 per view)."""
+    """Covariance (12×12) of the 9 intrinsics and the rotation δφ of the boards' reference
+    frame (camera frame, rad): ``σ̂² G (JᵀJ)⁻¹ Gᵀ`` over the full problem (intrinsics + 6
+    per view).  δφ is the rotation of the rigid motion that best fits (least squares) the
+    displacement of every observed board point when the view poses change, as mrcal aligns
+    the perturbed reference frame."""
     nv = len(views)
     npar = 9 + 6 * nv
     N = np.zeros((npar, npar))
     sse = 0.0
     n = 0
-    G = np.zeros((12, npar))
-    G[:9, :9] = np.eye(9)
+    M = np.zeros((6, 6))
+    AB = np.zeros((6, npar))
     for k, (v, m, r, t) in enumerate(zip(views, masks, rvecs, tvecs, strict=True)):
-        proj, jac = cv2.projectPoints(v.obj[m].astype(np.float64), r, t, cam.K, cam.dist)
+        obj = v.obj[m].astype(np.float64)
+        proj, jac = cv2.projectPoints(obj, r, t, cam.K, cam.dist)
         res = (v.px[m] - proj.reshape(-1, 2)).ravel()
         sse += float(res @ res)
         n += res.size
@@ -588,7 +595,19 @@ def _intrinsics_cov(
         J[:, :9] = jac[:, 6:15]  # fx fy cx cy k1 k2 p1 p2 k3
         J[:, 9 + 6 * k : 15 + 6 * k] = jac[:, :6]  # rvec, tvec
         N += J.T @ J
-        G[9:, 9 + 6 * k : 12 + 6 * k] = _left_jacobian(np.asarray(r, float).ravel()) / nv
+        # rigid-fit bookkeeping: A = [-[p]x, I] maps (δφ, δτ) to a point's displacement,
+        # B = [-[R P]x · Jl(r), I] maps this view's (δr, δt) to it
+        R = cv2.Rodrigues(np.asarray(r, float))[0]
+        RP = obj @ R.T
+        p = RP + np.asarray(t, float).ravel()
+        A = np.concatenate([-skew(p), np.broadcast_to(np.eye(3), (len(p), 3, 3))], -1)  # (k, 3, 6)
+        Jl = _left_jacobian(np.asarray(r, float).ravel())
+        B = np.concatenate([-skew(RP) @ Jl, np.broadcast_to(np.eye(3), (len(p), 3, 3))], -1)
+        M += np.einsum("kia,kib->ab", A, A)
+        AB[:, 9 + 6 * k : 15 + 6 * k] = np.einsum("kia,kib->ab", A, B)
+    G = np.zeros((12, npar))
+    G[:9, :9] = np.eye(9)
+    G[9:] = np.linalg.solve(M, AB)[:3]
     dof = max(n - npar, 1)
     s2 = sse / dof
     return s2 * G @ np.linalg.pinv(N) @ G.T

@@ -1,17 +1,15 @@
 import cv2
 import numpy as np
+import pytest
 
 from quickhealth.identify.transforms import make_T, rot_x, rot_y
 from quickhealth.vision.boards import Layer, parse_board_spec
 from quickhealth.vision.camera import CameraModel
 from quickhealth.vision.render import Imaging, _render, render_board
 
-SHARP = Imaging(
-    blur_px=0.0, noise_dn=0.0, white_dn=255.0, dark_dn=0.0, background=1.0, supersample=3
-)
 
-
-def test_edges_land_where_the_model_projects_them_to_0_01_px():
+@pytest.mark.parametrize("ss", [1, 3])
+def test_edges_land_where_the_model_projects_them_to_0_01_px(ss):
     # a black rectangle, frontal, pinhole: each row's darkness integral is the rectangle's
     # width in pixels and its first moment the rectangle's centre, exactly, if the
     # anti-aliasing is right
@@ -25,7 +23,10 @@ def test_edges_land_where_the_model_projects_them_to_0_01_px():
         np.zeros((1, 1)),
     )
     T = make_T(np.eye(3), [0.0, 0.0, 1.0])
-    img = _render(cam, T, [sq], np.array([[-0.05, -0.04], [0.05, 0.04]]), SHARP, None).astype(float)
+    sharp = Imaging(
+        blur_px=0.0, noise_dn=0.0, white_dn=255.0, dark_dn=0.0, background=1.0, supersample=ss
+    )
+    img = _render(cam, T, [sq], np.array([[-0.05, -0.04], [0.05, 0.04]]), sharp, None).astype(float)
     dark = 1.0 - img / 255.0
     x = np.arange(400.0)
     rows = slice(150 - 5, 150 + 5)
