@@ -1,6 +1,7 @@
 """The run archive: folders plus index, many robots, baselines, names that cannot escape."""
 
 import importlib.util
+import json
 import sqlite3
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import pytest
 
 from quickhealth.identify.errors import InputError
 from quickhealth.station.archive import Archive, default_root, safe_name
+from quickhealth.station.cli import main
 
 _spec = importlib.util.spec_from_file_location("_runs", Path(__file__).with_name("_runs.py"))
 _runs = importlib.util.module_from_spec(_spec)
@@ -18,15 +20,21 @@ _spec.loader.exec_module(_runs)
 @pytest.fixture(scope="module")
 def run_dirs(tmp_path_factory):
     base = tmp_path_factory.mktemp("runs")
-    return [
+    runs = [
         _runs.make_run(base / f"r{i}", i, n_poses=30, time_utc=f"2026-0{i + 1}-01T08:00:00Z")
         for i in range(3)
     ]
+    runs.append(  # a month later joint 2 tilts by 0.5 mrad more about x
+        _runs.make_run(
+            base / "r3", 3, n_poses=30, time_utc="2026-04-01T08:00:00Z", degrade={"j2.ex.c0": 5e-4}
+        )
+    )
+    return runs
 
 
 def test_runs_of_many_robots_with_metadata(tmp_path, run_dirs):
     a = Archive.open(tmp_path / "arch")
-    for d in run_dirs:
+    for d in run_dirs[:3]:
         a.add_run("ur5-a", d)
     a.add_run("ur5-b", run_dirs[0], run_id="first", meta={"cell": "cell-7"})
     assert a.robots() == ["ur5-a", "ur5-b"]
@@ -48,7 +56,7 @@ def test_runs_of_many_robots_with_metadata(tmp_path, run_dirs):
 
 def test_baseline_explicit_or_first_healthy(tmp_path, run_dirs):
     a = Archive.open(tmp_path / "arch")
-    for d in run_dirs:
+    for d in run_dirs[:3]:
         a.add_run("ur5-a", d)
     assert a.baseline("ur5-a").run_id == "r0"
     a.set_healthy("ur5-a", "r0", False)
@@ -103,3 +111,80 @@ def test_duplicate_and_bad_inputs(tmp_path, run_dirs):
         a.runs("unknown")
     with pytest.raises(InputError, match="ISO 8601"):
         a.add_run("ur5-a", run_dirs[1], time_utc="yesterday")
+
+
+def _trend(capsys, *argv):
+    rc = main(["trend", *argv])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def test_trend_command_flags_the_degraded_joint_not_the_healthy_repeat(tmp_path, run_dirs, capsys):
+    arch = str(tmp_path / "arch")
+    for d in run_dirs[:2]:
+        assert main(["archive", "add", str(d), "--robot", "ur5-a", "--archive", arch]) == 0
+    rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch)
+    assert rc == 0, out
+    assert "latest run r1: healthy" in out
+    main(["archive", "add", str(run_dirs[3]), "--robot", "ur5-a", "--archive", arch])
+    capsys.readouterr()
+    rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch, "--json", str(tmp_path / "t.json"))
+    assert rc == 1
+    assert "latest run r3: FLAGGED" in out
+    assert "joint 2 tilt about x grew by" in out
+    hint = [line for line in out.splitlines() if "tilt about x grew" in line]
+    assert len(hint) == 1 and "joint 2" in hint[0], out  # no other joint or motion blamed
+    doc = json.loads((tmp_path / "t.json").read_text())
+    assert doc["flagged"] and doc["baseline"] == "r0"
+    # only the threshold counts: the max error is well below 5 mm
+    rc, _, _ = _trend(
+        capsys, "ur5-a", "--archive", arch, "--fail-on", "threshold", "--threshold-mm", "5"
+    )
+    assert rc == 0
+    rc, out, _ = _trend(
+        capsys, "ur5-a", "--archive", arch, "--fail-on", "threshold", "--threshold-mm", "0.1"
+    )
+    assert rc == 1 and "above the threshold 0.1 mm" in out
+
+
+def test_trend_warns_when_runs_are_not_comparable(tmp_path, run_dirs, capsys):
+    arch = str(tmp_path / "arch")
+    main(["archive", "add", str(run_dirs[0]), "--robot", "r", "--archive", arch])
+    main(
+        [
+            "archive",
+            "add",
+            str(run_dirs[1]),
+            "--robot",
+            "r",
+            "--archive",
+            arch,
+            "--plan-hash",
+            "other",
+            "--calibration-id",
+            "cal-2",
+        ]
+    )
+    capsys.readouterr()
+    rc, out, _ = _trend(capsys, "r", "--archive", arch)
+    assert "warning: run r1: plan hash other differs from the baseline's plan-a" in out
+    assert "calibration id cal-2 differs" in out
+
+
+def test_cli_errors_are_one_line_with_status_2(tmp_path, run_dirs, capsys):
+    arch = str(tmp_path / "arch")
+    assert main(["archive", "add", str(run_dirs[0]), "--robot", "../evil", "--archive", arch]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "robot '../evil' is not allowed" in err[0]
+    assert not (tmp_path / "evil").exists()
+    assert main(["trend", "nobody", "--archive", arch]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has no runs" in err[0]
+    assert main(["trend", "x", "--archive", arch, "--threshold-mm", "-1"]) == 2
+    capsys.readouterr()
+    main(["archive", "add", str(run_dirs[0]), "--robot", "ok", "--archive", arch])
+    assert main(["archive", "baseline", "ok", "--archive", arch]) == 2
+    assert main(["archive", "baseline", "ok", "r0", "--archive", arch]) == 0
+    assert main(["archive", "list", "--archive", arch]) == 0
+    out = capsys.readouterr().out
+    assert "ok: 1 runs, baseline r0" in out
