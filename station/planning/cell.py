@@ -131,6 +131,7 @@ class Cell:
     obstacles: tuple[Obstacle, ...]
     motion: Motion
     planner: PlannerSettings
+    home: F | None = None  # (6,) rad: where the loop starts; the first leg is checked from it
 
     @property
     def T_base_world(self) -> F:
@@ -332,6 +333,11 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         raise rt.err("q_min_deg", f"planning limits must lie inside the {model}'s own limits")
     if np.any(qhi - qlo < np.radians(10.0)):
         raise rt.err("q_max_deg", "every joint needs q_max_deg ≥ q_min_deg + 10")
+    home = None
+    if rt.has("home_deg"):
+        home = np.radians(rt.vec("home_deg", 6))
+        if np.any(home < qlo - 1e-9) or np.any(home > qhi + 1e-9):
+            raise rt.err("home_deg", "outside the planning limits q_min_deg..q_max_deg")
     rt.done()
     robot = replace(robot, q_min=qlo, q_max=qhi)
 
@@ -484,4 +490,5 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         obstacles=tuple(obstacles),
         motion=motion,
         planner=planner,
+        home=home,
     )

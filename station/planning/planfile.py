@@ -74,6 +74,7 @@ class Plan:
     dropped: tuple[dict[str, Any], ...]
     summary: dict[str, Any]
     document: dict[str, Any]
+    home: F | None = None  # (6,) rad, the checked start of the loop
 
     @property
     def q(self) -> F:
@@ -134,6 +135,7 @@ def plan_to_dict(res: PlanResult) -> dict[str, Any]:
             "model": cell.robot.name,
             "q_min_deg": _r(np.degrees(cell.robot.q_min), 9),
             "q_max_deg": _r(np.degrees(cell.robot.q_max), 9),
+            "home_deg": None if res.home is None else _r(np.degrees(res.home), 9),
         },
         "seed": res.seed,
         "n_generated": res.n_generated,
@@ -299,6 +301,11 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
     from dataclasses import replace
 
     robot = replace(robot, q_min=qlo, q_max=qhi)
+    home = None
+    if rob.get("home_deg") is not None:
+        home = np.radians(_vec(label, "robot.home_deg", rob.get("home_deg"), robot.n_joints))
+        if np.any(home < qlo - 1e-9) or np.any(home > qhi + 1e-9):
+            raise _err(label, "robot.home_deg", "outside the joint limits")
     fr = _obj(label, "frames", doc.get("frames"))
     T_ft = _mat(label, "frames.T_flange_target_mm", fr.get("T_flange_target_mm"))
     T_wb = _mat(label, "frames.T_world_base_mm", fr.get("T_world_base_mm"))
@@ -407,4 +414,5 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
         dropped=tuple(dropped),
         summary=summary,
         document=doc,
+        home=home,
     )

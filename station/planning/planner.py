@@ -124,6 +124,7 @@ class PlanResult:
     return_leg: LegType
     return_leg_time_s: float
     coverage: JointCoverage
+    home: F | None = None  # (6,) rad; the first pose's leg_time_s is then the move from home
 
     @property
     def dropped_by_reason(self) -> dict[str, int]:
@@ -336,13 +337,20 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
     # step 3: order
     order = _order(cell, Q[alive], feasible[alive])
     tour = [int(alive[k]) for k in order]
+    first_k: int | None = None
+    first_t = 0.0
+    if cell.home is not None:
+        tour, first_k, first_t = _start_from_home(cell, world, Q, feasible, tour)
 
     # steps 4-5: legs and configurations
     walker = _Walker(cell, world, Q, feasible, T_bt, usable_min, usable_max)
     kept: list[tuple[int, int, LegType, float]] = []
     for step, i in enumerate(tour):
         progress("checking legs", step, len(tour))
-        choice = walker.choose(i, kept[-1] if kept else None)
+        if step == 0 and first_k is not None:
+            choice: tuple[int, int, LegType, float] | None = (i, first_k, LegType.JOINT, first_t)
+        else:
+            choice = walker.choose(i, kept[-1] if kept else None)
         if choice is None:
             dropped.append(
                 DroppedTarget(
@@ -388,7 +396,7 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
                 pan=float(sight.pan[i]),
                 facing=sight.facing[i].copy(),
                 pixels=sight.pixels[i].copy(),
-                leg_time_s=0.0 if j == 0 else t,
+                leg_time_s=t,
             )
         )
     dropped.sort(key=lambda d: d.candidate)
@@ -403,6 +411,7 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         coverage=joint_coverage(
             np.array([p.q for p in poses]), usable_min, usable_max, cell.planner.bins
         ),
+        home=cell.home,
     )
 
 
@@ -414,6 +423,32 @@ def usable_range(q_feasible: F, tail: float = USABLE_TAIL) -> tuple[F, F]:
     shoulder just past ±180°) do not stretch the range.
     """
     return np.quantile(q_feasible, tail, axis=0), np.quantile(q_feasible, 1.0 - tail, axis=0)
+
+
+def _start_from_home(
+    cell: Cell, world: CollisionWorld, Q: F, feas: NDArray[np.bool_], tour: list[int]
+) -> tuple[list[int], int, float]:
+    """Rotate the loop to start at the pose closest (in moveJ time) to the home position
+    that a collision-free moveJ from home reaches; returns (tour, configuration, time)."""
+    home = cell.home
+    assert home is not None
+    hit = world.contacts(home[None])[0]
+    if hit:
+        raise InputError(
+            f"{cell.source}: robot.home_deg: the home configuration collides ({hit[0]})"
+        )
+    m = cell.motion
+    opts = []
+    for pos, i in enumerate(tour):
+        for k in np.flatnonzero(feas[i]):
+            t = float(_trap_time(np.abs(Q[i, k] - home).max(), m.joint_speed, m.joint_accel))
+            opts.append((t, pos, int(k)))
+    for t, pos, k in sorted(opts):
+        if joint_leg_ok(cell, world, home, Q[tour[pos], k]):
+            return tour[pos:] + tour[:pos], k, t
+    raise InputError(
+        f"{cell.source}: robot.home_deg: no feasible pose is reachable from home by a collision-free moveJ"
+    )
 
 
 def joint_coverage(q: F, usable_min: F, usable_max: F, bins: int) -> JointCoverage:

@@ -8,6 +8,7 @@ comments after a second check here.  Structure (docs/plan.md)::
     def quickhealth_loop():
       set_tcp(p[...])                      # TCP = smart target centre (moveL is straight there)
       def qh_measure(index): ...           # settle, announce the pose, wait for the station
+      (halt unless the arm is at the home position the first leg was checked from)
       movej(q1, a, v)                      # first pose
       while qh_pass < passes:
         qh_measure(1)
@@ -34,6 +35,8 @@ from quickhealth.identify.transforms import log_so3
 
 from .planfile import HASH_RE, NAME_RE, Plan
 from .planner import LegType
+
+HOME_TOLERANCE_RAD = 0.05  # how far from home (per joint) the program refuses to start
 
 
 def _f(x: float) -> str:
@@ -105,8 +108,22 @@ def render_urscript(plan: Plan) -> str:
             "      end",
             "    end",
         ]
+    L.append("  end")
+    if plan.home is not None:
+        L += [
+            "  # the loop was checked from the home position: refuse to start anywhere else",
+            f"  qh_home = {_q(plan.home)}",
+            "  qh_now = get_actual_joint_positions()",
+            "  qh_j = 0",
+            "  while qh_j < 6:",
+            f"    if norm(qh_now[qh_j] - qh_home[qh_j]) > {_f(HOME_TOLERANCE_RAD)}:",
+            '      textmsg("quickhealth: move the robot to the home position first")',
+            "      halt",
+            "    end",
+            "    qh_j = qh_j + 1",
+            "  end",
+        ]
     L += [
-        "  end",
         f"  # {_name(plan.poses[0].name)}: first pose",
         "  " + move(LegType.JOINT, plan.poses[0].q),
     ]

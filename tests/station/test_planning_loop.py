@@ -211,9 +211,13 @@ def test_independent_recheck_of_every_leg_and_line_of_sight(planned):
     targets = _world_targets(plan, cell)
     legs = [(k - 1, k, plan.poses[k].leg) for k in range(1, len(plan.poses))]
     legs.append((len(plan.poses) - 1, 0, plan.return_leg))
+    assert plan.home is not None  # the reference cell starts from a home position
+    assert not ind.collides(plan.home)
+    legs.insert(0, ("home", 0, plan.poses[0].leg))
     n_checked = 0
     for a, b, leg in legs:
-        qa, qb = plan.poses[a].q, plan.poses[b].q
+        qa = plan.home if a == "home" else plan.poses[a].q
+        qb = plan.poses[b].q
         if leg.value == "linear":
             qs, step = ind.track_linear(qa, targets[a], targets[b])
             jump = np.abs(np.diff(qs, axis=0)).max() / (step * 1000.0)
@@ -355,6 +359,12 @@ _LINE = [
         r"qh_pass = qh_pass \+ 1",
         r"if qh_pass < \d+:",
         r"move[jl]\(\[(-?\d+\.\d+, ){5}-?\d+\.\d+\], a=\d+\.\d+, v=\d+\.\d+\)",
+        r"qh_home = \[(-?\d+\.\d+, ){5}-?\d+\.\d+\]",
+        r"qh_now = get_actual_joint_positions\(\)",
+        r"qh_j = 0",
+        r"while qh_j < 6:",
+        r"if norm\(qh_now\[qh_j\] - qh_home\[qh_j\]\) > \d+\.\d+:",
+        r"qh_j = qh_j \+ 1",
     )
 ]
 
