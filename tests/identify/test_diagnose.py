@@ -146,6 +146,10 @@ def test_compare_held_out_and_cross_validated() -> None:
     assert cmp.params["backlash:j2"][0] == pytest.approx(
         4e-4, abs=4 * cmp.param_sigma["backlash:j2"][0]
     )
+    # with the effect in the model, nothing is missing any more
+    again = diagnose(state_from_fitted(cmp.fitted_after), train)
+    assert again.verdict is Verdict.ADEQUATE, again.summary(3)
+    assert "backlash:j2" not in [c.effect for c in again.candidates]
     cv = compare_effect(fitted, train, "backlash:j2", folds=3)
     assert cv.method.startswith("cross-validation") and cv.n_eval == 150
     assert cv.after.pos_mm < 0.7 * cv.before.pos_mm
