@@ -317,7 +317,8 @@ class CalibrationResult:
 def detect_board(board: BoardSpec, image: NDArray[np.uint8]) -> BoardView | None:
     """Find the board's corners in a grey image; None when it is not found.
 
-    Chessboard: ``findChessboardCornersSB`` (whole board or nothing), order made canonical so
+    Chessboard: ``findChessboardCornersSB`` (whole board or nothing) then ``cornerSubPix`` with
+    a window inside one square, order made canonical so
     that corner 0 is the one nearer the image's top-left.  ChArUco: ``CharucoDetector``,
     corners paired with the board through their ids.
     """
@@ -326,6 +327,18 @@ def detect_board(board: BoardSpec, image: NDArray[np.uint8]) -> BoardView | None
         ok, c = cv2.findChessboardCornersSB(image, (board.cols, board.rows), flags=flags)
         if not ok or c is None:
             return None
+        # the SB detector leaves ≈ 0.2 px errors with a scale bias of ≈ 0.2 % on small
+        # squares; a cornerSubPix pass with its window inside one square removes both
+        g = c.reshape(board.rows, board.cols, 2)
+        spacing = min(
+            float(np.linalg.norm(np.diff(g, axis=1), axis=-1).min()),
+            float(np.linalg.norm(np.diff(g, axis=0), axis=-1).min()),
+        )
+        half = int(np.clip(0.4 * spacing, 2, 11))
+        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+        c = cv2.cornerSubPix(
+            image, c.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), crit
+        )
         px = c.reshape(-1, 2).astype(float)
         if px[0].sum() > px[-1].sum():
             px = px[::-1].copy()
