@@ -190,6 +190,9 @@ def plan_to_dict(res: PlanResult) -> dict[str, Any]:
                 "coverage": _r(c.coverage, 4),
                 "evenness": _r(c.evenness, 4),
                 "occupied_bins": _r(c.occupied, 4),
+                "feasible_min_deg": _r(np.degrees(c.feasible_min), 3),
+                "feasible_max_deg": _r(np.degrees(c.feasible_max), 3),
+                "coverage_of_feasible_extremes": _r(c.coverage_full, 4),
             },
         },
     }

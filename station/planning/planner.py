@@ -110,6 +110,9 @@ class JointCoverage:
     evenness: F  # (6,) normalised entropy of the B-bin histogram over the usable range
     occupied: F  # (6,) fraction of the B bins with at least one kept pose
     bins: int
+    feasible_min: F  # (6,) untrimmed extremes of every feasible configuration
+    feasible_max: F
+    coverage_full: F  # (6,) part of [feasible_min, feasible_max] inside the kept span
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,13 +153,15 @@ class PlanResult:
         n_lin = sum(p.leg == LegType.LINEAR for p in self.poses[1:])
         c = self.coverage
         cov = " ".join(f"{x * 100:.0f}%" for x in c.coverage)
+        full = " ".join(f"{x * 100:.0f}%" for x in c.coverage_full)
         ev = " ".join(f"{x:.2f}" for x in c.evenness)
         return [
             f"generated {self.n_generated}, kept {len(self.poses)}, dropped {len(self.dropped)}"
             + (f" ({by})" if by else ""),
             f"legs: {n_lin} linear, {len(self.poses) - 1 - n_lin} joint-space, return {self.return_leg.value};"
             f" estimated loop time {self.loop_time_s:.0f} s",
-            f"joint coverage of usable range (j1..j6): {cov}",
+            f"joint coverage of usable range (j1..j6): {cov}"
+            f" (of the untrimmed feasible extremes: {full})",
             f"joint evenness (normalised entropy, {c.bins} bins; 1 = uniform): {ev}",
         ]
 
@@ -329,10 +334,11 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         worst = max(DropReason, key=lambda r: sum(d.reason == r for d in dropped))
         raise InputError(
             f"{cell.source}: no target pose is feasible ({n} generated; most dropped as {worst.value!r}:"
-            f" {next(d.detail for d in dropped if d.reason == worst)})"
+            f" {next(d.detail for d in dropped if d.reason == worst)}); raise --n or check the cell"
         )
 
-    usable_min, usable_max = usable_range(Q[alive][feasible[alive]])
+    q_feas = Q[alive][feasible[alive]]
+    usable_min, usable_max = usable_range(q_feas)
 
     # step 3: order
     order = _order(cell, Q[alive], feasible[alive])
@@ -409,7 +415,12 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         return_leg=ret[0],
         return_leg_time_s=ret[1],
         coverage=joint_coverage(
-            np.array([p.q for p in poses]), usable_min, usable_max, cell.planner.bins
+            np.array([p.q for p in poses]),
+            usable_min,
+            usable_max,
+            cell.planner.bins,
+            q_feas.min(0),
+            q_feas.max(0),
         ),
         home=cell.home,
     )
@@ -451,11 +462,23 @@ def _start_from_home(
     )
 
 
-def joint_coverage(q: F, usable_min: F, usable_max: F, bins: int) -> JointCoverage:
+def joint_coverage(
+    q: F,
+    usable_min: F,
+    usable_max: F,
+    bins: int,
+    feasible_min: F | None = None,
+    feasible_max: F | None = None,
+) -> JointCoverage:
     """Coverage and evenness of kept joint values ``q`` (k, 6) over the usable ranges."""
-    span = np.maximum(usable_max - usable_min, 1e-9)
+    fmin = usable_min if feasible_min is None else feasible_min
+    fmax = usable_max if feasible_max is None else feasible_max
     kmin, kmax = q.min(0), q.max(0)
-    inside = np.maximum(np.minimum(kmax, usable_max) - np.maximum(kmin, usable_min), 0.0)
+
+    def part(lo: F, hi: F) -> F:
+        inside = np.maximum(np.minimum(kmax, hi) - np.maximum(kmin, lo), 0.0)
+        return inside / np.maximum(hi - lo, 1e-9)
+
     ev = np.empty(q.shape[1])
     occ = np.empty(q.shape[1])
     for j in range(q.shape[1]):
@@ -464,7 +487,19 @@ def joint_coverage(q: F, usable_min: F, usable_max: F, bins: int) -> JointCovera
         nz = pr[pr > 0]
         ev[j] = float(-(nz * np.log(nz)).sum() / math.log(bins))
         occ[j] = float((h > 0).mean())
-    return JointCoverage(usable_min, usable_max, kmin, kmax, inside / span, ev, occ, bins)
+    return JointCoverage(
+        usable_min,
+        usable_max,
+        kmin,
+        kmax,
+        part(usable_min, usable_max),
+        ev,
+        occ,
+        bins,
+        fmin,
+        fmax,
+        part(fmin, fmax),
+    )
 
 
 def _trap_time(d: F, v: float, a: float) -> F:
