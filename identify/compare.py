@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from .diagnose import (
     implied_channel,
+    jitter_binary,
     pose_residuals,
     regressor_values,
     sensitivities,
@@ -361,9 +362,10 @@ def plot_comparison(cmp: Comparison) -> Any:
             (axes[i, 0], pnl.before, f"without {pnl.effect}: {cmp.before.pos_mm:.4f} mm"),
             (axes[i, 1], pnl.after, f"with {pnl.effect}: {cmp.after.pos_mm:.4f} mm"),
         ):
-            ax.scatter(pnl.x, np.clip(y, -lim, lim), s=8, alpha=0.6, label="implied by residual")
+            x = jitter_binary(pnl.x)
+            ax.scatter(x, np.clip(y, -lim, lim), s=8, alpha=0.6, label="implied by residual")
             if ax is axes[i, 0]:
-                ax.plot(pnl.x, pnl.predicted, ".", color="C3", ms=3, label="removed by the effect")
+                ax.plot(x, pnl.predicted, ".", color="C3", ms=3, label="removed by the effect")
             ax.axhline(0.0, color="0.5", lw=0.8)
             ax.set_xlabel(pnl.x_label)
             ax.set_title(f"{title} ({cmp.method})", fontsize=9)

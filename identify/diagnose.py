@@ -987,14 +987,23 @@ def plot_candidate(state: LoopState, meas: Measurements, effect_name: str) -> An
     fig = Figure(figsize=(7.0, 4.2), layout="constrained")
     ax = fig.add_subplot()
     lim = np.percentile(np.abs(v.implied), 98) * 1.3 if v.implied.size else 1.0
-    ax.scatter(v.x, np.clip(v.implied, -lim, lim), s=9, alpha=0.6, label="implied by the residual")
-    ax.plot(v.x, v.predicted, ".", color="C3", ms=4, label=f"explained by {v.effect}")
+    x = jitter_binary(v.x)
+    ax.scatter(x, np.clip(v.implied, -lim, lim), s=9, alpha=0.6, label="implied by the residual")
+    ax.plot(x, v.predicted, ".", color="C3", ms=4, label=f"explained by {v.effect}")
     ax.axhline(0.0, color="0.5", lw=0.8)
     ax.set_xlabel(v.x_label)
     ax.set_ylabel(v.y_label)
     ax.set_title(f"Residual against the regressor of {v.effect}")
     ax.legend(loc="best", fontsize=8)
     return fig
+
+
+def jitter_binary(x: F, width: float = 0.12) -> F:
+    """Spread a two-valued regressor (approach ±1) sideways so the points can be seen."""
+    x = np.asarray(x, float)
+    if np.unique(x).size > 2:
+        return x
+    return x + np.random.default_rng(0).uniform(-width, width, x.shape)
 
 
 def plot_spectrum(diag: Diagnosis) -> Any:
