@@ -23,6 +23,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -32,6 +33,7 @@ from quickhealth.identify.measurements import Measurements
 from quickhealth.identify.robot import RobotModel
 
 from . import jobs
+from .cell import CellControl
 from .offload import offload, warm_up
 from .views import (
     Candidate,
@@ -49,6 +51,7 @@ from .views import (
     PoseStatus,
     Preflight,
     Refit,
+    RunProgress,
 )
 
 MOTIONS = ("dx", "dy", "dz", "ex", "ey", "ez")
@@ -186,8 +189,10 @@ class Analysis:
     def diagnose(self) -> Diagnosis:
         """Residuals per pose and the ranked candidate effects of the current model."""
         fitted = self.model()
-        diag = offload(jobs.diagnose_job, fitted, self.meas)
-        self._diag = diag
+        key = (id(fitted), self.meas.n_poses)
+        if self._diag is None or self._diag[0] != key:
+            self._diag = (key, offload(jobs.diagnose_job, fitted, self.meas))
+        diag = self._diag[1]
         res = fitted.residual_pos * 1e3  # measured − model, mm
         pos = self.meas.pos * 1e3
         ids = self.meas.pose_id or tuple(f"p{i:04d}" for i in range(self.meas.n_poses))
@@ -276,9 +281,11 @@ class Station:
         threshold_figure: str = "max",
         analysis: Analysis | None = None,
         sim: bool = True,
-        cell=None,  # type: ignore[no-untyped-def]
-        plan=None,  # type: ignore[no-untyped-def]
+        hardware: Any = None,
+        plan: Any = None,
         plan_path: Path | None = None,
+        run_settings: Any = None,
+        max_order: int = 4,
     ) -> None:
         from quickhealth.station.archive import Archive
 
@@ -295,11 +302,64 @@ class Station:
         if analysis is not None:
             analysis.out_dir = self.run_dir
         warm_up()
-        self.cell = cell
+        self.max_order = max_order
         self.plan = plan
         self.plan_path = plan_path
+        self.cell: CellControl | None = None
+        if hardware is not None and plan is not None:
+            self.cell = CellControl(
+                hardware, plan, self.run_dir, settings=run_settings, on_finished=self._measured
+            )
         self._lock = threading.RLock()
         self._health: Health | None = None
+        if self.analysis is None and (self.run_dir / "measurements.csv").is_file():
+            self._measured(self.run_dir / "measurements.csv")
+
+    @classmethod
+    def simulated(
+        cls,
+        archive_root: str | Path,
+        *,
+        n_candidates: int = 40,
+        plan_seed: int = 0,
+        plan: Any = None,
+        twin_seed: int = 1,
+        image_scale: float = 0.3,
+        time_scale: float = 20.0,
+        run_id: str = "sim-run-1",
+        robot_name: str = "sim-ur5",
+        threshold_mm: float = 2.0,
+        max_order: int = 4,
+    ) -> Station:
+        """The built-in simulated cell, in this process (fast; for tests and demos).
+
+        The arm is the pure-Python :class:`~quickhealth.station.hardware.robot.FakeRobot`
+        (``time_scale`` times faster than real), the pan motor the serial emulator on a
+        pseudo-terminal behind the real serial driver, and the cameras render the digital
+        twin's true target pose (:func:`~quickhealth.station.hardware.world.build_world`) at
+        ``image_scale`` of the reference sensor.  The plan is made now from
+        ``n_candidates`` random targets unless ``plan`` is given.
+        """
+        from quickhealth.station.run import RunSettings
+
+        hw, cell = inprocess_sim_station(
+            twin_seed=twin_seed, image_scale=image_scale, time_scale=time_scale
+        )
+        if plan is None:
+            plan = make_plan(cell, n_candidates, plan_seed)
+        return cls(
+            robot=cell.robot,
+            robot_name=robot_name,
+            archive_root=Path(archive_root),
+            run_id=run_id,
+            cell_name=cell.name,
+            threshold_mm=threshold_mm,
+            sim=True,
+            hardware=hw,
+            plan=plan,
+            run_settings=RunSettings(settle_window_s=0.03 * time_scale),
+            max_order=max_order,
+        )
 
     @classmethod
     def from_data(
@@ -312,6 +372,7 @@ class Station:
         archive_root: str | Path = "archive",
         run_id: str | None = None,
         threshold_mm: float = 2.0,
+        max_order: int = 4,
     ) -> Station:
         """A station on an existing measurement file (CSV v1): results, diagnose, history."""
         from quickhealth.station.formats import load_robot, read_measurements
@@ -327,7 +388,7 @@ class Station:
             run_id=rid,
             cell_name=meas.meta.get("cell", "–"),
             threshold_mm=threshold_mm,
-            analysis=Analysis(model, meas, held),
+            analysis=Analysis(model, meas, held, max_order=max_order),
             sim=False,
         )
 
@@ -364,7 +425,7 @@ class Station:
             return Preflight(
                 (Check("station", False, "opened on a measurement file: nothing to run"),)
             )
-        return self.cell.preflight(self.plan)
+        return self.cell.preflight()
 
     # ----- plan ------------------------------------------------------------------------------
     def plan_view(self) -> PlanView:
@@ -469,6 +530,8 @@ class Station:
 
         if self.analysis is None:
             raise InputError("no measurements yet: run the plan first")
+        if self._health is not None and not self.results_stale():
+            return self._health
         h, report = self.analysis.health(
             run_id=self.run_id,
             robot_name=self.robot_name,
@@ -565,8 +628,8 @@ class Station:
 
     def pose_table(self) -> tuple[PoseStatus, ...]:
         """Every pose of the plan (or of the measured data) with its status so far."""
-        if self.cell is not None and self.plan is not None:
-            return self.cell.pose_table(self.plan)
+        if self.cell is not None:
+            return self.cell.pose_table()
         if self.analysis is not None:
             ids = self.analysis.meas.pose_id or tuple(
                 f"p{i:04d}" for i in range(self.analysis.meas.n_poses)
@@ -578,6 +641,42 @@ class Station:
             )
         return ()
 
+    def run(self, on_progress: Callable[[RunProgress], None]) -> RunProgress:
+        """Run (or continue) the plan; blocks until it finishes, is aborted or faults."""
+        if self.cell is None:
+            raise InputError("no station to run: opened on a measurement file")
+        return self.cell.run(on_progress)
+
+    def pause(self) -> None:
+        """Stop after the current pose and wait for :meth:`resume`."""
+        if self.cell is not None:
+            self.cell.pause()
+
+    def resume(self) -> None:
+        """Continue a paused run."""
+        if self.cell is not None:
+            self.cell.resume()
+
+    def abort(self) -> None:
+        """Stop the robot first, then end the run after the current pose (journal kept)."""
+        if self.cell is not None:
+            self.cell.abort()
+
+    def reconnect(self) -> None:
+        """After a fault: reconnect and check the robot is ready again (raises if not)."""
+        if self.cell is None:
+            raise InputError("no station to reconnect")
+        self.cell.reconnect()
+
+    def _measured(self, path: Path) -> None:
+        """A run wrote measurements.csv: it becomes the data the results and diagnosis use."""
+        from quickhealth.station.formats import read_measurements
+
+        meas = read_measurements(path, self.robot.n_joints)
+        if self.analysis is None or self.analysis.meas.n_poses != meas.n_poses:
+            self.analysis = Analysis(self.robot, meas, max_order=self.max_order)
+            self.analysis.out_dir = self.run_dir
+
     def n_remaining(self) -> int:
         """Poses of the plan not measured yet."""
         return sum(p.status not in ("done", "failed") for p in self.pose_table())
@@ -586,3 +685,79 @@ class Station:
         """Stop the robot if a run is going and close the devices (the App is quitting)."""
         if self.cell is not None:
             self.cell.close()
+
+
+# ------------------------------------------------------------------------------------------
+# Building a cell
+# ------------------------------------------------------------------------------------------
+
+
+def make_plan(cell: Any, n_candidates: int, seed: int = 0) -> Any:
+    """Plan the cell now (the planner's steps 1–5) and validate it as a frozen plan file would be."""
+    from quickhealth.station.planning.planfile import plan_from_dict, plan_to_dict
+    from quickhealth.station.planning.planner import plan_loop
+
+    res = plan_loop(cell, n_candidates, seed)
+    if not res.poses:
+        raise InputError(f"planning {cell.name} with {n_candidates} candidates kept no pose")
+    return plan_from_dict(plan_to_dict(res), f"plan of {cell.name} (n={n_candidates}, seed={seed})")
+
+
+def inprocess_sim_station(
+    cell_name: str = "reference",
+    *,
+    twin_seed: int = 1,
+    image_scale: float = 0.3,
+    time_scale: float = 20.0,
+) -> tuple[Any, Any]:
+    """A ``station.run.Station`` on the simulated cell without the controller subprocess.
+
+    FakeRobot (same motion model and faults as the controller simulator), the pan-motor
+    emulator behind the real serial driver, and simulated cameras that render the twin's
+    true plate pose at the robot's actual joints and the motor's true angle.
+    Returns ``(station, cell)``.
+    """
+    import math
+
+    from quickhealth.identify.transforms import inv_T
+    from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
+    from quickhealth.station.hardware.motor import SerialPanMotor
+    from quickhealth.station.hardware.motor_emulator import MotorEmulator
+    from quickhealth.station.hardware.robot import FakeRobot
+    from quickhealth.station.hardware.world import build_world
+    from quickhealth.station.planning import load_cell
+    from quickhealth.station.run import Station as RunStation
+
+    cell = load_cell(cell_name)
+    world = build_world(cell_name, twin_seed=twin_seed)
+    robot = FakeRobot(time_scale=time_scale, model=cell.robot)
+    emu = MotorEmulator().start()
+    try:
+        motor = SerialPanMotor(emu.port)
+    except BaseException:
+        emu.stop()
+        raise
+
+    def scene() -> list[tuple[Any, Any]]:
+        pan = math.radians(emu.position_deg())
+        return [(world.T_instr_plate(robot.joints(), pan), world.target)]
+
+    camera = SimStereoCamera(
+        scaled_rig(world.rig, image_scale), scene, static=[(world.T_instr_board, world.board)]
+    )
+    hw = RunStation(
+        robot=robot,
+        motor=motor,
+        camera=camera,
+        target=world.target,
+        T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
+        T_flange_target=cell.T_flange_target,
+        board=world.board,
+        T_instr_board=world.T_instr_board,
+        cell_name=cell.name,
+        cell_sha256=cell.sha256,
+        instrument=f"simulated stereo camera ({image_scale:g} × reference sensor)",
+        robot_name="sim-ur5",
+        closers=[emu.stop, motor.close, camera.close, robot.close],
+    )
+    return hw, cell

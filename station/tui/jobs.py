@@ -72,7 +72,8 @@ def worst_regions(
     """Where in the workspace the model's TCP error is largest, in words a technician can use.
 
     Commands are drawn uniformly over the model's joint ranges; the target's nominal position
-    in the robot base frame is binned by side (front/left/back/right of the base, 90° sectors),
+    in the robot base frame is binned by side (front = +x, left = +y, back, right of the base;
+    90° sectors),
     height (low/mid/high thirds of the sampled heights) and reach (near/far half); the regions
     with the largest mean error come first.
     """
@@ -87,7 +88,7 @@ def worst_regions(
     reach = np.hypot(p[:, 0], p[:, 1])
     far = (reach > np.median(reach)).astype(int)
     key = side * 6 + height * 2 + far
-    sides = ("front (+x)", "left (+y)", "back (−x)", "right (−y)")
+    sides = ("front", "left", "back", "right")
     heights = ("low", "mid", "high")
     out = []
     for k in np.unique(key):
@@ -97,8 +98,7 @@ def worst_regions(
         s, h, f = k // 6, (k % 6) // 2, k % 2
         zs = p[sel, 2] * 1e3
         where = (
-            f"{sides[s]}, {heights[h]} (z {zs.min():.0f}…{zs.max():.0f} mm), "
-            f"{'far' if f else 'near'} reach"
+            f"{sides[s]} {heights[h]} {'far' if f else 'near'} (z {zs.min():.0f}…{zs.max():.0f})"
         )
         out.append(Region(where, float(np.mean(err[sel]))))
     out.sort(key=lambda r: -r.err_mm)

@@ -46,7 +46,9 @@ class DiagnoseScreen(Screen[None]):
                     )
                     yield Static("", id="before-after", classes="panel")
                     yield ProgressBar(id="refit-bar", show_eta=False)
-            yield DataTable(id="candidates", cursor_type="row")
+            with Horizontal(id="diag-bottom"):
+                yield DataTable(id="candidates", cursor_type="row")
+                yield Static("", id="evidence", classes="panel")
         yield Footer(compact=True)
 
     def on_mount(self) -> None:
@@ -60,7 +62,6 @@ class DiagnoseScreen(Screen[None]):
         cand.add_column("Effect", key="effect")
         cand.add_column("Score", key="score")
         cand.add_column("−RMS mm", key="drop")
-        cand.add_column("Evidence", key="evidence")
         self.query_one("#refit-bar").display = False
 
     def on_screen_resume(self) -> None:
@@ -106,11 +107,26 @@ class DiagnoseScreen(Screen[None]):
                 c.effect,
                 f"{c.score:.1f}",
                 f"{c.predicted_rms_drop_mm:.3f}",
-                c.evidence.split(": score test")[0],
                 key=c.effect,
             )
         if d.candidates:
             cand.focus()
+        self._show_evidence()
+
+    def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
+        if event.data_table.id == "candidates":
+            self._show_evidence()
+
+    def _show_evidence(self) -> None:
+        d = self.diagnosis
+        effect = self.chosen_effect()
+        if d is None or effect is None:
+            self.query_one("#evidence", Static).update("")
+            return
+        c = next(c for c in d.candidates if c.effect == effect)
+        self.query_one("#evidence", Static).update(
+            f"[b]{c.effect}[/b]: {c.evidence}\n[dim]a adds it and refits[/]"
+        )
 
     def _fill_residuals(self) -> None:
         d = self.diagnosis

@@ -46,7 +46,9 @@ class ResultsScreen(Screen[None]):
                     classes="panel",
                 )
                 yield Static("", id="worst", classes="panel")
-            yield PlotextPlot(id="curve")
+            with Vertical(id="results-right"):
+                yield Static("", id="curve-title")
+                yield PlotextPlot(id="curve")
         yield Footer(compact=True)
 
     def on_mount(self) -> None:
@@ -90,7 +92,7 @@ class ResultsScreen(Screen[None]):
         else:
             change = f"{h.change_mm:+.3f} mm vs baseline {h.baseline_mean_mm:.3f}"
         lines = [
-            f"{verdict}  threshold {h.threshold_mm:.3f} mm on the mean",
+            f"{verdict}  {h.threshold_figure} ≤ {h.threshold_mm:.3f} mm is healthy",
             f"run {h.run_id} · {h.robot} · {h.n_poses} poses",
             "",
             "[b]Workspace TCP error[/b] (model, whole range)",
@@ -103,7 +105,9 @@ class ResultsScreen(Screen[None]):
             f"  {h.hist_edges_mm[0]:<.2f}{'':>14}{h.hist_edges_mm[-1]:>.2f} mm",
         ]
         self.query_one("#summary", Static).update("\n".join(lines))
-        worst = ["[b]Worst regions[/b]"] + [f"  {r.err_mm:6.3f} mm  {r.where}" for r in h.worst[:5]]
+        worst = ["[b]Worst regions[/b] (mean error there)"] + [
+            f" {r.err_mm:6.3f} mm {r.where}" for r in h.worst[:5]
+        ]
         if h.pngs:
             worst.append(f"[dim]plots: {h.pngs[0].rsplit('/', 2)[-2]}/*.png[/]")
         self.query_one("#worst", Static).update("\n".join(worst))
@@ -139,14 +143,17 @@ class ResultsScreen(Screen[None]):
         plt = widget.plt
         plt.clear_data()
         plt.clear_figure()
+        title = self.query_one("#curve-title", Static)
         if curve is None:
-            plt.title(f"{jn} {mo}: not in the model")
+            title.update(f"[b]{jn} {mo}[/b]: not in the model (zero)   [dim]j joint · m motion[/]")
             widget.refresh()
             return
         x = curve.q_deg.tolist()
         plt.plot(x, (curve.value + curve.band).tolist(), color="gray", marker="dot")
         plt.plot(x, (curve.value - curve.band).tolist(), color="gray", marker="dot")
         plt.plot(x, curve.value.tolist(), color="cyan", marker="braille")
-        plt.title(f"{jn} {curve.words} ({curve.unit}) ±95% [j/m]")
-        plt.xlabel("joint angle (deg)")
+        title.update(
+            f"[b]{jn} {curve.words}[/b] ({curve.unit}), dots: 95 % band   [dim]j joint · m motion[/]"
+        )
+        plt.xlabel(f"{jn} angle (deg)")
         widget.refresh()

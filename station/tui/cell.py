@@ -1,0 +1,357 @@
+"""The cell behind the TUI: devices, pre-flight and run control around ``station.run``.
+
+:class:`CellControl` wraps a :class:`quickhealth.station.run.Station` (robot, pan motor,
+stereo camera) and one run folder.  It turns ``run_plan``'s progress events into the per-pose
+table the Run screen shows, and adds what a person at the station needs:
+
+- **pause**: the run stops cleanly after the current pose (``run_plan``'s ``cancel``), the
+  worker waits, and **resume** continues the same run folder (``resume=True``);
+- **abort**: the robot is stopped *first*, then the run ends after the current pose; every
+  captured pose stays in the journal and ``r`` later continues without repeating one;
+- **faults** (lost connection, protective stop, frozen stream): the run stops, the fault is
+  classified from the robot's own status and shown with what to do; after the technician
+  fixes it, :meth:`reconnect` checks the robot is back and the run resumes.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from quickhealth.identify.errors import HardwareError, QuickhealthError
+
+from .views import Check, Connection, Fault, PoseStatus, Preflight, RunProgress
+
+WHAT_TO_DO = {
+    "connection-lost": "check the network cable and the power of the robot controller; "
+    "wait until its screen is up",
+    "protective-stop": "make the cell safe, then release the protective stop on the teach "
+    "pendant and start the control program again",
+    "frozen-stream": "the controller stopped streaming: restart its RTDE interface "
+    "(or the controller)",
+    "program-stopped": "start the control program on the teach pendant again",
+    "error": "read the message, fix the cause",
+}
+PREFLIGHT_ORDER = ("robot", "plan", "cameras", "pan motor", "disk")
+
+
+def classify(robot: Any, message: str) -> Fault:
+    """What stopped the run, from the robot's own status (the message is kept as said)."""
+    kind = "error"
+    try:
+        st = robot.status()
+        if not st.connected:
+            kind = "connection-lost"
+        elif st.safety_mode.name not in ("NORMAL", "REDUCED"):
+            kind = "protective-stop"
+        elif not st.program_running:
+            kind = "program-stopped"
+    except Exception:  # the status itself is unreachable: the connection is gone
+        kind = "connection-lost"
+    if kind == "error" and "froze" in message:
+        kind = "frozen-stream"
+    words = {
+        "connection-lost": "Lost the connection to the robot controller",
+        "protective-stop": "The robot is in a protective stop",
+        "frozen-stream": "The controller's data stream froze",
+        "program-stopped": "The control program on the robot stopped",
+        "error": "The run stopped",
+    }[kind]
+    return Fault(kind, f"{words}: {message}", WHAT_TO_DO[kind])
+
+
+class CellControl:
+    """Devices and run control of one run folder (thread-safe control methods)."""
+
+    def __init__(
+        self,
+        station: Any,
+        plan: Any,
+        run_dir: Path,
+        *,
+        settings: Any = None,
+        on_finished: Callable[[Path], None] | None = None,
+    ) -> None:
+        from quickhealth.station.run import RunSettings
+
+        self.station = station
+        self.plan = plan
+        self.run_dir = Path(run_dir)
+        self.settings = settings or RunSettings()
+        self.on_finished = on_finished
+        self._cancel = threading.Event()
+        self._wake = threading.Event()
+        self._abort = False
+        self._lock = threading.Lock()
+        self.running = False
+        self.paused = False
+        self.state = "idle"
+        self.fault: Fault | None = None
+        self._status: dict[int, PoseStatus] = {}
+        self._t_pose: list[float] = []
+        self._t_last: float | None = None
+        self._current: PoseStatus | None = None
+        self._last: PoseStatus | None = None
+        self._load_journal()
+
+    # ----- devices ---------------------------------------------------------------------------
+    def connect(self) -> None:
+        """Reconnect what can reconnect (a real robot's RTDE link); idempotent."""
+        re = getattr(self.station.robot, "reconnect", None)
+        if callable(re):
+            re()
+
+    def connections(self) -> tuple[Connection, ...]:
+        """Robot mode and safety, camera and pan motor, each tried now."""
+        s = self.station
+        out = []
+        try:
+            st = s.robot.status()
+            state = "ok" if st.ready else ("down" if not st.connected else "warn")
+            out.append(
+                Connection("robot", state, f"{s.robot_name or s.robot.model.name}: {st.describe()}")
+            )
+        except Exception as exc:
+            out.append(Connection("robot", "down", str(exc)))
+        try:
+            rig = s.camera.rig
+            w, h = rig.left.image_size
+            out.append(Connection("stereo camera", "ok", f"{s.instrument}, {w}×{h} px"))
+        except Exception as exc:
+            out.append(Connection("stereo camera", "down", str(exc)))
+        try:
+            s.motor.ping()
+            import math
+
+            out.append(
+                Connection(
+                    "pan motor", "ok", f"answers, at {math.degrees(s.motor.position()):.1f}°"
+                )
+            )
+        except Exception as exc:
+            out.append(Connection("pan motor", "down", str(exc)))
+        return tuple(out)
+
+    def preflight(self) -> Preflight:
+        """``station.run.preflight`` (it captures one frame, pings the motor; nothing moves)."""
+        from quickhealth.station.run import preflight
+
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        remaining = sum(1 for p in self.plan.poses if p.index not in self._done_indices())
+        checks: list[Check] = []
+        try:
+            lines = preflight(self.station, self.plan, self.run_dir, remaining, self.settings)
+        except (QuickhealthError, OSError) as exc:
+            lines, failure = [], str(exc).removeprefix("pre-flight: ")
+        else:
+            failure = None
+        for ln in lines:
+            name, _, why = ln.partition(": ")
+            checks.append(Check(name, True, why))
+        if failure is not None:
+            done = {c.name for c in checks}
+            todo = [n for n in PREFLIGHT_ORDER if n not in done]
+            name = next(
+                (n for n in todo if n.split()[-1] in failure.lower()), todo[0] if todo else "check"
+            )
+            checks.append(Check(name, False, failure))
+            checks += [
+                Check(n, False, "not checked: an earlier check failed") for n in todo if n != name
+            ]
+        return Preflight(tuple(checks))
+
+    # ----- per-pose table --------------------------------------------------------------------
+    def _done_indices(self) -> set[int]:
+        return {i for i, p in self._status.items() if p.status in ("done", "failed", "measuring")}
+
+    def _load_journal(self) -> None:
+        """Statuses from an existing journal (a run continued after a restart of the TUI)."""
+        from quickhealth.station.journal import JOURNAL, read_journal
+
+        for p in self.plan.poses:
+            self._status[p.index] = PoseStatus(p.index - 1, p.name, "pending")
+        path = self.run_dir / JOURNAL
+        if path.is_file():
+            st = read_journal(path)
+            for i in st.captured:
+                self._status[i] = self._from_journal(st, i)
+            for i in st.failed:
+                self._status[i] = self._from_journal(st, i)
+
+    def _from_journal(self, st: Any, index: int) -> PoseStatus:
+        name = self._status[index].pose_id
+        cap = st.captured.get(index)
+        mea = st.measured.get(index)
+        fail = st.failed.get(index)
+        q = tuple(float(v) for v in (cap or fail or {}).get("q_deg", ()))
+        markers = sum(cap.get("markers", ())) if cap else None
+        if fail is not None:
+            return PoseStatus(index - 1, name, "failed", q, reason=str(fail.get("reason", "")))
+        if mea is None:
+            return PoseStatus(index - 1, name, "measuring", q, markers)
+        if not mea.get("ok"):
+            return PoseStatus(
+                index - 1, name, "failed", q, markers, reason=str(mea.get("reason", ""))
+            )
+        return PoseStatus(
+            index - 1, name, "done", q, markers, float(mea.get("rms_px", float("nan")))
+        )
+
+    def pose_table(self) -> tuple[PoseStatus, ...]:
+        with self._lock:
+            return tuple(self._status[p.index] for p in self.plan.poses)
+
+    # ----- the run ---------------------------------------------------------------------------
+    def _snapshot(self) -> RunProgress:
+        with self._lock:
+            n = len(self.plan.poses)
+            done = sum(1 for p in self._status.values() if p.status in ("done", "failed"))
+            left = n - done
+            eta = None
+            if self._t_pose:
+                per = sum(self._t_pose[-5:]) / len(self._t_pose[-5:])
+                eta = per * left
+            return RunProgress(
+                self.state, done, n, eta, self._current, self._last, str(self.run_dir), self.fault
+            )
+
+    def _on_event(self, ev: Any, emit: Callable[[RunProgress], None]) -> None:
+        from quickhealth.station.journal import JOURNAL, read_journal
+
+        if ev.index <= 0 or ev.index not in self._status:
+            return
+        if ev.kind == "move":
+            now = time.monotonic()
+            with self._lock:
+                if self._t_last is not None:
+                    self._t_pose.append(now - self._t_last)
+                self._t_last = now
+                q = tuple(float(v) for v in self.plan.poses[ev.index - 1].q * 57.29577951308232)
+                ps = PoseStatus(ev.index - 1, ev.name, "moving", q)
+                self._status[ev.index] = ps
+                self._current = ps
+        elif ev.kind in ("pose", "measured"):
+            st = read_journal(self.run_dir / JOURNAL)
+            ps = self._from_journal(st, ev.index)
+            if ev.kind == "pose" and ev.status == "failed":
+                ps = PoseStatus(
+                    ps.index, ps.pose_id, "failed", ps.q_deg, ps.markers, reason=ev.message
+                )
+            with self._lock:
+                self._status[ev.index] = ps
+                if ps.status in ("done", "failed"):
+                    self._last = ps
+                if self._current is not None and self._current.index == ps.index:
+                    self._current = ps
+        else:
+            return
+        emit(self._snapshot())
+
+    def run(self, emit: Callable[[RunProgress], None]) -> RunProgress:
+        """Run (or continue) the plan until it finishes, is aborted or a fault stops it.
+
+        Blocks (call it from a worker); pauses wait inside.  Returns the final progress.
+        """
+        from quickhealth.station.journal import JOURNAL
+        from quickhealth.station.run import run_plan
+
+        with self._lock:
+            if self.running:
+                raise HardwareError("the run is already going")
+            self.running, self.paused, self._abort = True, False, False
+            self.fault = None
+            self._cancel.clear()
+            self.state = "running"
+        emit(self._snapshot())
+        try:
+            while True:
+                resume = (self.run_dir / JOURNAL).is_file()
+                try:
+                    res = run_plan(
+                        self.station,
+                        self.plan,
+                        self.run_dir,
+                        resume=resume,
+                        settings=self.settings,
+                        progress=lambda ev: self._on_event(ev, emit),
+                        cancel=self._cancel,
+                    )
+                except QuickhealthError as exc:  # pre-flight refused: nothing moved
+                    self.fault = classify(self.station.robot, str(exc))
+                    self.state = "fault"
+                    break
+                if res.stopped is None:
+                    self.state = "finished"
+                    break
+                if self._abort:
+                    self.state = "aborted"
+                    break
+                if self._cancel.is_set():  # paused: wait for resume or abort
+                    self.state = "paused"
+                    emit(self._snapshot())
+                    self._wake.wait()
+                    self._wake.clear()
+                    self._cancel.clear()
+                    if self._abort:
+                        self.state = "aborted"
+                        break
+                    self.paused = False
+                    self.state = "running"
+                    emit(self._snapshot())
+                    continue
+                self.fault = classify(self.station.robot, res.stopped)
+                self.state = "fault"
+                break
+        finally:
+            with self._lock:
+                self.running = False
+                self.paused = False
+                self._current = None
+        if (self.run_dir / "measurements.csv").is_file() and self.on_finished is not None:
+            self.on_finished(self.run_dir / "measurements.csv")
+        final = self._snapshot()
+        emit(final)
+        return final
+
+    def pause(self) -> None:
+        """Stop after the current pose and wait (the journal keeps everything)."""
+        with self._lock:
+            if self.running and not self.paused:
+                self.paused = True
+                self._cancel.set()
+
+    def resume(self) -> None:
+        """Continue a paused run."""
+        with self._lock:
+            if self.paused:
+                self._wake.set()
+
+    def abort(self) -> None:
+        """Stop the robot now, then end the run after the current pose."""
+        try:
+            self.station.robot.stop()
+        finally:
+            with self._lock:
+                self._abort = True
+                self._cancel.set()
+                self._wake.set()
+
+    def reconnect(self) -> None:
+        """After a fault: reconnect and check the robot is connected, powered and safe."""
+        self.connect()
+        st = self.station.robot.status()
+        if not st.ready:
+            raise HardwareError(f"robot not ready: {st.describe()}")
+        with self._lock:
+            self.fault = None
+            if self.state == "fault":
+                self.state = "idle"
+
+    def close(self) -> None:
+        """Stop the arm if it moves, end the run, release the hardware."""
+        if self.running:
+            self.abort()
+        self.station.close()
