@@ -900,7 +900,7 @@ class _Problem:
             chi2=chi2,
             chi2_data=chi2_data,
             dof=int(r.size - n_free),
-            bic=bic_value(Rw, n_free),
+            bic=bic_value(Rw, n_free, float(np.sum(raw**2))),
             rms_pos=float(np.sqrt(np.mean(np.sum(raw[:, :3] ** 2, axis=1)))),
             rms_rot=float(np.sqrt(np.mean(np.sum(raw[:, 3:] ** 2, axis=1)))) if d == 6 else None,
             n_iter=n_iter,
@@ -912,17 +912,20 @@ class _Problem:
         )
 
 
-def bic_value(R: F, n_params: int) -> float:
-    """Eq. 9 on per-pose whitened residual vectors ``R`` (n, d).
+def bic_value(R: F, n_params: int, rss_si: float = 0.0) -> float:
+    """Eq. 9: ``BIC = n/2 · log det Cov(R) + RSS/2 + K/2 · log n``, ``K = n_params + d``.
 
-    ``BIC = n/2 · log det Cov(R) + RSS/2 + K/2 · log n`` with ``Cov(R) = RᵀR / n`` and
-    ``K = n_params + d``.
+    ``R`` (n, d): per-pose *whitened* residual vectors, ``Cov(R) = RᵀR / n``.  Whitening makes
+    per-row uncertainties count and the unit choice irrelevant; with uniform uncertainties
+    it equals the SI determinant plus a constant.  ``rss_si``: sum of squared residual
+    components in SI units (m², rad²) as the paper writes it; it is tiny beside the
+    determinant term, so the criterion is the Gaussian BIC with an estimated residual
+    covariance and does not depend on the instrument uncertainty being right.
     """
     n, d = R.shape
     C = R.T @ R / n
     sign, logdet = np.linalg.slogdet(C + np.eye(d) * 1e-300)
-    rss = float(np.sum(R**2))
-    return float(n / 2 * logdet + rss / 2 + (n_params + d) / 2 * np.log(n))
+    return float(n / 2 * logdet + rss_si / 2 + (n_params + d) / 2 * np.log(n))
 
 
 def motion_labels(spec: ErrorModelSpec) -> list[str]:
