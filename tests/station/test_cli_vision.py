@@ -248,7 +248,7 @@ def test_calibrate_stereo_pair_writes_R_T_baseline(tmp_path, capsys):
     assert d["verdict"] == "ok", d["reasons"]
     assert len(d["cameras"]) == 2 and abs(d["baseline_mm"] - 60.0) < 1.0
     assert np.allclose(np.array(d["T"]), 1000 * T_right_left[:3, 3], atol=1.5)
-    # rotation about y trades against both principal points (σ(cx) ≈ 2 px at fx 430 on these
-    # 320×240 images, i.e. ≈ 0.007 rad each)
-    assert np.allclose(np.array(d["R"]), T_right_left[:3, :3], atol=0.025)
+    # rotation about y trades against both principal points (σ(cx) ≈ 0.7 px at fx 425 on
+    # these 320×240 images, ≈ 0.002 rad each): allow 3σ
+    assert np.allclose(np.array(d["R"]), T_right_left[:3, :3], atol=0.006)
     assert d["stereo_rms_px"] < 2 * d["mono_rms_px"]
