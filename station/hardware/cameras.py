@@ -289,7 +289,12 @@ def _plate_mask(cam: CameraModel, T_cam_obj: F, d: TargetDescription) -> NDArray
     if np.any(p[:, 2] <= 0.05):
         return mask.astype(bool)
     px = cam.project(p)
-    if np.all(px[:, 0] < 0) or np.all(px[:, 0] >= w) or np.all(px[:, 1] < 0) or np.all(px[:, 1] >= h):
+    if (
+        np.all(px[:, 0] < 0)
+        or np.all(px[:, 0] >= w)
+        or np.all(px[:, 1] < 0)
+        or np.all(px[:, 1] >= h)
+    ):
         return mask.astype(bool)
     cv2.fillConvexPoly(mask, np.round(px).astype(np.int32), 1)
     mask = cv2.dilate(mask, np.ones((5, 5), np.uint8))

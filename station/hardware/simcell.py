@@ -23,8 +23,8 @@ from .cameras import SimStereoCamera, scaled_rig
 from .motor import SerialPanMotor
 from .motor_emulator import MotorEmulator
 from .robot import UrRobot
-from .target import T_target_plate
 from .simcontroller import CONTROL_PORT, SimControllerHandle, start_sim_controller
+from .target import T_target_plate
 from .world import SimWorld, build_world
 
 

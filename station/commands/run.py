@@ -1,0 +1,173 @@
+"""quickhealth run — execute a plan on the cell; quickhealth sim-controller — the UR simulator.
+
+    quickhealth run --cell CELL --plan PLAN.json --out RUN_DIR (--sim | --robot-ip IP)
+                    [--unattended] [--resume]
+
+Writes RUN_DIR/measurements.csv (CSV v1, execution order), RUN_DIR/images/ (both cameras'
+images of every pose), RUN_DIR/journal.jsonl (the crash-safe journal) and RUN_DIR/run.json
+(summary: failed poses with reasons, instrument self-check drift).  --sim runs the built-in
+simulated cell: the UR controller simulator (a separate process the real ur-rtde client
+talks to), the emulated pan motor on a pseudo-terminal and rendered stereo images of the
+digital twin.  --resume continues an interrupted run with no pose lost or repeated.
+--unattended never prompts, holds the single-run lock (a second run exits at once) and logs
+to RUN_DIR/run.log.  Exit status: 0 all poses recorded, 2 bad input, 3 hardware or runtime
+failure (the run stopped cleanly: everything captured is kept; the message says what to do).
+
+    quickhealth sim-controller [--control-port PORT] [--twin-seed N] [--cell CELL]
+
+Runs the UR controller simulator in the foreground on 127.0.0.1 (RTDE 30004, dashboard 29999,
+script 30003, JSON control port 30090) until interrupted.  See docs/station.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``run`` and ``sim-controller``."""
+    p = subparsers.add_parser(
+        "run",
+        help="execute a plan on the cell (real robot or --sim) into a run folder",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--cell", required=True, help="cell file (TOML) or built-in name 'reference'")
+    p.add_argument("--plan", required=True, type=Path, help="plan.json from 'quickhealth plan'")
+    p.add_argument("--out", required=True, type=Path, help="run folder")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--sim", action="store_true", help="the built-in simulated cell")
+    src.add_argument("--robot-ip", help="address of the UR controller")
+    p.add_argument(
+        "--unattended",
+        action="store_true",
+        help="never prompt; hold the run lock; log to RUN_DIR/run.log",
+    )
+    p.add_argument("--resume", action="store_true", help="continue the interrupted run in RUN_DIR")
+    p.add_argument(
+        "--robot-name", default=None, help="robot name for the journal and archive (plain name)"
+    )
+    p.add_argument("--motor-port", default="/dev/ttyUSB0", help="pan motor serial port (real cell)")
+    p.add_argument(
+        "--cameras", default="0,1", help="left,right OpenCV camera indices or paths (real cell)"
+    )
+    p.add_argument("--calibration", default=None, help="stereo CAL.json (real cell)")
+    p.add_argument("--sim-image-scale", type=float, default=0.5, help=argparse.SUPPRESS)
+    p.add_argument("--twin-seed", type=int, default=1, help=argparse.SUPPRESS)
+    p.set_defaults(func=run)
+
+    s = subparsers.add_parser(
+        "sim-controller",
+        help="run the UR controller simulator on 127.0.0.1 (RTDE, dashboard, script ports)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    from quickhealth.station.hardware.simcontroller import add_arguments
+
+    add_arguments(s)
+    s.set_defaults(func=sim_controller)
+
+
+def sim_controller(args: argparse.Namespace) -> int:
+    """Serve the simulator in the foreground."""
+    from quickhealth.station.hardware.simcontroller import run_from_args
+
+    return run_from_args(args)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Validate everything that can be validated without hardware, then run."""
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station.archive import safe_name
+    from quickhealth.station.planning import load_cell, load_plan
+
+    out: Path = args.out
+    if ".." in out.parts:
+        raise InputError(f"--out {str(out)!r}: '..' is not allowed in a run folder path")
+    if args.robot_name is not None:
+        safe_name(args.robot_name, "robot name")
+    if args.sim_image_scale <= 0 or args.sim_image_scale > 1:
+        raise InputError("--sim-image-scale must be in (0, 1]")
+    cell = load_cell(args.cell)
+    plan = load_plan(args.plan)
+    if plan.cell_sha256 != cell.sha256:
+        raise InputError(
+            f"{args.plan}: made for cell {plan.cell_name!r} with other contents than {args.cell}: plan again"
+        )
+    if not args.sim and args.calibration is None:
+        raise InputError("--robot-ip needs --calibration CAL.json (quickhealth vision calibrate)")
+    from quickhealth.station.lock import RunLock
+
+    lock = RunLock.acquire(out)
+    try:
+        return _run_locked(args, plan, out)
+    finally:
+        lock.release()
+
+
+def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: ignore[no-untyped-def]
+    from quickhealth.identify.errors import HardwareError
+    from quickhealth.station.run import run_plan, sim_station, ur_station
+
+    out.mkdir(parents=True, exist_ok=True)
+    log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115
+
+    def progress(p) -> None:  # type: ignore[no-untyped-def]
+        if p.kind in ("pose", "measured", "stop", "done", "resume", "preflight", "selfcheck"):
+            tag = f"[{p.index:3d}/{p.n_poses}] {p.name} " if p.index else ""
+            line = f"{p.kind}: {tag}{p.status} {p.message}".rstrip()
+            if log is not None:
+                log.write(line + "\n")
+                log.flush()
+            else:
+                print(line, flush=True)
+
+    try:
+        if args.sim:
+            station, _ = sim_station(
+                args.cell, twin_seed=args.twin_seed, image_scale=args.sim_image_scale
+            )
+            if args.robot_name:
+                station.robot_name = args.robot_name
+        else:
+            cams = tuple(c if not c.isdigit() else int(c) for c in args.cameras.split(","))
+            if len(cams) != 2:
+                from quickhealth.identify.errors import InputError
+
+                raise InputError("--cameras needs two entries: left,right")
+            station = ur_station(
+                args.cell,
+                args.robot_ip,
+                motor_port=args.motor_port,
+                cameras=cams,
+                calibration=args.calibration,
+            )
+            station.robot_name = args.robot_name or f"ur-{args.robot_ip}"
+            if not args.unattended and sys.stdin.isatty():
+                input(
+                    f"The arm will move through {len(plan.poses)} poses. Clear the cell, then press Enter (Ctrl-C aborts). "
+                )
+        try:
+            res = run_plan(station, plan, out, resume=args.resume, progress=progress)
+        finally:
+            station.close()
+        if res.stopped:
+            raise HardwareError(f"run stopped after {res.n_measured} measured poses: {res.stopped}")
+        summary = (
+            f"{res.n_measured} of {res.n_poses} poses measured, {res.n_failed} failed; "
+            f"wrote {res.measurements}"
+        )
+        if res.selfcheck_ok is False:
+            summary += (
+                f"; WARNING instrument drift {res.selfcheck_drift_mm:.3f} mm / "
+                f"{res.selfcheck_drift_deg:.4f}° during the run (self-check board): the camera moved"
+            )
+        if log is not None:
+            log.write(summary + "\n")
+        print(summary)
+        return 0
+    finally:
+        if log is not None:
+            log.close()

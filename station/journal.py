@@ -1,0 +1,246 @@
+"""The run journal: an append-only, fsynced record of everything a run did, for ``--resume``.
+
+``RUN_DIR/journal.jsonl`` holds one JSON object per line.  Each line carries ``crc``, the
+CRC-32 of the line's JSON without that key, and is flushed and ``fsync``-ed before the run
+goes on.  Images are written atomically (temporary file, ``fsync``, rename, directory
+``fsync``) *before* the record that names them, so a record never points at a missing or
+half-written image.
+
+Records (``type``):
+
+- ``start``   run id, plan hash, cell, number of poses, software version.
+- ``selfcheck`` instrument self-check on the reference board (``phase`` start/end).
+- ``captured`` a pose was reached and imaged: index, name, joints, time, pan, image files.
+- ``measured`` the 7D measurement of a captured pose (or ``failed`` with the reason).
+- ``failed``  a pose that could not be captured (target not detected after retries …).
+- ``stop``    the run stopped cleanly on a fault (reason, what to do).
+- ``resume``  a later process continued the run.
+- ``end``     the run finished.
+
+Reading tolerates exactly one kind of damage, the one a crash or power cut can cause: a
+last line cut short.  It is ignored and cut off on resume.  Any other damage (a bad line in
+the middle, a checksum mismatch) is refused with the line number: nothing is guessed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from quickhealth.identify.errors import InputError
+
+JOURNAL = "journal.jsonl"
+SCHEMA = "quickhealth.journal/1"
+
+
+def _crc(rec: dict[str, Any]) -> int:
+    body = json.dumps(rec, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return zlib.crc32(body.encode("utf-8"))
+
+
+def fsync_dir(path: Path) -> None:
+    """Make a rename or a new file in ``path`` durable."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_bytes_atomic(path: Path, data: bytes, *, sync_dir: bool = True) -> None:
+    """Write ``data`` to ``path`` through a temporary file, fsync, rename (and dir fsync)."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        view = memoryview(data)
+        while view:
+            n = os.write(fd, view)
+            view = view[n:]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(tmp, path)
+    if sync_dir:
+        fsync_dir(path.parent)
+
+
+@dataclass
+class JournalState:
+    """What a journal says happened (built by :func:`read_journal`)."""
+
+    start: dict[str, Any] | None = None
+    captured: dict[int, dict[str, Any]] = field(default_factory=dict)
+    measured: dict[int, dict[str, Any]] = field(default_factory=dict)
+    failed: dict[int, dict[str, Any]] = field(default_factory=dict)
+    selfchecks: list[dict[str, Any]] = field(default_factory=list)
+    stops: list[dict[str, Any]] = field(default_factory=list)
+    resumes: int = 0
+    ended: bool = False
+    n_records: int = 0
+    truncated_tail: bool = False
+    valid_bytes: int = 0
+
+    @property
+    def done_indices(self) -> set[int]:
+        """Poses that need no more robot motion: captured (measured or not) or failed."""
+        return set(self.captured) | set(self.failed)
+
+    @property
+    def unmeasured(self) -> list[int]:
+        """Captured poses whose measurement is not recorded yet (re-measure from images)."""
+        return sorted(i for i in self.captured if i not in self.measured)
+
+    def next_index(self, n_poses: int) -> int | None:
+        """First plan index (1-based) with nothing recorded, None when all are done."""
+        done = self.done_indices
+        for i in range(1, n_poses + 1):
+            if i not in done:
+                return i
+        return None
+
+
+def iter_records(path: Path) -> Iterator[tuple[int, dict[str, Any], int]]:
+    """(line number, record, byte offset after the line) for every intact line.
+
+    Raises
+    ------
+    InputError
+        A damaged line that is not the last one.
+    """
+    data = path.read_bytes()
+    offset = 0
+    lines = data.split(b"\n")
+    for k, raw in enumerate(lines):
+        last = k == len(lines) - 1
+        if last and raw == b"":
+            return
+        end = offset + len(raw) + (0 if last else 1)
+        try:
+            if last:  # no newline: the write was cut short
+                raise ValueError("unterminated line")
+            rec = json.loads(raw.decode("utf-8"))
+            if not isinstance(rec, dict) or "crc" not in rec:
+                raise ValueError("not a journal record")
+            crc = rec.pop("crc")
+            if crc != _crc(rec):
+                raise ValueError("checksum mismatch")
+        except (ValueError, UnicodeDecodeError) as exc:
+            if last:
+                raise _Truncated(offset) from None
+            raise InputError(f"{path}:{k + 1}: damaged journal line ({exc})") from None
+        yield k + 1, rec, end
+        offset = end
+
+
+class _Truncated(Exception):
+    def __init__(self, offset: int) -> None:
+        self.offset = offset
+
+
+def read_journal(path: Path) -> JournalState:
+    """Replay a journal into a :class:`JournalState` (see the module docstring)."""
+    st = JournalState()
+    try:
+        for line, rec, end in iter_records(path):
+            st.n_records += 1
+            st.valid_bytes = end
+            t = rec.get("type")
+            if t == "start":
+                if rec.get("schema") != SCHEMA:
+                    raise InputError(f"{path}:{line}: not a {SCHEMA} journal")
+                st.start = rec
+            elif t == "captured":
+                st.captured[int(rec["index"])] = rec
+            elif t == "measured":
+                st.measured[int(rec["index"])] = rec
+            elif t == "failed":
+                st.failed[int(rec["index"])] = rec
+            elif t == "selfcheck":
+                st.selfchecks.append(rec)
+            elif t == "stop":
+                st.stops.append(rec)
+            elif t == "resume":
+                st.resumes += 1
+            elif t == "end":
+                st.ended = True
+            if st.start is None:
+                raise InputError(f"{path}:{line}: journal does not begin with a start record")
+    except _Truncated as tr:
+        st.truncated_tail = True
+        st.valid_bytes = tr.offset
+    except (KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(f"{path}: malformed journal record ({exc})") from None
+    return st
+
+
+class Journal:
+    """Append-only writer; every :meth:`append` is on disk when it returns."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.path = run_dir / JOURNAL
+        self._fd = -1
+
+    def open(self, *, truncate_to: int | None = None) -> Journal:
+        """Open for appending; ``truncate_to`` cuts a damaged tail off first."""
+        new = not self.path.exists()
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        if truncate_to is not None and os.fstat(self._fd).st_size > truncate_to:
+            os.ftruncate(self._fd, truncate_to)
+            os.fsync(self._fd)
+        if new:
+            fsync_dir(self.path.parent)
+        return self
+
+    def append(self, rec: dict[str, Any]) -> None:
+        """Write one record and fsync it."""
+        rec = _plain(rec)
+        line = dict(rec)
+        line["crc"] = _crc(rec)
+        data = (
+            json.dumps(line, sort_keys=True, separators=(",", ":"), allow_nan=False) + "\n"
+        ).encode()
+        n = os.write(self._fd, data)
+        if n != len(data):  # pragma: no cover - O_APPEND writes of this size are whole
+            raise OSError("short journal write")
+        os.fsync(self._fd)
+
+    def close(self) -> None:
+        """Close the file."""
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def __enter__(self) -> Journal:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _plain(x: Any) -> Any:
+    """numpy values to plain JSON values (finite numbers only)."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        if not np.isfinite(v):
+            raise ValueError("journal values must be finite")
+        return v
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.bool_,)):
+        return bool(x)
+    return x
