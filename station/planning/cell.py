@@ -319,7 +319,7 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
     if schema != SCHEMA:
         raise top.err("schema", f"expected {SCHEMA!r}, got {schema!r}")
     name = top.text("name", pattern=r"[A-Za-z0-9_\-]{1,64}")
-    top.text("description", "")
+    top.text("description", "", pattern=r"[^\x00-\x1f\x7f]{0,500}")
 
     rt = top.sub("robot")
     model = rt.text("model")

@@ -10,7 +10,7 @@ Checked pairs
 -------------
 - self collision: every link pair except those the package's SRDF disables (adjacent or
   never-touching links);
-- the smart-target body (a box on the flange) against every link but the last two;
+- the smart-target body (a box on the flange) against every link but wrist 3, its mount;
 - every link and the target body against every obstacle and the table (the base link
   excepted for the table), with obstacles and the table grown by ``planner.clearance``.
 
@@ -233,7 +233,7 @@ class CollisionWorld:
             for j in range(i + 1, len(names))
             if j != i + 1
             and frozenset((names[i], names[j])) not in ch.disabled
-            and not (names[j] == TARGET and names[i] in ("wrist_2_link", "wrist_3_link"))
+            and not (names[j] == TARGET and names[i] == "wrist_3_link")
         ]
         self.static_pairs = [
             (i, k)

@@ -130,7 +130,7 @@ class Independent:
             for j in range(i + 1, n_robot):
                 if frozenset((names[i], names[j])) not in disabled:
                     gm.addCollisionPair(pin.CollisionPair(i, j))
-            if names[i] not in ("wrist_2_link_0", "wrist_3_link_0"):
+            if names[i] != "wrist_3_link_0":
                 gm.addCollisionPair(pin.CollisionPair(i, it))
         for s in statics:
             for i in [*range(n_robot), it]:
