@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.robot import RobotModel
-from quickhealth.identify.transforms import R_to_rpy, make_T, rpy_to_R
+from quickhealth.identify.transforms import R_to_rpy, exp_so3, log_so3, make_T
 
 from .cell import ROBOTS, Motion
 from .planner import DropReason, LegType, PlanResult
@@ -119,6 +119,7 @@ def plan_to_dict(res: PlanResult) -> dict[str, Any]:
                 "branch": p.branch,
                 "target_base_mm": _r(p.T_base_target[:3, 3] * 1000.0),
                 "target_base_rpy_deg": _r(np.degrees(R_to_rpy(p.T_base_target[:3, :3])), 9),
+                "target_base_rotvec_deg": _r(np.degrees(log_so3(p.T_base_target[:3, :3])), 9),
                 "target_world_mm": _r(p.T_world_target[:3, 3] * 1000.0),
                 "pan_deg": _r(math.degrees(p.pan)),
                 "facing_deg": _r(np.degrees(p.facing), 3),
@@ -369,10 +370,9 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
             raise _err(label, f"{key}.leg", f"expected 'linear' or 'joint', got {str(leg)[:40]!r}")
         pan = math.radians(_num(label, f"{key}.pan_deg", rp.get("pan_deg"), -180.0, 180.0))
         pos = _vec(label, f"{key}.target_base_mm", rp.get("target_base_mm"), 3) / 1000.0
-        rpy = np.radians(
-            _vec(label, f"{key}.target_base_rpy_deg", rp.get("target_base_rpy_deg"), 3)
-        )
-        T_bt = make_T(rpy_to_R(rpy[0], rpy[1], rpy[2]), pos)
+        _vec(label, f"{key}.target_base_rpy_deg", rp.get("target_base_rpy_deg"), 3)
+        rv = _vec(label, f"{key}.target_base_rotvec_deg", rp.get("target_base_rotvec_deg"), 3)
+        T_bt = make_T(exp_so3(np.radians(rv)), pos)
         T_fk = robot.fk(q) @ T_ft
         if (
             np.linalg.norm(T_fk[:3, 3] - pos) > 1e-5
@@ -381,7 +381,7 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
             raise _err(
                 label,
                 f"{key}.q_deg",
-                "joint target does not reach target_base_mm / target_base_rpy_deg",
+                "joint target does not reach target_base_mm / target_base_rotvec_deg",
             )
         cand = _int(label, f"{key}.candidate", rp.get("candidate", -1), -1, 10**7)
         poses.append(PlanPose(name, j + 1, q, LegType(leg), pan, T_bt, cand))
