@@ -61,6 +61,7 @@ from .transforms import (
     rot_x,
     rot_y,
     rpy_to_R,
+    skew,
     small_error_transform,
 )
 
@@ -708,6 +709,8 @@ class _Problem:
         if self.effects:
             cols.append(self._effect_columns(coeffs, ep, T))
         Jraw = np.concatenate(cols, axis=-1)
+        if d == 6:  # ∂ log(R_meas R_modelᵀ) = −J_r⁻¹(w) ω with J_r⁻¹(w) ≈ I + ½[w]×
+            Jraw[:, 3:] = (np.eye(3) + 0.5 * skew(raw[:, 3:])) @ Jraw[:, 3:]
         J = np.einsum("nij,njp->nip", self.W, Jraw).reshape(n * d, -1)
         return r, J
 
@@ -813,10 +816,12 @@ class _Problem:
         labels = _labels(self.spec, self.effects)
         n_comp = r.size
         n_free = int(free.sum())
-        if n_comp <= n_free:
+        need = n_free + max(2 * self.d, n_free // 4)
+        if n_comp < need:
             raise InputError(
-                f"{self.meas.n_poses} poses give {n_comp} measured components, but the model "
-                f"has {n_free} identifiable parameters: measure more poses or lower the orders"
+                f"{self.meas.n_poses} poses give {n_comp} measured components, too few for a "
+                f"model with {n_free} identifiable parameters (needs at least "
+                f"{-(-need // self.d)} poses): measure more poses or lower the orders"
             )
         p[~free] = 0.0
         D = self.sigma_p[free]

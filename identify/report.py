@@ -52,7 +52,13 @@ def joint_curve_figure(curves: JointCurves, truth: np.ndarray | None = None) -> 
         v = curves.values[m] * 1e3
         h = curves.half_width[m] * 1e3
         ax.fill_between(
-            th, v - h, v + h, color="#88ccee", alpha=0.6, lw=0, label=f"{curves.level:.0%} band"
+            th,
+            v - h,
+            v + h,
+            color="#88ccee",
+            alpha=0.6,
+            lw=0,
+            label=f"{curves.level:.0%} band (whole curve)",
         )
         ax.plot(th, v, color="#224488", lw=1.5, label="identified")
         if truth is not None:

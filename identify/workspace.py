@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 
 from .errormodel import MOTIONS, chebyshev_basis, chebyshev_u
 from .fit import FittedModel, Perturbation, _forward, _motion_jacobian
@@ -65,7 +65,8 @@ class JointCurves:
     values: F  # (6, k): δx δy δz (m), εx εy εz (rad)
     sigma: F  # (6, k) standard uncertainty
     level: float  # e.g. 0.95
-    half_width: F  # (6, k) band half-width at ``level``
+    half_width: F  # (6, k) simultaneous band half-width at ``level`` (whole curve)
+    pointwise_half_width: F  # (6, k) pointwise band half-width at ``level``
 
     def as_dict(self) -> dict[str, object]:
         """Numbers for report.json (deg, mm, mrad)."""
@@ -74,11 +75,13 @@ class JointCurves:
             "joint": self.joint,
             "theta_deg": np.degrees(self.theta).tolist(),
             "level": self.level,
+            "band": "simultaneous over the range (half_width); pointwise_half_width per angle",
             "units": {"dx": "mm", "dy": "mm", "dz": "mm", "ex": "mrad", "ey": "mrad", "ez": "mrad"},
             "motions": {
                 m: {
                     "value": (self.values[i] * scale[i]).tolist(),
                     "half_width": (self.half_width[i] * scale[i]).tolist(),
+                    "pointwise_half_width": (self.pointwise_half_width[i] * scale[i]).tolist(),
                 }
                 for i, m in enumerate(MOTIONS)
             },
@@ -122,7 +125,15 @@ def workspace_error(
 def joint_curves(
     fitted: FittedModel, joint: int, n_points: int = 121, level: float = 0.95
 ) -> JointCurves:
-    """Error motions of ``joint`` (1-based) over its identified range, with bands at ``level``."""
+    """Error motions of ``joint`` (1-based) over its identified range, with bands at ``level``.
+
+    ``half_width`` is a simultaneous (Scheffé) band: with probability ``level`` the whole
+    true curve lies inside it over the entire range (``sqrt(χ²_k(level)) · σ(θ)`` for a
+    series with k estimated coefficients).  ``pointwise_half_width`` holds at each angle
+    separately (``z · σ(θ)``).  Coefficients the data cannot identify are held at zero and
+    not in the band (the curve is then defined up to that gauge, e.g. a constant εz of joint
+    1 is a base rotation).
+    """
     spec = fitted.spec
     if not 1 <= joint <= spec.n_joints:
         raise ValueError(f"joint must be 1..{spec.n_joints}, got {joint}")
@@ -132,6 +143,7 @@ def joint_curves(
     idx = spec.index()
     values = np.zeros((6, n_points))
     sigma = np.zeros((6, n_points))
+    k_free = np.ones(6)
     for m in range(6):
         sel = np.flatnonzero((idx[:, 0] == joint) & (idx[:, 1] == m))
         if sel.size == 0:
@@ -140,8 +152,10 @@ def joint_curves(
         values[m] = B @ fitted.coeffs[sel]
         C = fitted.cov[np.ix_(sel, sel)]
         sigma[m] = np.sqrt(np.clip(np.einsum("ki,ij,kj->k", B, C, B), 0.0, None))
+        k_free[m] = max(int(np.sum(np.diag(C) > 0)), 1)
     z = float(norm.ppf(0.5 + level / 2))
-    return JointCurves(joint, theta, values, sigma, level, z * sigma)
+    zs = np.sqrt(chi2.ppf(level, k_free))[:, None]
+    return JointCurves(joint, theta, values, sigma, level, zs * sigma, z * sigma)
 
 
 def all_joint_curves(
