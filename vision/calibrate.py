@@ -503,17 +503,18 @@ def _calibrate_mono(
         else:
             masks[i] = np.ones(len(v.ids), bool)
     K = dist = None
-    for _round in range(5):
+    rounds = 5
+    for rnd in range(rounds + 1):
         used = sorted(masks)
         if len(used) < 3:
             raise ValueError(f"only {len(used)} images show the board usably; need at least 3")
         vv = [
-            BoardView(views[i].ids[masks[i]], views[i].obj[masks[i]], views[i].px[masks[i]])
+            BoardView(views[i].ids[masks[i]], views[i].obj[masks[i]], views[i].px[masks[i]])  # type: ignore[union-attr]
             for i in used
-        ]  # type: ignore[union-attr]
+        ]
         obj, img = _views_to_cv(vv)
         flags = 0 if K is None else cv2.CALIB_USE_INTRINSIC_GUESS
-        rms, K, dist, rv, tv = cv2.calibrateCamera(obj, img, size, K, dist, flags=flags)[:5]
+        _, K, dist, rv, tv = cv2.calibrateCamera(obj, img, size, K, dist, flags=flags)[:5]
         # residuals over all corners of the used views (outliers included)
         res_all = []
         for k, i in enumerate(used):
@@ -521,11 +522,12 @@ def _calibrate_mono(
             assert v is not None
             proj, _ = cv2.projectPoints(v.obj.astype(np.float64), rv[k], tv[k], K, dist)
             res_all.append(v.px - proj.reshape(-1, 2))
+        if rnd == rounds:
+            break  # last fit: keep the masks it was made with
         norms = np.concatenate(
             [np.linalg.norm(r, axis=1)[masks[i]] for r, i in zip(res_all, used, strict=True)]
         )
-        sig = np.median(norms) / 1.1774
-        thr = max(s.outlier_sigma * sig, 0.1)
+        thr = max(s.outlier_sigma * float(np.median(norms)) / 1.1774, 0.1)
         changed = False
         for r, i in zip(res_all, used, strict=True):
             m = np.linalg.norm(r, axis=1) <= thr
@@ -538,8 +540,7 @@ def _calibrate_mono(
                 changed = True
         if not changed:
             break
-    used = sorted(masks)
-    # final state: rv, tv and res_all belong to `used` (nothing changed in the last round)
+    # rv, tv and res_all belong to `used` and `masks` (the last fit changed nothing)
     cam = CameraModel(K, np.asarray(dist).ravel()[:5], size)
     rvecs = np.array([np.asarray(r).ravel() for r in rv])
     tvecs = np.array([np.asarray(t).ravel() for t in tv])
@@ -700,6 +701,11 @@ def _calibrate_stereo(
     for i in sorted(usedL & usedR):
         vl, vr = left[i], right[i]
         assert vl is not None and vr is not None
+        # leave out the corners either mono fit called outliers
+        okl = ~cams[0].outlier[cams[0].views_used.index(i)]
+        okr = ~cams[1].outlier[cams[1].views_used.index(i)]
+        vl = BoardView(vl.ids[okl], vl.obj[okl], vl.px[okl])
+        vr = BoardView(vr.ids[okr], vr.obj[okr], vr.px[okr])
         common, il, ir = np.intersect1d(vl.ids, vr.ids, return_indices=True)
         if len(common) < s.min_corners:
             continue

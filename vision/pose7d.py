@@ -19,7 +19,7 @@ SYNOPSIS
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 
 import cv2
@@ -154,14 +154,6 @@ class Rejection:
     time: float | None = None
 
 
-@dataclass(frozen=True, eq=False)
-class StereoCorners:
-    """Matched target corners seen in each camera: object points (m) and pixels."""
-
-    obj: tuple[F, F] = field(default_factory=lambda: (np.zeros((0, 3)), np.zeros((0, 3))))
-    px: tuple[F, F] = field(default_factory=lambda: (np.zeros((0, 2)), np.zeros((0, 2))))
-
-
 def roi_from_pose(
     camera: CameraModel, T_cam_target: F, target: TargetDescription, *, margin: float = 0.25
 ) -> Box:
@@ -225,7 +217,8 @@ def measure_stereo(
     img_left, img_right : ndarray, shape (h, w), uint8
     roi_hint : ndarray (4, 4) or ((x0, y0, x1, y1), (x0, y0, x1, y1)), optional
         Predicted ``T_left_target`` (the search regions are grown around its image) or the
-        search boxes themselves; None searches the whole images.
+        search boxes themselves; None searches the whole images.  A camera whose region
+        yields too few corners is searched again over its whole image.
     pan : float, optional
         Commanded pan angle, rad, carried into the result.
     time : float, optional
@@ -245,10 +238,12 @@ def measure_stereo(
             )
         else:
             rois = (tuple(roi_hint[0]), tuple(roi_hint[1]))  # type: ignore[assignment,index]
-    seen = [
-        detect_target(cam, target, img, roi)
-        for cam, img, roi in zip(rig.cameras, (img_left, img_right), rois, strict=True)
-    ]
+    seen = []
+    for cam, img, roi in zip(rig.cameras, (img_left, img_right), rois, strict=True):
+        found = detect_target(cam, target, img, roi)
+        if roi is not None and len(found[0]) < settings.min_corners:
+            found = detect_target(cam, target, img, None)  # the prediction was off: whole image
+        seen.append(found)
     return solve_stereo_pose(rig, seen, pan=pan, time=time, settings=settings)
 
 

@@ -189,3 +189,15 @@ def test_stored_rendered_pairs_are_measured(name, min_corners):
     C = pose_crb(rig, TGT, T, max(m.rms_px / np.sqrt(2), 0.02))
     assert np.linalg.norm(dp) < 5 * np.sqrt(np.trace(C[:3, :3])) + 2e-6
     assert np.linalg.norm(dw) < 5 * np.sqrt(np.trace(C[3:, 3:])) + 1e-5
+
+
+def test_wrong_roi_hint_falls_back_to_the_whole_image():
+    from quickhealth.vision.camera import StereoRig
+
+    rig = StereoRig(RIG.left.scaled(0.3), RIG.right.scaled(0.3), RIG.T_left_right)
+    T = T_left_rig() @ make_T(rot_y(0.2), [0.0, 0.0, 1.8])
+    left, right = render_stereo(rig, T, TGT, rng=np.random.default_rng(4))
+    far_off = T_left_rig() @ make_T(np.eye(3), [0.6, 0.4, 1.6])
+    m = measure_stereo(rig, TGT, left, right, roi_hint=far_off)
+    assert isinstance(m, PoseMeasurement) and min(m.n_corners) >= 176
+    assert np.linalg.norm(pose_error(m.T_left_target, T)[0]) < 0.1e-3
