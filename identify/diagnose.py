@@ -341,51 +341,6 @@ def whitened(state: LoopState, meas: Measurements) -> WhitenedProblem:
     )
 
 
-def refine(
-    state: LoopState,
-    meas: Measurements,
-    iterations: int = 4,
-    prior_scale: float = 1.0,
-) -> LoopState:
-    """Gauss-Newton refinement of every coefficient and effect parameter (fixed orders).
-
-    A weak prior (each Chebyshev coefficient ~ 1 mm or 10 mrad × ``prior_scale``; effects
-    their own ``prior_sigma``) keeps unidentifiable combinations at zero change.  This is the
-    diagnosis's own small solver, used for one-off refits (compare, tests); the product's
-    estimator is :func:`quickhealth.identify.fit.fit_model`.
-    """
-    for _ in range(iterations):
-        wp = whitened(state, meas)
-        prior = np.concatenate(
-            [np.where(state.spec.index()[:, 1] < 3, 1e-3, 1e-2) * prior_scale]
-            + [np.asarray(e.prior_sigma, float) * prior_scale for e in state.effects]
-        )
-        x = _current_params(state)
-        # minimise |r − J Δ|² + |(x + Δ)/prior|²
-        A = np.vstack([wp.J, np.diag(1.0 / prior)])
-        b = np.concatenate([wp.r, -x / prior])
-        delta = np.linalg.lstsq(A, b, rcond=None)[0]
-        state = _apply_step(state, delta)
-        if np.max(np.abs(delta) / prior) < 1e-9:
-            break
-    return state
-
-
-def _current_params(state: LoopState) -> F:
-    return np.concatenate([state.coeffs, *[np.asarray(p, float) for p in state.effect_params]])
-
-
-def _apply_step(state: LoopState, delta: F) -> LoopState:
-    n = state.spec.n_params
-    coeffs = state.coeffs + delta[:n]
-    params = []
-    pos = n
-    for e, p in zip(state.effects, state.effect_params, strict=True):
-        params.append(np.asarray(p, float) + delta[pos : pos + e.n_params])
-        pos += e.n_params
-    return replace(state, coeffs=coeffs, effect_params=tuple(params))
-
-
 # --------------------------------------------------------------------------------------------
 # Candidates and the score test
 # --------------------------------------------------------------------------------------------
@@ -559,8 +514,13 @@ class Diagnosis:
         return lines
 
 
-def _orthonormal_basis(J: F, rtol: float = 1e-9) -> F:
-    """Orthonormal basis of the column space of ``J`` (columns scaled to unit norm first)."""
+def _orthonormal_basis(J: F, rtol: float = 1e-7) -> F:
+    """Orthonormal basis of the column space of ``J`` (columns scaled to unit norm first).
+
+    Directions below ``rtol`` of the largest singular value are left out: they are the
+    rounding noise of (near-)duplicate columns such as a held-at-zero constant, not
+    something the model can fit.
+    """
     norms = np.linalg.norm(J, axis=0)
     Jn = J[:, norms > 0] / norms[norms > 0]
     U, s, _ = np.linalg.svd(Jn, full_matrices=False)
