@@ -1,0 +1,316 @@
+"""Measurement CSV v1, model.json, report.json, robot descriptions, URScript, WAM files."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quickhealth.identify.errors import InputError
+from quickhealth.identify.fit import fit_model
+from quickhealth.identify.robot import chain
+from quickhealth.station import formats
+
+ROOT = Path(__file__).resolve().parents[2]
+FIXTURES = ROOT / "fixtures"
+
+
+def _load_synth():
+    name = "_qh_synth"
+    if name not in sys.modules:
+        path = ROOT / "tests" / "identify" / "_synth.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+    return sys.modules[name]
+
+
+S = _load_synth()
+GOOD = """# robot serial: 2018301234
+# instrument: stereo
+q1,q2,q3,q4,q5,q6,x,y,z,pitch,yaw,roll,time,temp
+10,-80,90,-100,90,0,100.5,-200.25,1800.125,10,20,30,0.0,21.5
+-20,-60,70,-90,80,45,110.5,-210.25,1810.125,-10,25,35,1.5,21.6
+35,-100,110,-120,100,-30,90.0,-190.0,1790.0,15,-20,40,3.0,21.7
+"""
+
+
+def _write(tmp_path, text, name="m.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+# ---------------------------------------------------------------- CSV v1
+
+
+def test_read_good_file_converts_units_and_metadata(tmp_path):
+    m = formats.read_measurements(_write(tmp_path, GOOD), 6)
+    assert m.n_poses == 3 and m.has_orientation
+    assert m.q[0, 0] == pytest.approx(np.radians(10))
+    assert m.pos[0] == pytest.approx([0.1005, -0.20025, 1.800125])
+    assert m.rpy[1] == pytest.approx(np.radians([-10, 25, 35]))
+    assert m.temp[2] == 21.7 and m.time[1] == 1.5
+    assert m.meta == {"robot serial": "2018301234", "instrument": "stereo"}
+
+
+def test_roundtrip_full_pose_with_uncertainties(tmp_path):
+    truth = S.paper_truth(0)
+    m = S.measure(truth, S.random_q(10, 1), 2)
+    from dataclasses import replace
+
+    m = replace(
+        m,
+        sigma_pos=np.full((10, 3), 3e-5),
+        sigma_rpy=np.full((10, 3), 1e-4),
+        pose_id=tuple(f"p{i}" for i in range(10)),
+        time=np.arange(10.0),
+        meta={"run": "x"},
+    )
+    p = tmp_path / "rt.csv"
+    formats.write_measurements(p, m)
+    back = formats.read_measurements(p, 6)
+    for f in ("q", "pos", "rpy", "sigma_pos", "sigma_rpy", "time"):
+        np.testing.assert_allclose(getattr(back, f), getattr(m, f), rtol=1e-12, atol=1e-15)
+    assert back.pose_id == m.pose_id and back.meta == {"run": "x"}
+
+
+def test_position_only_file_and_free_column_order(tmp_path):
+    text = "z,x,q6,q5,q4,q3,q2,q1,y\n1,2,10,20,30,40,50,60,3\n4,5,11,21,31,41,51,61,6\n"
+    m = formats.read_measurements(_write(tmp_path, text), 6)
+    assert not m.has_orientation
+    assert m.pos[0] == pytest.approx([0.002, 0.003, 0.001])
+    assert m.q[0] == pytest.approx(np.radians([60, 50, 40, 30, 20, 10]))
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "what"),
+    [
+        (GOOD.replace(",x,", ",xx,"), ":3:15:", "missing column 'x'"),
+        (GOOD.replace("q1,q2,q3,q4,q5,q6,", "q2,q3,q4,q5,q6,"), ":3:14:", "missing column 'q1'"),
+        (GOOD.replace("100.5", "1OO.5"), ":4:7:", "'1OO.5' is not a number"),
+        (GOOD.replace("100.5", "nan"), ":4:7:", "not finite"),
+        (GOOD.replace("100.5", "inf"), ":4:7:", "not finite"),
+        (GOOD.replace("100.5", ""), ":4:7:", "empty cell"),
+        (GOOD.replace(",time,", ",temp,"), ":3:14:", "duplicate column 'temp'"),
+        (GOOD.replace("1800.125,10,20,30", "1800.125,10,20"), ":4:14:", "row has 13 cells"),
+        (GOOD.replace(",pitch,yaw,", ",pitch,yawn,"), ":3:10:", "needs 'yaw'"),
+        ("# only a comment\n", ":1:1:", "no header"),
+        ("q1,q2,q3,q4,q5,q6,x,y,z\n", ":2:1:", "no data rows"),
+        (
+            GOOD.replace("q6,x", "q6,q7,x")
+            .replace(",0,100.5", ",0,1,100.5")
+            .replace(",45,110.5", ",45,1,110.5")
+            .replace(",-30,90.0", ",-30,1,90.0"),
+            ":3:7:",
+            "robot has 6 joints",
+        ),
+        (GOOD.replace("2.5,10,20,30", "2.5,10,20,30").replace("0.0,21.5", "0.0,21.5"), None, None),
+    ],
+)
+def test_bad_input_gives_one_line_file_line_column(tmp_path, text, where, what):
+    p = _write(tmp_path, text)
+    if where is None:
+        formats.read_measurements(p, 6)  # control: the unchanged file reads
+        return
+    with pytest.raises(InputError) as exc:
+        formats.read_measurements(p, 6)
+    msg = str(exc.value)
+    assert "\n" not in msg
+    assert msg.startswith(f"{p}{where}"), msg
+    assert what in msg
+
+
+def test_joint_angles_in_radians_are_refused(tmp_path):
+    rows = ["q1,q2,q3,q4,q5,q6,x,y,z"]
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(-3, 3, (5, 6)):
+        rows.append(",".join(f"{v:.4f}" for v in q) + ",1,2,3")
+    p = _write(tmp_path, "\n".join(rows) + "\n")
+    with pytest.raises(InputError, match=r"m\.csv:\d+:\d+: joint angles look like radians"):
+        formats.read_measurements(p, 6)
+
+
+def test_orientation_in_radians_is_refused(tmp_path):
+    text = GOOD.replace(",10,20,30,", ",0.1,0.2,3.0,").replace(",-10,25,35,", ",-0.1,-1.2,0.3,")
+    text = text.replace(",15,-20,40,", ",0.5,0.2,-2.0,")
+    with pytest.raises(InputError, match="orientation angles look like radians"):
+        formats.read_measurements(_write(tmp_path, text), 6)
+
+
+def test_uncertainty_columns_must_be_positive(tmp_path):
+    text = "q1,q2,q3,q4,q5,q6,x,y,z,sx,sy,sz\n10,20,30,40,50,60,1,2,3,0.03,0.03,0\n"
+    with pytest.raises(InputError, match=r":2:12: column 'sz': uncertainty 0 must be > 0"):
+        formats.read_measurements(_write(tmp_path, text), 6)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputError, match="file not found"):
+        formats.read_measurements(tmp_path / "nope.csv", 6)
+
+
+def test_joints_only_file_for_prediction(tmp_path):
+    text = "q1,q2,q3,q4,q5,q6\n10,20,30,40,50,60\n-10,-20,-30,-40,-50,-60\n"
+    m = formats.read_measurements(_write(tmp_path, text), 6, joints_only=True)
+    assert np.all(np.isnan(m.pos)) and m.n_poses == 2
+
+
+# ---------------------------------------------------------------- robots
+
+
+def test_builtin_and_toml_ur5_agree():
+    a = formats.load_robot("ur5")
+    b = formats.load_robot(str(FIXTURES / "robots" / "ur5.toml"))
+    q = S.random_q(20, 3)
+    np.testing.assert_allclose(a.fk(q), b.fk(q), atol=1e-12)
+    np.testing.assert_allclose(a.masses, b.masses)
+    np.testing.assert_allclose(a.coms, b.coms, atol=1e-12)
+
+
+def test_wam_toml_reproduces_the_data_sets_desired_positions():
+    wam = formats.load_robot(str(FIXTURES / "robots" / "wam.toml"))
+    a = np.loadtxt(FIXTURES / "wam" / "grid.csv", delimiter=",", skiprows=1)
+    T = wam.fk(np.radians(a[:, 7:14]))
+    x_t = (T[:, :3, 3] + 0.044 * T[:, :3, 2]) * 1e3
+    assert np.abs(x_t - a[:, 1:4]).max() < 0.01  # mm
+
+
+@pytest.mark.parametrize("name", ["../ur5", "..", "ur5/../../etc/passwd", "UR6", "ur5;rm"])
+def test_robot_names_cannot_escape(name):
+    with pytest.raises(InputError):
+        formats.load_robot(name)
+
+
+def test_bad_toml_robot(tmp_path):
+    p = tmp_path / "r.toml"
+    p.write_text('[robot]\nconvention = "dh"\n[[joint]]\na = 0\nd = "x"\nalpha = 0\n')
+    with pytest.raises(InputError, match="d = 'x' is not a number"):
+        formats.load_robot(str(p))
+    p.write_text("[robot\n")
+    with pytest.raises(InputError, match="not valid TOML"):
+        formats.load_robot(str(p))
+
+
+URDF = """<?xml version="1.0"?>
+<robot name="three">
+  <link name="base"/>
+  <link name="l1"><inertial><mass value="2.0"/><origin xyz="0.1 0 0.05"/>
+    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="l2"><inertial><mass value="1.0"/><origin xyz="0.2 0.01 0"/>
+    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="l3"><inertial><mass value="0.5"/><origin xyz="0 0 0.03"/>
+    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>
+    <origin xyz="0 0 0.3" rpy="0 0 0"/><axis xyz="0 0 1"/>
+    <limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0.1 0 0.2" rpy="0.3 0 0"/><axis xyz="0 1 0"/>
+    <limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/>
+    <origin xyz="0.4 0 0" rpy="0 0.2 0.1"/><axis xyz="0.6 0 0.8"/>
+    <limit lower="-2.5" upper="2.5" effort="1" velocity="1"/></joint>
+</robot>
+"""
+
+
+def test_urdf_through_pinocchio_matches_pinocchio_kinematics(tmp_path):
+    import pinocchio as pin
+
+    p = tmp_path / "three.urdf"
+    p.write_text(URDF)
+    robot = formats.load_robot(str(p))
+    model = pin.buildModelFromUrdf(str(p))
+    model.gravity.linear = np.array([0.0, 0.0, -9.80665])
+    data = model.createData()
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(-2, 2, (5, 3)):
+        pin.forwardKinematics(model, data, q)
+        T_ref = data.oMi[3].homogeneous
+        T = robot.fk(q)
+        # the flange is the last joint's frame, exactly as pinocchio places it
+        np.testing.assert_allclose(T, T_ref, atol=1e-12)
+        # and every joint turns about z of its error frame: joint 3 turns about (0.6, 0, 0.8)
+        _, frames = chain(robot, q[None], return_frames=True)
+        axis = T_ref[:3, :3] @ np.array([0.6, 0, 0.8])
+        np.testing.assert_allclose(frames[0, 2, :3, 2], axis, atol=1e-12)
+        # gravity torques agree with pinocchio's generalized gravity
+        from quickhealth.identify.robot import gravity_torques
+
+        tau = gravity_torques(robot, q)[0]
+        g = pin.computeGeneralizedGravity(model, data, q)
+        np.testing.assert_allclose(tau, -g, atol=1e-9)
+    assert robot.q_min == pytest.approx([-3, -2, -2.5])
+
+
+# ---------------------------------------------------------------- model.json / report.json
+
+
+def test_model_json_roundtrip_predicts_the_same(tmp_path):
+    truth = S.paper_truth(0)
+    m = S.measure(truth, S.random_q(60, 1), 2)
+    fm = fit_model(truth.robot, m, truth.spec)
+    p = tmp_path / "model.json"
+    formats.write_model(p, fm)
+    text = p.read_text()
+    assert json.loads(text)["schema"] == formats.MODEL_SCHEMA
+    back = formats.read_model(p)
+    q = S.random_q(10, 5)
+    np.testing.assert_allclose(back.predict(q), fm.predict(q), atol=1e-15)
+    np.testing.assert_allclose(back.cov, fm.cov)
+    assert back.unidentifiable == fm.unidentifiable and back.labels == fm.labels
+
+
+def test_model_json_bad_inputs(tmp_path):
+    p = tmp_path / "model.json"
+    p.write_text("{not json")
+    with pytest.raises(InputError, match=r"model\.json:1:2: not valid JSON"):
+        formats.read_model(p)
+    p.write_text('{"schema": "other/1"}')
+    with pytest.raises(InputError, match="not a quickhealth model"):
+        formats.read_model(p)
+    p.write_text(json.dumps({"schema": formats.MODEL_SCHEMA, "robot": {}}))
+    with pytest.raises(InputError, match="incomplete or damaged"):
+        formats.read_model(p)
+
+
+def test_report_json_roundtrip(tmp_path):
+    p = tmp_path / "report.json"
+    formats.write_report(p, {"bic": np.float64(1.5), "x": np.arange(3), "bad": float("nan")})
+    doc = formats.read_report(p)
+    assert doc["bic"] == 1.5 and doc["x"] == [0, 1, 2] and doc["bad"] is None
+
+
+# ---------------------------------------------------------------- URScript, WAM
+
+
+def test_urscript_joint_targets(tmp_path):
+    p = tmp_path / "loop.script"
+    p.write_text(
+        "def loop():\n"
+        "  movej([0.1, -1.2, 1.0, -1.4, 1.57, 0.0], a=1.2, v=0.25)\n"
+        "  # movej([9, 9, 9, 9, 9, 9])\n"
+        "  movel([0.2,-1.1,1.1,-1.5,1.5,0.1], a=0.5, v=0.1)\n"
+        "end\n"
+    )
+    q, lines = formats.read_urscript_joints(p, 6)
+    assert q.shape == (2, 6) and lines == [2, 4]
+    assert q[1, 0] == pytest.approx(0.2)
+    p.write_text("movel(p[0.1, 0.2, 0.3, 0, 0, 0])\n")
+    with pytest.raises(InputError, match=r"loop\.script:1:1: movel to a Cartesian pose"):
+        formats.read_urscript_joints(p, 6)
+    p.write_text("movej([0.1, 0.2])\n")
+    with pytest.raises(InputError, match="has 2 joint values"):
+        formats.read_urscript_joints(p, 6)
+
+
+def test_wam_reader_sign_and_units():
+    a = np.loadtxt(FIXTURES / "wam" / "random.csv", delimiter=",", skiprows=1)
+    m = formats.read_wam_csv(FIXTURES / "wam" / "random.csv", 1.0)
+    assert m.n_joints == 7 and m.n_poses == len(a)
+    np.testing.assert_allclose(m.pos * 1e3, a[:, 1:4] + a[:, 4:7])
+    np.testing.assert_allclose(np.degrees(m.q), a[:, 7:14])
