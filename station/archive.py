@@ -456,6 +456,13 @@ class Archive:
         mp = folder / "model.json"
         if mp.is_file():
             spec, coeffs, cov = model_arrays(_read_json(mp), str(mp))
+        q_measured = None
+        csv = folder / "measurements.csv"
+        if spec is not None and csv.is_file():
+            from quickhealth.station import formats
+
+            q = formats.read_measurements(csv, spec.n_joints).q
+            q_measured = (q.min(axis=0), q.max(axis=0))
         return RunState(
             run_id=rec.run_id,
             t_s=rec.t_s,
@@ -465,6 +472,7 @@ class Archive:
             cov=cov,
             figure_sigma_mm=sig,
             meta=rec.meta,
+            q_measured=q_measured,
         )
 
 

@@ -99,8 +99,8 @@ def register(subparsers: Any) -> None:
     t.add_argument(
         "--alpha",
         type=float,
-        default=1e-3,
-        help="false-alarm probability of the curve test per run (1e-3)",
+        default=1e-4,
+        help="false-alarm probability of the curve test per run (1e-4)",
     )
     t.add_argument(
         "--min-change-mm",

@@ -121,3 +121,84 @@ def test_urscript_rewrite_keeps_everything_but_the_targets():
     spans2, q2 = urscript_joint_targets(out, 6)
     np.testing.assert_allclose(q2, q + 0.001, atol=1e-9)
     assert "p[0.1, 0.2, 0.3, 0, 0, 0]" in out and "movej(home_q)" in out and "v=0.25)" in out
+
+
+@pytest.fixture(scope="module")
+def model_json(tmp_path_factory):
+    """A model fitted to the digital twin, as ``identify fit`` writes it."""
+    from quickhealth.identify.fit import InstrumentNoise, fit_model
+    from quickhealth.identify.twin import make_twin, random_joints
+    from quickhealth.station import formats
+
+    twin = make_twin(seed=2)
+    q = random_joints(twin.robot, 60, seed=3, T_instr_base=twin.truth.T_instr_base)
+    spec = ErrorModelSpec.uniform(6, 1, twin.robot.q_min, twin.robot.q_max)
+    fm = fit_model(twin.robot, twin.measure(q, seed=4), spec, noise=InstrumentNoise(3e-5, 1e-4))
+    p = tmp_path_factory.mktemp("model") / "model.json"
+    formats.write_model(p, fm)
+    return p, fm
+
+
+def test_export_command_writes_urdf_and_ur_calibration(model_json, tmp_path, capsys):
+    from quickhealth.station.cli import main
+
+    path, fm = model_json
+    urdf, conf, js = tmp_path / "c.urdf", tmp_path / "calibration.conf", tmp_path / "dh.json"
+    rc = main(
+        ["export", str(path), "--urdf", str(urdf), "--ur-calibration", str(conf), "--json", str(js)]
+    )
+    assert rc == 0
+    model = pin.buildModelFromXML(urdf.read_text())
+    data = model.createData()
+    q = np.array([0.3, -1.2, 1.1, -0.5, 1.2, 0.4])
+    pin.framesForwardKinematics(model, data, q)
+    T = data.oMf[model.getFrameId("flange")].homogeneous
+    np.testing.assert_allclose(
+        T, chain(corrected_robot(fm.robot, fm.spec, fm.coeffs), q[None])[0], atol=1e-8
+    )
+    assert "[mounting]" in conf.read_text()
+    import json
+
+    doc = json.loads(js.read_text())
+    assert len(doc["delta_theta"]) == 6 and doc["residual_pos_rms_mm"] >= 0
+    assert main(["export", str(path)]) == 2  # nothing asked for
+    assert "nothing to export" in capsys.readouterr().err
+
+
+def test_compensate_command_rewrites_urscript(model_json, tmp_path, capsys):
+    from quickhealth.station.cli import main
+
+    path, fm = model_json
+    prog = tmp_path / "loop.script"
+    prog.write_text(
+        "def loop():\n"
+        "  movej([0.3, -1.2, 1.1, -0.5, 1.2, 0.4], a=1.0, v=0.2)\n"
+        "  movej([-0.4, -1.6, 1.7, -1.0, 0.9, -0.2], a=1.0, v=0.2)\n"
+        "end\n"
+    )
+    out, err = tmp_path / "comp.script", tmp_path / "err.csv"
+    rc = main(
+        [
+            "compensate",
+            str(path),
+            str(prog),
+            "--out",
+            str(out),
+            "--errors",
+            str(err),
+            "--tcp-mm",
+            "0,0,100",
+        ]
+    )
+    assert rc == 0
+    _, q_new = urscript_joint_targets(out.read_text(), 6)
+    _, q_old = urscript_joint_targets(prog.read_text(), 6)
+    tcp = np.eye(4)
+    tcp[2, 3] = 0.1
+    ref = compensate_joints(fm.robot, fm.spec, fm.coeffs, q_old, tcp)
+    np.testing.assert_allclose(q_new, ref.q, atol=1e-8)
+    rows = err.read_text().splitlines()
+    assert rows[0].startswith("target,err_before_mm,err_after_mm") and len(rows) == 3
+    before, after = (np.array([float(r.split(",")[k]) for r in rows[1:]]) for k in (1, 2))
+    assert np.all(before > 0.05) and np.all(after < 1e-5)
+    assert main(["compensate", str(path), str(prog), "--out", str(out), "--tcp-mm", "1,2"]) == 2

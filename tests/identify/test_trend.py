@@ -107,7 +107,7 @@ def test_ewma_flags_slow_rise_of_max_error():
         )
         c = control_chart(x, figure="max")
         firsts.append(c.first_alarm)
-    assert all(f is not None and f <= 20 for f in firsts), firsts
+    assert all(f is not None and f <= 25 for f in firsts), firsts
 
 
 def test_change_inside_combined_uncertainty_is_not_degradation():
@@ -195,3 +195,53 @@ def test_verdicts_are_causal():
     for i in (3, 9, 15):
         part = assess_trend(runs[: i + 1], 0)
         assert part.flags(i) == full.flags(i)
+
+
+def test_covariances_that_understate_the_scatter_raise_no_false_alarm():
+    """Fits whose real scatter is twice the reported σ (4× variance): the genomic-control
+    factor, pooled over the history, absorbs it; without it the same history would alarm."""
+    spec = _spec()
+    rng = np.random.default_rng(21)
+    cov = _cov(spec, rng)
+    L2 = 2.0 * np.linalg.cholesky(cov)
+    truth = rng.normal(scale=50e-6, size=spec.n_params)
+    runs = [
+        RunState(
+            f"r{i}",
+            float(i),
+            spec=spec,
+            coeffs=truth + L2 @ rng.normal(size=spec.n_params),
+            cov=cov,
+        )
+        for i in range(30)
+    ]
+    res = assess_trend(runs, 0)
+    assert not any(res.flags(i) for i in range(30))
+    assert 3.0 < res.curve_changes[-1][0].inflation < 5.5  # pooled over 29 comparisons
+    raw = [compare_curves(runs[0], r, inflate=1.0) for r in runs[1:]]
+    assert sum(any(c.significant for c in ch) for ch in raw) >= 10
+
+
+def test_curves_compared_only_where_both_runs_measured():
+    """A difference outside the measured range (an extrapolation) is not a change."""
+    spec = _spec(3)
+    lab = spec.labels()
+    c0 = np.zeros(spec.n_params)
+    c1 = c0.copy()
+    # j2.dz = 1e-4 (T3(u) - T1(u)... ) : a cubic that is ~0 on |u| < 0.3, large near ±1
+    c1[lab.index("j2.dz.c3")] = 4e-4
+    c1[lab.index("j2.dz.c1")] = 3e-4
+    cov = np.diag(np.full(spec.n_params, (1e-6) ** 2))
+    near = (np.full(6, -0.3 * np.pi), np.full(6, 0.3 * np.pi))
+    a = RunState("a", 0, spec=spec, coeffs=c0, cov=cov, q_measured=near)
+    b = RunState("b", 1, spec=spec, coeffs=c1, cov=cov, q_measured=near)
+    ch = {(c.joint, c.motion): c for c in compare_curves(a, b)}
+    full = {
+        (c.joint, c.motion): c
+        for c in compare_curves(
+            RunState("a", 0, spec=spec, coeffs=c0, cov=cov),
+            RunState("b", 1, spec=spec, coeffs=c1, cov=cov),
+        )
+    }
+    # 4 T3(u) + 3 T1(u) = 16u³ - 9u: at |u| ≤ 0.3 at most |16·0.027 - 2.7| → 2.27e-4·... smaller
+    assert ch[(2, "dz")].max_change < full[(2, "dz")].max_change / 2
