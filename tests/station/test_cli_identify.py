@@ -1,0 +1,314 @@
+"""`quickhealth identify fit / predict / import-wam` through the real command line."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quickhealth.station import formats
+from quickhealth.station.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+FIXTURES = ROOT / "fixtures"
+
+
+def _load_synth():
+    name = "_qh_synth"
+    if name not in sys.modules:
+        path = ROOT / "tests" / "identify" / "_synth.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+    return sys.modules[name]
+
+
+S = _load_synth()
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """One fit of 80 synthetic UR5 poses through the CLI, shared by the tests below."""
+    d = tmp_path_factory.mktemp("cli")
+    truth = S.paper_truth(0)
+    formats.write_measurements(d / "meas.csv", S.measure(truth, S.random_q(80, 1), 2))
+    formats.write_measurements(d / "test.csv", S.measure(truth, S.random_q(50, 3), 4))
+    code = main(
+        [
+            "identify",
+            "fit",
+            str(d / "meas.csv"),
+            "--robot",
+            "ur5",
+            "--out",
+            str(d / "out"),
+            "--max-order",
+            "3",
+            "--plots",
+            "--quiet",
+        ]
+    )
+    assert code == 0
+    return d
+
+
+def test_fit_writes_model_report_residuals_and_plots(run):
+    out = run / "out"
+    rep = json.loads((out / "report.json").read_text())
+    for key in ("n_poses", "n_params", "bic", "chi2", "rms_pos_mm", "rms_rot_deg"):
+        assert key in rep, key
+    assert rep["n_poses"] == 80 and 0.02 < rep["rms_pos_mm"] < 0.08
+    assert rep["chi2_check"]["verdict"] == "ok"
+    assert rep["orders"]["j1"]["ez"] >= 2
+    assert len(rep["joint_curves"]) == 6 and len(rep["residuals"]) == 80
+    assert rep["workspace"]["histogram"]["counts"]
+    assert json.loads((out / "model.json").read_text())["schema"] == "quickhealth.model/1"
+    assert (out / "residuals.csv").read_text().count("\n") == 81
+    for name in ("workspace_histogram", "residuals", "joint1_curves"):
+        assert (out / f"{name}.png").stat().st_size > 10_000
+
+
+def test_predict_measurement_file(run, capsys):
+    code = main(
+        [
+            "identify",
+            "predict",
+            str(run / "out" / "model.json"),
+            str(run / "test.csv"),
+            "--out",
+            str(run / "pred.csv"),
+        ]
+    )
+    assert code == 0
+    rows = list(csv.DictReader((run / "pred.csv").open()))
+    assert len(rows) == 50 and [r["row"] for r in rows[:3]] == ["1", "2", "3"]
+    for col in ("x", "y", "z", "pitch", "yaw", "roll", "err_mm"):
+        assert col in rows[0]
+    test = formats.read_measurements(run / "test.csv", 6)
+    pred = np.array([[float(r[c]) for c in "xyz"] for r in rows]) * 1e-3
+    rms = np.sqrt(np.mean(np.sum((pred - test.pos) ** 2, axis=1)))
+    assert rms < 1.3 * np.sqrt(3) * 3e-5  # held-out, 3D noise floor 0.052 mm
+    assert "measured minus model" in capsys.readouterr().out
+
+
+def test_predict_urscript_with_threshold_flags_and_exit_1(run):
+    script = run / "prog.script"
+    q = S.random_q(6, 9)
+    script.write_text(
+        "def prog():\n"
+        + "".join(f"  movej([{', '.join(f'{v:.5f}' for v in qq)}], a=1, v=0.2)\n" for qq in q)
+        + "end\n"
+    )
+    pred = run / "p.csv"
+    model = str(run / "out" / "model.json")
+    assert (
+        main(
+            [
+                "identify",
+                "predict",
+                model,
+                str(script),
+                "--out",
+                str(pred),
+                "--threshold-mm",
+                "0.001",
+            ]
+        )
+        == 1
+    )
+    rows = list(csv.DictReader(pred.open()))
+    assert [r["line"] for r in rows] == [str(i) for i in range(2, 8)]
+    assert all(r["over_threshold"] == "1" for r in rows)
+    assert (
+        main(
+            ["identify", "predict", model, str(script), "--out", str(pred), "--threshold-mm", "100"]
+        )
+        == 0
+    )
+
+
+def test_predict_joints_only_csv(run):
+    p = run / "joints.csv"
+    p.write_text("q1,q2,q3,q4,q5,q6\n10,-80,90,-100,90,0\n-20,-60,70,-90,80,45\n")
+    assert (
+        main(
+            [
+                "identify",
+                "predict",
+                str(run / "out" / "model.json"),
+                str(p),
+                "--out",
+                str(run / "pj.csv"),
+            ]
+        )
+        == 0
+    )
+    rows = list(csv.DictReader((run / "pj.csv").open()))
+    assert len(rows) == 2 and "meas_minus_model_mm" not in rows[0]
+
+
+GOOD_HEADER = "q1,q2,q3,q4,q5,q6,x,y,z"
+
+
+@pytest.mark.parametrize(
+    ("mutate", "pattern"),
+    [
+        (lambda t: t.replace(",y,", ",yy,", 1), r"meas\.csv:1:\d+: missing column 'y'"),
+        (
+            lambda t: (
+                t.replace(",z\n", ",z,z\n", 1)
+                .replace("\n", ",1\n")
+                .replace(",z,z,1\n", ",z,z\n", 1)
+            ),
+            r"meas\.csv:1:10: duplicate column 'z'",
+        ),
+        (lambda t: _cell(t, 3, 7, "abc"), r"meas\.csv:3:7: column 'x': 'abc' is not a number"),
+        (lambda t: _cell(t, 4, 8, "NaN"), r"meas\.csv:4:8: column 'y': NaN is not finite"),
+        (lambda t: _radians(t), r"meas\.csv:\d+:\d+: joint angles look like radians"),
+        (
+            lambda t: "\n".join(t.splitlines()[:6]) + "\n",
+            r"meas\.csv:6:1: 5 poses give 15 measured components, too few",
+        ),
+    ],
+)
+def test_fit_bad_input_exit_2_one_line_nothing_written(tmp_path, capsys, mutate, pattern):
+    truth = S.paper_truth(0)
+    good = formats.format_measurements(S.measure(truth, S.random_q(40, 1), 2, full_pose=False))
+    p = tmp_path / "meas.csv"
+    p.write_text(mutate(good))
+    out = tmp_path / "out"
+    code = main(["identify", "fit", str(p), "--robot", "ur5", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("quickhealth: error: ")
+    import re
+
+    assert re.search(pattern, lines[0]), lines[0]
+    assert not out.exists()
+    assert not any(tmp_path.glob(".identify-*"))
+
+
+def _cell(text, line, col, value):
+    rows = text.splitlines()
+    cells = rows[line - 1].split(",")
+    cells[col - 1] = value
+    rows[line - 1] = ",".join(cells)
+    return "\n".join(rows) + "\n"
+
+
+def _radians(text):
+    rows = text.splitlines()
+    out = [rows[0]]
+    for r in rows[1:]:
+        c = r.split(",")
+        c[:6] = [f"{np.radians(float(v)):.6f}" for v in c[:6]]
+        out.append(",".join(c))
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("args", "pattern"),
+    [
+        (["--robot", "../ur5"], "robot description file not found"),
+        (["--robot", "kuka"], "unknown robot 'kuka'"),
+        (["--robot", "ur5", "--effects", "nosuch:j9"], "unknown effect"),
+        (["--robot", "ur5", "--sigma-pos-mm", "0"], "--sigma-pos-mm must be > 0"),
+        (["--robot", "ur5", "--max-order", "-1"], "--max-order must be in"),
+    ],
+)
+def test_fit_bad_options_exit_2(tmp_path, capsys, args, pattern):
+    truth = S.paper_truth(0)
+    p = tmp_path / "meas.csv"
+    formats.write_measurements(p, S.measure(truth, S.random_q(40, 1), 2))
+    code = main(["identify", "fit", str(p), "--out", str(tmp_path / "o"), "--quiet", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and pattern in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_predict_bad_model_file_exit_2(tmp_path, capsys):
+    m = tmp_path / "model.json"
+    m.write_text("[]")
+    j = tmp_path / "j.csv"
+    j.write_text("q1,q2,q3,q4,q5,q6\n1,2,3,4,5,60\n")
+    code = main(["identify", "predict", str(m), str(j), "--out", str(tmp_path / "p.csv")])
+    assert code == 2 and "not a quickhealth model" in capsys.readouterr().err
+    assert not (tmp_path / "p.csv").exists()
+
+
+@pytest.mark.slow
+def test_wam_fit_on_grid_predict_random(tmp_path, capsys):
+    """Real laser-tracker data: fit on grid.csv only, held-out mean error on random.csv."""
+    wam = str(FIXTURES / "robots" / "wam.toml")
+    grid, rnd = tmp_path / "grid.csv", tmp_path / "random.csv"
+    assert (
+        main(
+            [
+                "identify",
+                "import-wam",
+                str(FIXTURES / "wam" / "grid.csv"),
+                "--robot",
+                wam,
+                "--out",
+                str(grid),
+            ]
+        )
+        == 0
+    )
+    assert "using +1" in capsys.readouterr().out  # the sign, decided on the fitting file
+    assert (
+        main(
+            [
+                "identify",
+                "import-wam",
+                str(FIXTURES / "wam" / "random.csv"),
+                "--sign",
+                "+1",
+                "--out",
+                str(rnd),
+            ]
+        )
+        == 0
+    )
+    # the arm's repeatability (~2 mm) sets the per-axis uncertainty, not the tracker's 15 µm
+    assert (
+        main(
+            [
+                "identify",
+                "fit",
+                str(grid),
+                "--robot",
+                wam,
+                "--out",
+                str(tmp_path / "m"),
+                "--sigma-pos-mm",
+                "1.0",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "identify",
+                "predict",
+                str(tmp_path / "m" / "model.json"),
+                str(rnd),
+                "--out",
+                str(tmp_path / "p.csv"),
+            ]
+        )
+        == 0
+    )
+    rows = list(csv.DictReader((tmp_path / "p.csv").open()))
+    err = np.array([float(r["meas_minus_model_mm"]) for r in rows])
+    print(f"WAM held-out mean error {err.mean():.2f} mm (published best 2.92 mm)")
+    assert len(err) == 20 and err.mean() < 3.5  # uncalibrated: 17.77 mm
