@@ -220,7 +220,7 @@ def wait_settled(
     q_target: F,
     settings: RunSettings,
     *,
-    poll_s: float = 0.004,
+    poll_s: float | None = None,
 ) -> tuple[F, float]:
     """Wait until the joint stream shows the arm at rest at ``q_target``.
 
@@ -228,6 +228,8 @@ def wait_settled(
     waited (s).  Raises HardwareError when the arm stays in motion past the timeout or rests
     away from its target.
     """
+    if poll_s is None:  # half the stream's sample period (125 Hz on a CB3)
+        poll_s = 0.5 * float(getattr(reader, "sample_period", 0.008))
     t0 = time.monotonic()
     ts: deque[float] = deque()
     qs: deque[F] = deque()
@@ -320,7 +322,13 @@ def _row(meas: PoseMeasurement, pan: float) -> dict[str, Any]:
 
 
 def preflight(
-    station: Station, plan: Any, run_dir: Path, n_remaining: int, settings: RunSettings
+    station: Station,
+    plan: Any,
+    run_dir: Path,
+    n_remaining: int,
+    settings: RunSettings,
+    *,
+    resume: bool = False,
 ) -> list[str]:
     """Every check before the first motion; returns the lines passed, raises on the first failure."""
     passed = []
@@ -351,6 +359,17 @@ def preflight(
     if not np.allclose(plan.T_flange_target, station.T_flange_target, atol=1e-6):
         raise InputError("pre-flight: the plan's target mount differs from this cell's")
     passed.append(f"plan: {len(plan.poses)} poses for {plan.robot.name} in cell {plan.cell_name}")
+    home = getattr(plan, "home", None)
+    if home is not None and not resume:
+        q = station.robot.joints()
+        off = float(np.degrees(np.max(np.abs(q - home))))
+        if off > 0.5:
+            raise HardwareError(
+                f"pre-flight: the robot is {off:.1f}° away from the plan's home position "
+                f"{np.degrees(home).round(2).tolist()} deg: jog it there first (the first move "
+                "was checked for collisions from home only)"
+            )
+        passed.append("robot at the plan's home position")
     frame = station.camera.capture()
     for img, cam, side in (
         (frame.left, station.camera.rig.left, "left"),
@@ -640,7 +659,7 @@ def run_plan(
     (run_dir / "images").mkdir(exist_ok=True)
     r = _Runner(station, plan, run_dir, settings, progress, cancel)
     todo = [p for p in plan.poses if p.index not in state.done_indices]
-    lines = preflight(station, plan, run_dir, len(todo), settings)
+    lines = preflight(station, plan, run_dir, len(todo), settings, resume=resume)
     for ln in lines:
         r.emit("preflight", status="ok", message=ln)
     r.journal.open(truncate_to=state.valid_bytes if state.truncated_tail else None)
@@ -675,6 +694,17 @@ def run_plan(
             r.do_pose(pose)
             if r.worker_error is not None:
                 r.drain()
+        home = getattr(plan, "home", None)
+        if stopped is None and home is not None:  # close the loop: back to the start
+            leg = Leg(str(getattr(plan.return_leg, "value", plan.return_leg)))
+            mo = plan.motion
+            speed, accel = (
+                (mo.joint_speed, mo.joint_accel)
+                if leg is Leg.JOINT
+                else (mo.linear_speed, mo.linear_accel)
+            )
+            r.emit("move", message="return to home")
+            station.robot.move(home, leg, speed=speed, accel=accel)
     except HardwareError as exc:
         stopped = str(exc)
         try:
@@ -829,6 +859,7 @@ def sim_station(
     twin_seed: int = 1,
     image_scale: float = 0.5,
     q0_deg: list[float] | None = None,
+    speed_factor: float = 1.0,
 ) -> tuple[Station, Any]:
     """A :class:`Station` on the built-in simulated cell, and the :class:`SimCell` behind it.
 
@@ -838,7 +869,11 @@ def sim_station(
     from .planning import load_cell
 
     c = load_cell(cell)
-    sc = start_sim_cell(cell, twin_seed=twin_seed, image_scale=image_scale, q0_deg=q0_deg)
+    if q0_deg is None and getattr(c, "home", None) is not None:
+        q0_deg = [float(v) for v in np.degrees(c.home)]
+    sc = start_sim_cell(
+        cell, twin_seed=twin_seed, image_scale=image_scale, q0_deg=q0_deg, speed_factor=speed_factor
+    )
     w = sc.world
     st = Station(
         robot=sc.robot,

@@ -56,6 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--calibration", default=None, help="stereo CAL.json (real cell)")
     p.add_argument("--sim-image-scale", type=float, default=0.5, help=argparse.SUPPRESS)
     p.add_argument("--twin-seed", type=int, default=1, help=argparse.SUPPRESS)
+    p.add_argument("--sim-speed-factor", type=float, default=1.0, help=argparse.SUPPRESS)
     p.set_defaults(func=run)
 
     s = subparsers.add_parser(
@@ -127,7 +128,10 @@ def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: igno
     try:
         if args.sim:
             station, _ = sim_station(
-                args.cell, twin_seed=args.twin_seed, image_scale=args.sim_image_scale
+                args.cell,
+                twin_seed=args.twin_seed,
+                image_scale=args.sim_image_scale,
+                speed_factor=args.sim_speed_factor,
             )
             if args.robot_name:
                 station.robot_name = args.robot_name

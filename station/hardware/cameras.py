@@ -244,11 +244,8 @@ class SimStereoCamera:
                 r = render_target(cam, Tc, d, imaging=self._imaging, rng=self._rng)
                 img = r if img is None else np.where(m, r, img)
                 tmask |= m
-            if img is None:  # nothing moving in view: an empty scene
-                img = render_target(
-                    cam, _far_away(), objs[0][1] if objs else _empty(), imaging=self._imaging,
-                    rng=self._rng,
-                )  # fmt: skip
+            if img is None:  # nothing moving in view: the background alone
+                img = self._background(h, w)
             st = self._static[i]
             if st is not None:
                 simg, smask = st
@@ -261,20 +258,14 @@ class SimStereoCamera:
         self.n_captures += 1
         return StereoFrame(out[0], out[1], times[0], times[1], {"simulated": True})
 
+    def _background(self, h: int, w: int) -> U8:
+        im = self._imaging
+        level = im.dark_dn + im.background * (im.white_dn - im.dark_dn) * im.gain
+        noise = self._rng.normal(0.0, im.noise_dn, (h, w))
+        return np.clip(np.rint(level + noise), 0, 255).astype(np.uint8)
+
     def close(self) -> None:
         pass
-
-
-def _far_away() -> F:
-    T = np.eye(4)
-    T[2, 3] = -10.0  # behind the camera: renders the background only
-    return T
-
-
-def _empty() -> TargetDescription:
-    from quickhealth.vision.boards import reference_target
-
-    return reference_target()
 
 
 def _plate_mask(cam: CameraModel, T_cam_obj: F, d: TargetDescription) -> NDArray[np.bool_]:

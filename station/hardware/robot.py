@@ -212,6 +212,7 @@ class _ReadOnly:
     def __init__(self, robot: RobotReader) -> None:
         self._robot = robot
         self.model = robot.model
+        self.sample_period = float(getattr(robot, "sample_period", 0.008))
 
     def joints(self) -> F:
         return self._robot.joints()
@@ -491,6 +492,7 @@ class FakeRobot:
         self.n_moves = 0
         self._faults: list[tuple[str, int]] = []
         self.moves: list[tuple[F, Leg]] = []
+        self.sample_period = 0.008 / self.time_scale  # a 125 Hz stream in simulated time
 
     def now(self) -> float:
         """Simulated controller time, s."""

@@ -70,6 +70,7 @@ def start_sim_cell(
     q0_deg: list[float] | None = None,
     control_port: int = CONTROL_PORT,
     camera_seed: int = 0,
+    speed_factor: float = 1.0,
 ) -> SimCell:
     """Start the simulated cell and connect the real drivers to it.
 
@@ -84,7 +85,11 @@ def start_sim_cell(
     """
     world = build_world(cell, twin_seed=twin_seed)
     sim = start_sim_controller(
-        control_port=control_port, q0_deg=q0_deg, twin_seed=twin_seed, cell=cell
+        control_port=control_port,
+        q0_deg=q0_deg,
+        twin_seed=twin_seed,
+        cell=cell,
+        speed_factor=speed_factor,
     )
     emu = MotorEmulator().start()
     robot = motor = None

@@ -470,6 +470,7 @@ class Controller:
         self.log: list[str] = []
         self.stop_event = threading.Event()
         self.world: Any = None  # the simulated cell's ground truth (world.SimWorld)
+        self.speed_factor = 1.0
 
     # -- time and state -------------------------------------------------------------
     def now(self) -> float:
@@ -580,7 +581,8 @@ class Controller:
             if self.safety_mode != SAFETY_NORMAL or self.runtime_state != RUNTIME_PLAYING:
                 return
             target = np.array(d[:6])
-            speed, accel = max(d[6], 1e-3), max(d[7], 1e-3)
+            k = self.speed_factor  # tests run the arm faster than life
+            speed, accel = max(d[6], 1e-3) * k, max(d[7], 1e-3) * k * k
             if not all(math.isfinite(v) for v in d):
                 self.say(f"cmd {cmd}: non-finite argument refused")
                 self._protective_stop("non-finite move argument")
@@ -1218,6 +1220,7 @@ def start_sim_controller(
     cell: str = "reference",
     timeout: float = 15.0,
     verbose: bool = False,
+    speed_factor: float = 1.0,
 ) -> SimControllerHandle:
     """Start the simulator as a separate process and wait until it answers.
 
@@ -1230,6 +1233,7 @@ def start_sim_controller(
         The ports are taken (another simulator or a controller on this host) or the process
         did not come up within ``timeout`` seconds.
     """
+    import os
     import subprocess
 
     from quickhealth.identify.errors import HardwareError
@@ -1248,6 +1252,10 @@ def start_sim_controller(
         str(twin_seed),
         "--cell",
         cell,
+        "--speed-factor",
+        str(speed_factor),
+        "--parent-pid",
+        str(os.getpid()),
     ]
     if q0_deg is not None:
         cmd += ["--q0-deg", ",".join(f"{v:.9g}" for v in q0_deg)]
@@ -1320,6 +1328,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--cell", default="reference", help="cell name or file (camera placement)")
     p.add_argument("--verbose", action="store_true", help="log controller events to stderr")
+    p.add_argument(
+        "--speed-factor",
+        type=float,
+        default=1.0,
+        help="run every motion this many times faster (tests; default %(default)s)",
+    )
+    p.add_argument(
+        "--parent-pid",
+        type=int,
+        default=0,
+        help="exit when this process is gone (set by start_sim_controller)",
+    )
+
+
+def _watch_parent(ctrl: Controller, pid: int) -> None:
+    """Shut down when the process that started the simulator dies (e.g. ``kill -9``)."""
+    import os
+
+    while not ctrl.stop_event.wait(0.2):
+        if os.getppid() != pid:
+            ctrl.say("parent process gone: shutting down")
+            ctrl.stop_event.set()
+            for s in ctrl.listeners:
+                _close(s)
+            return
 
 
 def run_from_args(args: argparse.Namespace) -> int:
@@ -1333,6 +1366,9 @@ def run_from_args(args: argparse.Namespace) -> int:
         if q0 is None or len(q0) != 6 or not all(math.isfinite(v) for v in q0):
             sys.stderr.write("quickhealth: error: --q0-deg needs 6 comma-separated numbers\n")
             return 2
+    if not (0.1 <= args.speed_factor <= 100.0):
+        sys.stderr.write("quickhealth: error: --speed-factor must be in 0.1..100\n")
+        return 2
     if not 1024 <= args.control_port <= 65535:
         sys.stderr.write("quickhealth: error: --control-port must be in 1024..65535\n")
         return 2
@@ -1343,6 +1379,9 @@ def run_from_args(args: argparse.Namespace) -> int:
         cell=args.cell,
         verbose=args.verbose,
     )
+    ctrl.speed_factor = float(args.speed_factor)
+    if args.parent_pid:
+        threading.Thread(target=_watch_parent, args=(ctrl, args.parent_pid), daemon=True).start()
     try:
         serve(ctrl)
     except OSError as exc:
