@@ -180,9 +180,11 @@ def dh_deltas(
     spec: ErrorModelSpec,
     coeffs: ArrayLike,
     *,
-    n_samples: int = 300,
+    n_samples: int = 60,
     seed: int = 0,
     rot_weight_m: float = 0.5,
+    max_nfev: int = 2000,
+    ridge: float = 1e-3,
 ) -> DhCalibration:
     """Fit UR-style DH deltas to the corrected kinematics (least squares over joint space).
 
@@ -195,6 +197,12 @@ def dh_deltas(
         Random joint configurations within the model's joint ranges.
     rot_weight_m : float, m
         Lever arm that converts rotation residuals into length in the fit.
+    max_nfev : int
+        Limit of model evaluations of the least-squares fit.
+    ridge : float
+        Weight of a small penalty on the deltas (m, rad).  DH cannot represent a tilt between
+        parallel axes (UR joints 2-4) except by huge compensating ``d`` and ``θ`` deltas; the
+        penalty keeps the deltas physical and leaves that part in the residual instead.
 
     Returns
     -------
@@ -215,15 +223,30 @@ def dh_deltas(
     w = np.array([1.0, 1.0, 1.0, rot_weight_m, rot_weight_m, rot_weight_m])
     n = robot.n_joints
 
+    reg = ridge * np.sqrt(n_samples)
+
     def resid(x: F) -> F:
         T = chain(_dh_robot(robot, x), q)
         assert isinstance(T, np.ndarray)
-        return (_pose_diff(T, T_target) * w).ravel()
+        return np.concatenate([(_pose_diff(T, T_target) * w).ravel(), reg * x])
 
-    sol = least_squares(resid, np.zeros(4 * n), x_scale=1e-3, method="lm", xtol=1e-14, ftol=1e-14)
-    r = resid(sol.x).reshape(-1, 6) / w
-    r0 = resid(np.zeros(4 * n)).reshape(-1, 6) / w
+    def fit_resid(x: F) -> F:
+        return resid(x)[: n_samples * 6]
+
+    # Levenberg-Marquardt (MINPACK): DH is ill-conditioned for parallel axes (UR joints 2-4),
+    # where an exact representation needs large, mutually compensating d and θ deltas.
+    sol = least_squares(
+        resid,
+        np.zeros(4 * n),
+        method="lm",
+        x_scale="jac",
+        xtol=1e-12,
+        ftol=1e-12,
+        max_nfev=max_nfev,
+    )
     x = sol.x
+    r = fit_resid(x).reshape(-1, 6) / w
+    r0 = fit_resid(np.zeros(4 * n)).reshape(-1, 6) / w
     return DhCalibration(
         delta_theta=x[:n],
         delta_a=x[n : 2 * n],
