@@ -77,6 +77,9 @@ async def test_main_screens(data_station: Station, size: tuple[int, int], tmp_pa
         await visit(app, pilot, "1")
         assert "NO-GO" in str(app.screen.query_one("#verdict").render())
         assert_snapshot(app, f"station_{tag}", tmp_path)
+        await visit(app, pilot, "3")
+        assert app.screen.query_one("#poses").row_count == 30
+        assert_snapshot(app, f"run_{tag}", tmp_path)
         await visit(app, pilot, "4")
         assert app.screen.health is not None
         assert_snapshot(app, f"results_{tag}", tmp_path)

@@ -43,6 +43,11 @@ class StationScreen(Screen[None]):
         self.query_one("#cell-line", Static).update(self.app.station.cell_line())  # type: ignore[attr-defined]
         self.action_connect()
 
+    def on_screen_resume(self) -> None:
+        """Coming back to this screen: show the devices as they are now."""
+        if not self.app.station.running:  # type: ignore[attr-defined]
+            self.action_preflight()
+
     def action_connect(self) -> None:
         """Connect (or reconnect) every device, then show their state."""
         self.query_one("#verdict", Static).update("Connecting…")

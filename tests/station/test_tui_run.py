@@ -1,0 +1,215 @@
+"""The TUI at the simulated cell: a whole run from pre-flight to results, abort, connection loss.
+
+Driven with textual's pilot through the real facade, ``station.run.run_plan``, the pure-Python
+FakeRobot, the serial pan-motor emulator and the rendered stereo cameras (small images).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+from textual.widgets import Static
+
+from quickhealth.station.journal import JOURNAL, iter_records, read_journal
+from quickhealth.station.planning import load_cell
+from quickhealth.station.tui.app import QuickhealthApp
+from quickhealth.station.tui.facade import Station, make_plan
+from quickhealth.station.tui.screens.confirm import ConfirmScreen
+
+
+@pytest.fixture(scope="module")
+def plan():  # type: ignore[no-untyped-def]
+    """A short frozen plan of the reference cell (planned once for the module)."""
+    p = make_plan(load_cell("reference"), 16, 0)
+    assert 5 <= len(p.poses) <= 10
+    return p
+
+
+def sim_station(tmp: Path, plan) -> Station:  # type: ignore[no-untyped-def]
+    return Station.simulated(tmp / "archive", plan=plan, max_order=2, threshold_mm=5.0)
+
+
+async def settle(app: QuickhealthApp, pilot) -> None:  # type: ignore[no-untyped-def]
+    for _ in range(3):
+        await pilot.pause()
+        await app.workers.wait_for_complete()
+    await pilot.pause()
+
+
+def text(app: QuickhealthApp, selector: str) -> str:
+    return str(app.screen.query_one(selector, Static).render())
+
+
+async def start_run(app: QuickhealthApp, pilot) -> None:  # type: ignore[no-untyped-def]
+    """``r`` on the Run screen: pre-flight, then the motion question answered yes."""
+    await pilot.press("r")
+    for _ in range(100):
+        await pilot.pause(0.05)
+        if isinstance(app.screen, ConfirmScreen):
+            break
+    assert isinstance(app.screen, ConfirmScreen), "no question before the arm moves"
+    await pilot.press("y")
+    await pilot.pause()
+
+
+async def wait_for(app: QuickhealthApp, pilot, cond, timeout: float = 60.0) -> None:  # type: ignore[no-untyped-def]
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < timeout, "timed out"
+        await pilot.pause(0.1)
+
+
+def ended(app: QuickhealthApp) -> bool:
+    p = getattr(app.screen, "progress", None)
+    return p is not None and p.state in ("finished", "aborted", "fault")
+
+
+def journal_indices(run_dir: Path) -> list[int]:
+    """Plan indices of every pose record in the journal, in order (captured or failed)."""
+    return [
+        rec["index"]
+        for _, rec, _ in iter_records(run_dir / JOURNAL)
+        if rec.get("type") in ("captured", "failed")
+    ]
+
+
+@pytest.mark.slow
+async def test_whole_run_from_preflight_to_results(tmp_path: Path, plan) -> None:  # type: ignore[no-untyped-def]
+    station = sim_station(tmp_path, plan)
+    n = len(plan.poses)
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(100, 30)) as pilot:
+        await settle(app, pilot)
+        assert "GO" in text(app, "#verdict") and "NO-GO" not in text(app, "#verdict")
+        conns = app.screen.query_one("#connections")
+        assert conns.row_count == 3 and all("ok" in str(conns.get_row_at(i)[1]) for i in range(3))
+        assert app.screen.query_one("#checks").row_count == 5
+
+        await pilot.press("2")
+        await settle(app, pilot)
+        assert f"kept          {n}" in text(app, "#plan-summary").replace("[green]", "")
+        assert text(app, "#coverage").count("%") == 6
+        await pilot.press("d")
+        await settle(app, pilot)
+        assert "Dry run OK" in text(app, "#dry-run")
+
+        await pilot.press("3")
+        await settle(app, pilot)
+        assert app.screen.query_one("#poses").row_count == n
+        await start_run(app, pilot)
+        await wait_for(
+            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 1
+        )
+        mid = app.screen.progress
+        assert mid.state == "running" and mid.eta_s is not None and mid.current is not None
+        await wait_for(app, pilot, lambda: ended(app))
+        await settle(app, pilot)
+        final = app.screen.progress
+        assert final.state == "finished" and final.done == n
+        assert "markers" in text(app, "#run-last") and "px" in text(app, "#run-last")
+        table = app.screen.query_one("#poses")
+        assert all("done" in str(table.get_row_at(i)[2]) for i in range(n))
+
+        await pilot.press("4")
+        await settle(app, pilot)
+        h = app.screen.health
+        assert h is not None and h.n_poses == n and h.verdict == "healthy"
+        assert "HEALTHY" in text(app, "#summary")
+        for name in ("measurements.csv", "journal.jsonl", "report.json", "joint_curves.png"):
+            assert (station.run_dir / name).is_file(), name
+        await pilot.press("6")
+        await settle(app, pilot)
+        assert [r.run_id for r in app.screen.history.rows] == ["sim-run-1"]
+    assert not station.cell.running
+
+
+@pytest.mark.slow
+async def test_abort_stops_the_robot_first_and_keeps_the_journal(tmp_path: Path, plan) -> None:  # type: ignore[no-untyped-def]
+    station = sim_station(tmp_path, plan)
+    robot = station.cell.station.robot
+    events: list[str] = []
+    real_stop = robot.stop
+
+    def spy_stop() -> None:
+        events.append("robot.stop")
+        real_stop()
+
+    robot.stop = spy_stop  # type: ignore[method-assign]
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await settle(app, pilot)
+        await pilot.press("3")
+        await settle(app, pilot)
+        await start_run(app, pilot)
+        await wait_for(
+            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 2
+        )
+        await pilot.press("a")
+        events.append(f"state after a: {app.screen.progress.state}")
+        await wait_for(app, pilot, lambda: ended(app))
+        await settle(app, pilot)
+        assert events[0] == "robot.stop"  # before the run noticed anything
+        assert app.screen.progress.state == "aborted"
+        assert "Aborted" in text(app, "#run-state")
+        # journal intact: readable, ends with the stop record, every pose at most once
+        st = read_journal(station.run_dir / JOURNAL)
+        assert not st.truncated_tail and st.stops and not st.ended
+        done = journal_indices(station.run_dir)
+        assert 2 <= len(done) < len(plan.poses) and len(done) == len(set(done))
+        assert sorted(done) == list(range(1, len(done) + 1))
+        # r continues the same run without repeating a pose
+        await start_run(app, pilot)
+        await wait_for(app, pilot, lambda: ended(app))
+        await settle(app, pilot)
+        assert app.screen.progress.state == "finished"
+        again = journal_indices(station.run_dir)
+        assert sorted(again) == list(range(1, len(plan.poses) + 1))
+        assert read_journal(station.run_dir / JOURNAL).resumes == 1
+
+
+@pytest.mark.slow
+async def test_connection_loss_is_shown_at_once_and_recovered(tmp_path: Path, plan) -> None:  # type: ignore[no-untyped-def]
+    station = sim_station(tmp_path, plan)
+    robot = station.cell.station.robot
+    robot.inject("connection_drop", after_moves=3)
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await settle(app, pilot)
+        await pilot.press("3")
+        await settle(app, pilot)
+        await start_run(app, pilot)
+        await wait_for(app, pilot, lambda: ended(app))
+        await pilot.pause()
+        p = app.screen.progress
+        assert p.state == "fault" and p.fault is not None and p.fault.kind == "connection-lost"
+        box = app.screen.query_one("#fault")
+        assert box.display
+        shown = text(app, "#fault")
+        assert "Lost the connection" in shown and "What to do" in shown and "network cable" in shown
+        # the station screen says so too
+        await pilot.press("1")
+        await settle(app, pilot)
+        assert "down" in str(app.screen.query_one("#connections").get_row_at(0)[1])
+        assert "NO-GO" in text(app, "#verdict")
+        await pilot.press("3")
+        await pilot.pause()
+        # still down: c says so and the box stays
+        await pilot.press("c")
+        await settle(app, pilot)
+        assert app.screen.query_one("#fault").display
+        # the technician fixes the network; c reconnects, r continues where it stopped
+        robot.release()
+        await pilot.press("c")
+        await settle(app, pilot)
+        assert not app.screen.query_one("#fault").display
+        assert "Connected again" in text(app, "#run-state")
+        before = journal_indices(station.run_dir)
+        await start_run(app, pilot)
+        await wait_for(app, pilot, lambda: ended(app))
+        await settle(app, pilot)
+        assert app.screen.progress.state == "finished"
+        after = journal_indices(station.run_dir)
+        assert after[: len(before)] == before
+        assert sorted(after) == list(range(1, len(plan.poses) + 1))
