@@ -147,7 +147,8 @@ def run_metadata(run_dir: Path) -> dict[str, str]:
     """Metadata of a run folder: plan hash, cell, calibration id, software version, time, robot.
 
     Looked up, later sources winning: ``measurements.csv`` comments, ``run.json``,
-    ``report.json`` (top level or its ``meta``/``run`` object), and the plan's ``plan_hash``.
+    ``report.json`` (top level or its ``meta``/``run`` object), and the plan's ``plan_hash``;
+    the software from the journal's start record, the calibration from the instrument name.
     """
     meta: dict[str, str] = {}
     meas = run_dir / "measurements.csv"
@@ -166,8 +167,25 @@ def run_metadata(run_dir: Path) -> dict[str, str]:
         doc = _read_json(plan)
         if isinstance(doc.get("plan_hash"), str):
             meta["plan_hash"] = doc["plan_hash"]
-    for alias, key in (("calibration", "calibration_id"), ("version", "software_version")):
-        if key not in meta and alias in meta:
+    journal = run_dir / "journal.jsonl"
+    if journal.is_file() and "software_version" not in meta:
+        with journal.open() as fh:  # the station's start record names the software
+            first = fh.readline()
+        try:
+            start = json.loads(first)
+        except json.JSONDecodeError:
+            start = {}
+        rec = start.get("rec", start) if isinstance(start, dict) else {}
+        if isinstance(rec, dict) and isinstance(rec.get("software"), str):
+            meta["software_version"] = rec["software"]
+    aliases = (
+        ("calibration", "calibration_id"),
+        ("instrument", "calibration_id"),  # the station writes "stereo camera CAL.json"
+        ("version", "software_version"),
+        ("software", "software_version"),
+    )
+    for alias, key in aliases:
+        if key not in meta and meta.get(alias):
             meta[key] = meta[alias]
     return meta
 

@@ -4,9 +4,8 @@ A fleet's archive grows to thousands of runs; a better camera calibration or a n
 version means doing them again.  Each run is one independent job (``reprocess_run``, a plain
 function of a frozen :class:`ReprocessJob`, so it pickles to any worker):
 
-1. re-detect (optional, ``calibration`` given): the station's own re-detection of the run's
-   stored stereo images with the new rig (``quickhealth.station.run.redetect_run``), giving
-   new measurements;
+1. re-detect (optional, ``calibration`` given): the run's stored stereo images (named in its
+   journal) measured again with the new rig (:func:`redetect_run`), giving new measurements;
 2. refit: the run's measurements with the archived model's orders and effects (``keep``), or
    a fresh BIC order search (``select``);
 3. write ``OUT/model.json``, ``OUT/report.json`` and ``OUT/reprocess.json`` (what was done,
@@ -134,18 +133,89 @@ def reprocess_run(job: ReprocessJob) -> ReprocessResult:
         return ReprocessResult(job.robot, job.run_id, job.out_dir, ok=False, error=str(exc))
 
 
-def _redetect(run_dir: Path, calibration: str) -> Any:
-    try:
-        from quickhealth.station import run as station_run  # type: ignore[attr-defined]
-    except ImportError:
-        station_run = None
-    fn = getattr(station_run, "redetect_run", None)
-    if fn is None:
-        raise InputError(
-            f"{run_dir}: this installation cannot re-detect stored images "
-            "(quickhealth.station.run.redetect_run is missing)"
+def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = None) -> Any:
+    """Measure a run's stored stereo images again with another camera calibration.
+
+    Reads the journal's captured poses (joint readings, pan angle, time, image files), runs
+    the 7D measurement of every stereo pair with the rig of ``calibration`` (search regions
+    around the run's old measurement when there is one) and returns the new
+    :class:`~quickhealth.identify.measurements.Measurements` in execution order.  Pairs in
+    which the target is not found any more are left out (named in ``meta["redetect_failed"]``).
+
+    Raises
+    ------
+    InputError
+        No journal with captured poses, a missing image, or a calibration that is not a stereo
+        calibration.
+    """
+    import math
+
+    import numpy as np
+
+    from quickhealth.identify.measurements import Measurements
+    from quickhealth.identify.transforms import make_T, rpy_to_R
+    from quickhealth.vision.pose7d import PoseMeasurement, Rejection, measure_stereo
+
+    from .hardware.target import T_target_plate, target0_from_plate
+    from .hardware.world import reference_target
+    from .journal import JOURNAL, read_journal
+    from .vision_io import read_gray, read_rig
+
+    d = Path(run_dir)
+    if not (d / JOURNAL).is_file():
+        raise InputError(f"{d}: no {JOURNAL}: the run's images cannot be re-detected")
+    st = read_journal(d / JOURNAL)
+    if not st.captured:
+        raise InputError(f"{d / JOURNAL}: no captured poses to re-detect")
+    rig = read_rig(Path(calibration))
+    target = reference_target() if target is None else target
+    old: dict[str, Any] = {}
+    if (d / "measurements.csv").is_file():
+        from . import formats
+
+        m_old = formats.read_measurements(d / "measurements.csv")
+        if m_old.pose_id is not None and m_old.rpy is not None:
+            T_old = make_T(rpy_to_R(*m_old.rpy.T), m_old.pos)
+            old = dict(zip(m_old.pose_id, T_old, strict=True))
+    q, pos, rpy, sp, sr, t, pan_l, ids, failed = [], [], [], [], [], [], [], [], []
+    for i in sorted(st.captured):
+        rec = st.captured[i]
+        left, right = (read_gray(d / p) for p in rec["images"])
+        pan = math.radians(rec["pan_deg"])
+        hint = old[rec["name"]] @ T_target_plate(pan) if rec["name"] in old else None
+        m = measure_stereo(rig, target, left, right, roi_hint=hint, pan=pan)
+        if isinstance(m, Rejection) and hint is not None:
+            m = measure_stereo(rig, target, left, right, pan=pan)  # search the whole images
+        if isinstance(m, Rejection):
+            failed.append(rec["name"])
+            continue
+        m0 = PoseMeasurement(
+            target0_from_plate(m.T_left_target, pan), m.cov, m.rms_px, m.n_corners, m.n_outliers
         )
-    return fn(run_dir, Path(calibration))
+        q.append(np.radians(rec["q_deg"]))
+        pos.append(m0.position)
+        rpy.append(m0.rpy)
+        sp.append(m0.sigma_pos)
+        sr.append(m0.sigma_rpy)
+        t.append(rec["time_s"])
+        pan_l.append(pan)
+        ids.append(rec["name"])
+    if not ids:
+        raise InputError(f"{d}: the target was found in none of the images with {calibration}")
+    meta = {"redetected_with": str(calibration)}
+    if failed:
+        meta["redetect_failed"] = " ".join(failed)
+    return Measurements(
+        q=np.array(q),
+        pos=np.array(pos),
+        rpy=np.array(rpy),
+        time=np.array(t, float),
+        pan=np.array(pan_l),
+        sigma_pos=np.array(sp),
+        sigma_rpy=np.array(sr),
+        pose_id=tuple(ids),
+        meta=meta,
+    )
 
 
 def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
@@ -158,7 +228,7 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
     src = Path(job.run_dir)
     old = formats.read_model(src / "model.json")
     if job.calibration:
-        meas = _redetect(src, job.calibration)
+        meas = redetect_run(src, job.calibration)
     else:
         meas = formats.read_measurements(src / "measurements.csv", old.robot.n_joints)
     if job.orders == "select":

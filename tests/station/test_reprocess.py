@@ -110,3 +110,87 @@ def test_reprocess_command_local_and_failures(fleet, capsys):
     )
     assert rc == 3
     assert "FAILED" in capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def imaged_run(tmp_path_factory):
+    """A 3-pose run of the simulated cell with its stored stereo images (small sensor)."""
+    import dataclasses
+    import math
+
+    from quickhealth.identify.transforms import inv_T
+    from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
+    from quickhealth.station.hardware.motor import SerialPanMotor
+    from quickhealth.station.hardware.motor_emulator import MotorEmulator
+    from quickhealth.station.hardware.robot import FakeRobot
+    from quickhealth.station.hardware.target import T_target_plate
+    from quickhealth.station.hardware.world import build_world
+    from quickhealth.station.planning import load_cell, load_plan
+    from quickhealth.station.run import RunSettings, Station, run_plan
+    from quickhealth.station.vision_io import rig_to_json, write_json
+
+    sp = importlib.util.spec_from_file_location(
+        "_station_plan", Path(__file__).with_name("_station_plan.py")
+    )
+    station_plan = importlib.util.module_from_spec(sp)
+    sp.loader.exec_module(station_plan)
+    base = tmp_path_factory.getbasetemp()
+    plan = load_plan(station_plan.plan_file(base))
+    plan = dataclasses.replace(plan, poses=plan.poses[:3])
+    world = build_world("reference", twin_seed=1)
+    cell = load_cell("reference")
+    robot = FakeRobot(cell.home, time_scale=25)
+    emu = MotorEmulator(speed_deg_s=2000).start()
+    motor = SerialPanMotor(emu.port, timeout=0.05, retries=2)
+    rig = scaled_rig(world.rig, 0.25)
+
+    def scene():
+        q = robot.arm.actual(robot.now())
+        T = world.T_instr_target0(q, robot.arm.approach) @ T_target_plate(
+            math.radians(emu.position_deg())
+        )
+        return [(T, world.target)]
+
+    station = Station(
+        robot=robot,
+        motor=motor,
+        camera=SimStereoCamera(rig, scene, static=[(world.T_instr_board, world.board)]),
+        target=world.target,
+        T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
+        T_flange_target=cell.T_flange_target,
+        board=world.board,
+        T_instr_board=world.T_instr_board,
+        cell_name=cell.name,
+        cell_sha256=cell.sha256,
+        closers=[emu.stop, motor.close],
+    )
+    run_dir = base / "imaged"
+    try:
+        run_plan(station, plan, run_dir, settings=RunSettings(capture_attempts=2))
+    finally:
+        station.close()
+    cal = base / "cal_same.json"
+    write_json(cal, rig_to_json(rig))
+    T = rig.T_left_right.copy()
+    T[:3, 3] *= 1.01  # a calibration with a 1 % longer baseline
+    longer = dataclasses.replace(rig, T_left_right=T)
+    cal2 = base / "cal_longer.json"
+    write_json(cal2, rig_to_json(longer))
+    return run_dir, cal, cal2, world
+
+
+def test_redetect_with_a_new_calibration(imaged_run):
+    from quickhealth.station import formats
+    from quickhealth.station.reprocess import redetect_run
+
+    run_dir, cal, cal2, world = imaged_run
+    old = formats.read_measurements(run_dir / "measurements.csv")
+    same = redetect_run(run_dir, cal, target=world.target)
+    assert same.pose_id == old.pose_id
+    np.testing.assert_allclose(same.pos, old.pos, atol=1e-6)  # same images, same rig
+    np.testing.assert_allclose(same.q, old.q, atol=1e-9)
+    new = redetect_run(run_dir, cal2, target=world.target)
+    depth_old = np.linalg.norm(old.pos, axis=1)
+    depth_new = np.linalg.norm(new.pos, axis=1)
+    # a longer baseline puts the target farther away, by about the same 1 %
+    np.testing.assert_allclose(depth_new / depth_old, 1.01, atol=2e-3)
