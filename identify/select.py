@@ -124,10 +124,11 @@ def data_spec(
 
     The series are only trusted where data was taken; predictions outside are extrapolations.
     """
-    lo, hi = meas.q.min(0), meas.q.max(0)
-    span = np.maximum(hi - lo, 1e-3)
-    lo = np.maximum(lo - pad * span, robot.q_min)
-    hi = np.minimum(hi + pad * span, robot.q_max)
+    qmin, qmax = meas.q.min(0), meas.q.max(0)
+    span = np.maximum(qmax - qmin, 1e-3)
+    # padded, inside the robot's limits, but always covering every measured reading
+    lo = np.minimum(np.maximum(qmin - pad * span, robot.q_min), qmin)
+    hi = np.maximum(np.minimum(qmax + pad * span, robot.q_max), qmax)
     hi = np.where(hi <= lo, lo + 1e-3, hi)
     return ErrorModelSpec.uniform(robot.n_joints, order, lo, hi)
 
