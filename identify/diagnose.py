@@ -506,10 +506,12 @@ class Diagnosis:
                 f"{mark}{i:2d}. {c.effect:<16} score {c.score:7.2f}  "
                 f"drop {c.predicted_rms_drop_mm:.4f} mm  — {c.evidence}"
             )
-        if self.verdict is Verdict.ADEQUATE:
+        if self.verdict is Verdict.ADEQUATE and self.noise_scale <= 1.5:
             lines.append(
                 "no candidate is significant: the model explains the data down to the noise"
             )
+        elif self.verdict is Verdict.ADEQUATE:
+            lines.append("no candidate effect is significant")
         lines += list(self.notes)
         return lines
 
@@ -611,7 +613,7 @@ def diagnose(
             continue
         k, S, theta, fit_res = one
         p_adj = float(np.exp(logp_adj))
-        score = float(-logp_adj / np.log(10.0))
+        score = max(0.0, float(-logp_adj / np.log(10.0)))
         rms_after = rms_pos_mm(res_now - fit_res)
         lm = S / s2
         dbic = -S / s2 + k * np.log(n_obs)
