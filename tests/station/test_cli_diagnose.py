@@ -174,3 +174,16 @@ def test_bad_input_exits_2_with_one_line(backlash_run, tmp_path, capsys, argv, m
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not (tmp_path / "o.json").exists() and not (tmp_path / "x.csv").exists()
+
+
+def test_twin_measures_a_plan_in_its_order(tmp_path) -> None:
+    q_deg = [[10.0 * i, -60.0, 80.0, -100.0, -90.0, 5.0 * i] for i in range(6)]
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps({"poses": [{"q_deg": q, "leg": "linear"} for q in q_deg]}))
+    out = tmp_path / "m.csv"
+    assert main(["twin", "--plan", str(plan), "--out", str(out), "--effects", "thermal=5e-5"]) == 0
+    meas = read_measurements(out, 6)
+    np.testing.assert_allclose(np.degrees(meas.q), q_deg, atol=1e-9)
+    assert meas.temp is not None and meas.temp[-1] > meas.temp[0]
+    plan.write_text(json.dumps({"poses": [{"q": [1, 2]}]}))
+    assert main(["twin", "--plan", str(plan), "--out", str(tmp_path / "n.csv")]) == 2
