@@ -246,3 +246,19 @@ def test_effect_parameters_are_fitted_with_their_prior():
     # the instrument scale is not a robot error: tcp_error ignores it
     e_with = fitted.tcp_error(q[:5], approach=np.ones((5, 6)))
     assert np.all(np.isfinite(e_with))
+
+
+@pytest.mark.parametrize("trial", [3, 5])
+def test_robust_start_for_random_setups(trial):
+    """Instrument up to 7 m away in any orientation, target up to 0.37 m off the flange."""
+    from quickhealth.identify.transforms import exp_so3, make_T
+
+    rng = np.random.default_rng(0)
+    for _ in range(trial + 1):  # the same draws as the exploratory sweep
+        R, t = exp_so3(rng.normal(size=3) * 2), rng.normal(size=3) * 3
+        T_ft = make_T(exp_so3(rng.normal(size=3)), rng.normal(size=3) * 0.15)
+    truth = replace(S.paper_truth(trial), T_instr_base=make_T(R, t), T_flange_target=T_ft)
+    for full_pose in (True, False):
+        meas = S.measure(truth, S.random_q(100, trial), trial + 1, full_pose=full_pose)
+        fitted = fit_model(truth.robot, meas, truth.spec)
+        assert fitted.converged and fitted.rms_pos < 1.2 * np.sqrt(3) * 3e-5
