@@ -133,6 +133,8 @@ def _fit(args: argparse.Namespace) -> int:
             progress=say,
         )
     except InputError as exc:
+        if "too few" not in str(exc):
+            raise InputError(f"{args.meas}: {exc}") from None
         n_lines = len(Path(args.meas).read_text(encoding="utf-8").splitlines())
         raise InputError(f"{args.meas}:{n_lines}:1: {exc}") from None
     report = build_report(sel, meas, args)
