@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .boards import BoardSpec, Layer, TargetDescription
+from .boards import BoardSpec, Layer, TargetDescription, pan_transform
 from .camera import CameraModel, StereoRig
 
 F = NDArray[np.float64]
@@ -68,6 +68,7 @@ def render_target(
     T_cam_target: F,
     target: TargetDescription,
     *,
+    pan: float = 0.0,
     imaging: Imaging = Imaging(),
     rng: np.random.Generator | None = None,
 ) -> U8:
@@ -77,9 +78,12 @@ def render_target(
     ----------
     camera : CameraModel
     T_cam_target : ndarray, shape (4, 4), m
-        Pose of the target frame (the plate, pan included: see
-        :func:`~quickhealth.vision.boards.pan_transform`) in the camera frame.
+        Pose of the target frame in the camera frame at pan angle 0.
     target : TargetDescription
+    pan : float, rad
+        Turn the plate by this angle about the target's pan axis first: the plate is drawn at
+        ``T_cam_target @ pan_transform(target, pan)`` (leave 0 when ``T_cam_target`` already
+        includes the pan).
     imaging : Imaging
     rng : numpy Generator, optional
         Source of the sensor noise (None: a fixed seed, so images are reproducible).
@@ -88,7 +92,10 @@ def render_target(
     -------
     ndarray, shape (height, width), uint8
     """
-    return _render(camera, T_cam_target, target.layers(), target.plate, imaging, rng)
+    T = np.asarray(T_cam_target, dtype=float)
+    if pan:
+        T = T @ pan_transform(target, pan)
+    return _render(camera, T, target.layers(), target.plate, imaging, rng)
 
 
 def render_board(
@@ -109,17 +116,19 @@ def render_stereo(
     T_left_target: F,
     target: TargetDescription | BoardSpec,
     *,
+    pan: float = 0.0,
     imaging: Imaging = Imaging(),
     rng: np.random.Generator | None = None,
 ) -> tuple[U8, U8]:
-    """(left, right) images of a target or board posed at ``T_left_target`` in the left frame."""
+    """(left, right) images of a target or board posed at ``T_left_target`` in the left frame
+    (for a target, at pan angle ``pan`` about its pan axis, as in :func:`render_target`)."""
     rng = np.random.default_rng(0) if rng is None else rng
     out = []
     for cam, T in ((rig.left, T_left_target), (rig.right, rig.T_right_left @ T_left_target)):
         if isinstance(target, BoardSpec):
             out.append(render_board(cam, T, target, imaging=imaging, rng=rng))
         else:
-            out.append(render_target(cam, T, target, imaging=imaging, rng=rng))
+            out.append(render_target(cam, T, target, pan=pan, imaging=imaging, rng=rng))
     return out[0], out[1]
 
 

@@ -201,3 +201,24 @@ def test_wrong_roi_hint_falls_back_to_the_whole_image():
     m = measure_stereo(rig, TGT, left, right, roi_hint=far_off)
     assert isinstance(m, PoseMeasurement) and min(m.n_corners) >= 176
     assert np.linalg.norm(pose_error(m.T_left_target, T)[0]) < 0.1e-3
+
+
+def test_pan_rendered_is_the_measured_target_frame():
+    """The plate turned by the pan motor: the measured pose is the turned target frame and
+    the commanded pan travels with it."""
+    from quickhealth.vision.boards import pan_transform
+    from quickhealth.vision.camera import StereoRig
+
+    rig = StereoRig(RIG.left.scaled(0.4), RIG.right.scaled(0.4), RIG.T_left_right)
+    T_mount = T_left_rig() @ make_T(np.eye(3), [0.0, 0.0, 1.7])
+    pan = np.radians(25.0)
+    left, right = render_stereo(rig, T_mount, TGT, pan=pan, rng=np.random.default_rng(9))
+    m = measure_stereo(rig, TGT, left, right, pan=pan)
+    assert isinstance(m, PoseMeasurement) and m.pan == pan
+    T_true = T_mount @ pan_transform(TGT, pan)
+    dp, dw = pose_error(m.T_left_target, T_true)
+    C = pose_crb(rig, TGT, T_true, max(m.rms_px / np.sqrt(2), 0.02))
+    assert np.linalg.norm(dp) < 5 * np.sqrt(np.trace(C[:3, :3]))
+    assert np.linalg.norm(dw) < 5 * np.sqrt(np.trace(C[3:, 3:]))
+    # a pan of 25° is far outside that: the turn is really in the measured frame
+    assert np.degrees(np.linalg.norm(pose_error(m.T_left_target, T_mount)[1])) > 24
