@@ -1,4 +1,7 @@
-"""Figures a user looks at (matplotlib, Agg): they are returned, never saved here.
+"""Figures a user looks at (matplotlib): they are returned, never saved here.
+
+Figures are built with ``matplotlib.figure.Figure`` directly (no pyplot, no global backend
+state); ``fig.savefig(path)`` renders them with the Agg renderer.
 
 - :func:`workspace_histogram`: TCP error over the workspace (paper Fig. 7).
 - :func:`joint_curve_figure`: one joint's six error motions with confidence bands (Fig. 8).
@@ -7,17 +10,13 @@
 
 from __future__ import annotations
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from .errormodel import MOTION_WORDS, MOTIONS  # noqa: E402
-from .fit import FittedModel  # noqa: E402
-from .measurements import Measurements  # noqa: E402
-from .workspace import JointCurves, WorkspaceError  # noqa: E402
+from .errormodel import MOTION_WORDS, MOTIONS
+from .fit import FittedModel
+from .measurements import Measurements
+from .workspace import JointCurves, WorkspaceError
 
 
 def workspace_histogram(ws: WorkspaceError, title: str = "") -> Figure:

@@ -1,7 +1,7 @@
 """Synthetic measurements of the paper's use case, made with ``loop_pose`` and known coefficients.
 
-Loaded by the identify/station tests through :func:`load` (pytest runs in importlib mode, so
-this helper is imported by path, not by package).
+Loaded by path (``importlib.util.spec_from_file_location``) by the identify and station
+tests and the benchmarks: pytest runs in importlib mode, so it is not importable by package.
 """
 
 from __future__ import annotations
@@ -97,10 +97,3 @@ def truth_pose(truth: Truth, q: np.ndarray) -> np.ndarray:
     return loop_pose(
         truth.robot, truth.spec, truth.coeffs, truth.T_instr_base, truth.T_flange_target, q
     )
-
-
-def load():
-    """This module (for ``_synth = load()`` in test files)."""
-    import sys
-
-    return sys.modules[__name__]
