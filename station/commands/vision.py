@@ -125,18 +125,22 @@ def _init_worker(rig: Any, target: Any) -> None:
 
 
 def _measure_one(job: tuple[str, str, str, float | None, float | None]) -> Any:
+    from quickhealth.identify.errors import InputError
     from quickhealth.station import vision_io as io
     from quickhealth.vision.pose7d import measure_stereo
 
     pid, lp, rp, pan, t = job
-    return pid, measure_stereo(
-        _WORKER["rig"],
-        _WORKER["target"],
-        io.read_gray(Path(lp)),
-        io.read_gray(Path(rp)),
-        pan=pan,
-        time=t,
-    )
+    rig = _WORKER["rig"]
+    imgs = []
+    for p, cam in ((lp, rig.left), (rp, rig.right)):
+        img = io.read_gray(Path(p))
+        w, h = cam.image_size
+        if img.shape != (h, w):
+            raise InputError(
+                f"{p}: image is {img.shape[1]}×{img.shape[0]}, the calibration's camera {w}×{h}"
+            )
+        imgs.append(img)
+    return pid, measure_stereo(rig, _WORKER["target"], imgs[0], imgs[1], pan=pan, time=t)
 
 
 def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
@@ -228,15 +232,7 @@ def run_measure(args: argparse.Namespace) -> int:
                 None if np.isnan(time[k]) else float(time[k]),
             )
         )
-    # check every image is readable and of the calibrated size before measuring anything
-    w, h = rig.left.image_size
-    for _, lp, rp, _, _ in jobs:
-        for p in (lp, rp):
-            img = io.read_gray(Path(p))
-            if img.shape != (h, w):
-                raise InputError(
-                    f"{p}: image is {img.shape[1]}×{img.shape[0]}, the calibration's cameras {w}×{h}"
-                )
+    # every pair is measured before anything is written: an unreadable image stops the run
     results: dict[str, Any] = {}
     if args.jobs == 1:
         _init_worker(rig, target)
@@ -250,9 +246,9 @@ def run_measure(args: argparse.Namespace) -> int:
             results[pid] = res
             sys.stderr.write(f"\rmeasuring: {k}/{len(jobs)} pairs")
     finally:
+        sys.stderr.write("\n")  # end the progress line (also before an error's one line)
         if pool is not None:
-            pool.shutdown()
-    sys.stderr.write("\n")
+            pool.shutdown(cancel_futures=True)
     keep = [k for k, pid in enumerate(ids) if isinstance(results[pid], PoseMeasurement)]
     rejected = [
         f"{pid}: {results[pid].reason.value} ({results[pid].detail})"

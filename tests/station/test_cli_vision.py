@@ -252,3 +252,21 @@ def test_calibrate_stereo_pair_writes_R_T_baseline(tmp_path, capsys):
     # these 320×240 images, ≈ 0.002 rad each): allow 3σ
     assert np.allclose(np.array(d["R"]), T_right_left[:3, :3], atol=0.006)
     assert d["stereo_rms_px"] < 2 * d["mono_rms_px"]
+
+
+def test_measure_refuses_a_corrupt_image_in_a_worker_and_writes_nothing(tmp_path, capsys):
+    rig = _small_rig()
+    run = tmp_path / "run"
+    (run / "images").mkdir(parents=True)
+    (run / "calibration.json").write_text(json.dumps(rig_to_json(rig)))
+    T = T_left_rig() @ make_T(np.eye(3), [0.0, 0.0, 2.0])
+    left, right = render_stereo(rig, T, reference_target(), imaging=Imaging(supersample=1))
+    for k in range(3):
+        cv2.imwrite(str(run / "images" / f"p{k}_left.png"), left)
+        cv2.imwrite(str(run / "images" / f"p{k}_right.png"), right)
+    (run / "images" / "p1_right.png").write_bytes(b"garbage")
+    (run / "images" / "index.csv").write_text("pose_id,q1,q2\np0,1,2\np1,1,2\np2,1,2\n")
+    assert main(["vision", "measure", str(run), "--jobs", "2"]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert "p1_right.png" in line and "not a readable image" in line
+    assert not (run / "measurements.csv").exists()
