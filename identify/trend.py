@@ -53,10 +53,11 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
+from scipy import special, stats
 
 from .errormodel import MOTION_WORDS, MOTIONS, ErrorModelSpec, chebyshev_basis, chebyshev_u
 
@@ -323,13 +324,15 @@ def joint_curves(
 
 
 def _curve_on(spec: ErrorModelSpec, coeffs: F, C: F, j: int, m: int, q: F) -> tuple[F, F]:
-    """Curve values (n,) and their covariance (n, n) of joint j motion m at readings q."""
+    """Curve values (n,) of joint j motion m at readings q, and a factor ``G`` (n, k) of their
+    covariance ``G Gᵀ`` (k = number of coefficients: cheap where the grid is long)."""
     s = _block(spec, j, m)
     k = s.stop - s.start
     if k == 0:
-        return np.zeros(q.size), np.zeros((q.size, q.size))
+        return np.zeros(q.size), np.zeros((q.size, 0))
     B = chebyshev_basis(chebyshev_u(q, spec.q_lo[j - 1], spec.q_hi[j - 1]), k - 1)
-    return B @ coeffs[s], B @ C[s, s] @ B.T
+    w, Q = np.linalg.eigh(C[s, s])
+    return B @ coeffs[s], B @ (Q * np.sqrt(np.maximum(w, 0.0)))
 
 
 def compare_curves(
@@ -388,21 +391,23 @@ def compare_curves(
     raw = []
     for j, m in present:
         q = np.linspace(lo[j - 1], hi[j - 1], n_grid) if hi[j - 1] > lo[j - 1] else lo[[j - 1]]
-        ya, Va = _curve_on(sa, ca, Ca, j, m, q)
-        yb, Vb = _curve_on(sb, cb, Cb, j, m, q)
+        ya, Ga = _curve_on(sa, ca, Ca, j, m, q)
+        yb, Gb = _curve_on(sb, cb, Cb, j, m, q)
         d = yb - ya
-        V = Va + Vb
-        w, U = np.linalg.eigh(V)
-        scale = max(float(w.max(initial=0.0)), 0.0)
-        keep = w > max(scale * 1e-9, 1e-30)
+        G = np.hstack([Ga, Gb])  # covariance of d: G Gᵀ (independent fits)
+        if G.shape[1]:
+            U, S, _ = np.linalg.svd(G, full_matrices=False)
+        else:
+            U, S = np.zeros((q.size, 0)), np.zeros(0)
+        keep = S > max(float(S.max(initial=0.0)) * math.sqrt(1e-9), 1e-15)
         dof = int(keep.sum())
-        sd = np.sqrt(np.maximum(np.diag(V), 0.0))
+        sd = np.sqrt(np.sum(G**2, axis=1))
         if dof == 0:  # both curves exactly known: any difference is certain
             chi2 = math.inf if np.any(np.abs(d) > 0) else 0.0
             z = math.inf if chi2 else 0.0
         else:
             proj = U[:, keep].T @ d
-            chi2 = float(np.sum(proj**2 / w[keep]))
+            chi2 = float(np.sum((proj / S[keep]) ** 2))
             with np.errstate(divide="ignore", invalid="ignore"):
                 zz = np.where(sd > 0, np.abs(d) / np.where(sd > 0, sd, 1.0), 0.0)
             z = float(zz.max(initial=0.0))
@@ -411,14 +416,14 @@ def compare_curves(
     if inflate is not None:
         lam = max(float(inflate), 1e-12)
     else:
-        ratios = [c / stats.chi2.ppf(0.5, k) for *_, c, k, _ in raw if k > 0 and math.isfinite(c)]
+        ratios = [c / _chi2_median(k) for *_, c, k, _ in raw if k > 0 and math.isfinite(c)]
         if len(ratios) >= 6:
             lam = max(1.0, float(np.median(ratios)))
     out = []
     for j, m, d, ya, yb, chi2, dof, z in raw:
         chi2 = chi2 / lam
         z = z / math.sqrt(lam)
-        p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else (0.0 if chi2 else 1.0)
+        p = _chi2_sf(chi2, dof)
         max_change = float(np.abs(d).max(initial=0.0))
         floor = min_change_rad if MOTIONS[m].startswith("e") else min_change_m
         out.append(
@@ -440,10 +445,24 @@ def compare_curves(
     return tuple(out)
 
 
+@lru_cache(maxsize=256)
+def _chi2_median(dof: int) -> float:
+    return float(stats.chi2.ppf(0.5, dof))
+
+
+def _chi2_sf(chi2: float, dof: int) -> float:
+    """Upper tail of χ²(dof) (scipy.special directly: the stats wrapper is slow)."""
+    if dof <= 0:
+        return 0.0 if chi2 else 1.0
+    if not math.isfinite(chi2):
+        return 0.0
+    return float(special.chdtrc(dof, chi2))
+
+
 def _null_ratios(changes: Sequence[CurveChange]) -> list[float]:
     """``χ²_raw / median(χ²_dof)`` of each curve: ≈ 1 in the median when covariances are right."""
     return [
-        c.chi2 * c.inflation / stats.chi2.ppf(0.5, c.dof)
+        c.chi2 * c.inflation / _chi2_median(c.dof)
         for c in changes
         if c.dof > 0 and math.isfinite(c.chi2)
     ]
@@ -463,7 +482,7 @@ def rejudge(
     for c in changes:
         raw = c.chi2 * c.inflation
         chi2 = raw / inflation
-        p = float(stats.chi2.sf(chi2, c.dof)) if c.dof > 0 else (0.0 if chi2 else 1.0)
+        p = _chi2_sf(chi2, c.dof)
         floor = min_change_rad if c.is_angle else min_change_m
         out.append(
             replace(
