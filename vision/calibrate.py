@@ -388,9 +388,15 @@ def calibrate(
     """
     if right is not None and len(right) != len(left):
         raise ValueError(f"{len(left)} left views but {len(right)} right views")
-    cams = [_calibrate_mono(board, left, image_size, settings)]
-    if right is not None:
-        cams.append(_calibrate_mono(board, right, image_size, settings))
+    cams = []
+    for name, views in (("left", left), ("right", right)):
+        if views is None:
+            continue
+        try:
+            cams.append(_calibrate_mono(board, views, image_size, settings))
+        except ValueError as exc:
+            who = f"{name} camera: " if right is not None else ""
+            raise ValueError(f"{who}{exc}") from None
     reasons: list[str] = []
     R = T = None
     stereo_rms = None

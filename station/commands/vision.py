@@ -96,7 +96,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
     try:
         res = calibrate(board, views_l, size, views_r if imgs_r is not None else None)
     except ValueError as exc:
-        raise InputError(f"--left {args.left!r}: {exc}") from None
+        raise InputError(
+            f"--board {args.board}: {exc} (is the board spec right for these images?)"
+        ) from None
     doc = io.calibration_to_json(res)
     doc["images"] = {
         "left": [str(p) for p in left],

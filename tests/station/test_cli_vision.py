@@ -270,3 +270,24 @@ def test_measure_refuses_a_corrupt_image_in_a_worker_and_writes_nothing(tmp_path
     line = _one_line(capsys.readouterr().err)
     assert "p1_right.png" in line and "not a readable image" in line
     assert not (run / "measurements.csv").exists()
+
+
+def test_wrong_board_spec_finds_no_views(tmp_path, capsys):
+    _board_images(tmp_path / "img", 4)
+    out = tmp_path / "cal.json"
+    rc = main(
+        [
+            "vision",
+            "calibrate",
+            "--board",
+            "chessboard:8x5:20",
+            "--left",
+            str(tmp_path / "img" / "*.png"),
+            "--out",
+            str(out),
+        ]
+    )
+    assert rc == 2
+    line = _one_line(capsys.readouterr().err)
+    assert "only 0 images show the board" in line and "board spec" in line
+    assert not out.exists()
