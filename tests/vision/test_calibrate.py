@@ -186,3 +186,34 @@ def test_rendered_charuco_board_is_detected_and_exact():
     assert v is not None and len(v.ids) == 24
     truth = cam.project(v.obj @ T[:3, :3].T + T[:3, 3])
     assert np.sqrt(np.mean(np.sum((v.px - truth) ** 2, 1))) < 0.1
+
+
+@pytest.mark.slow
+def test_reported_intrinsics_uncertainty_matches_monte_carlo_refits():
+    """Recovery test (mrcal's test-projection-uncertainty idea): the same board poses with
+    fresh corner noise, refitted 25 times; the spread of fx and cx agrees with the reported 1σ."""
+    rng = np.random.default_rng(5)
+    obj = BOARD.object_points() - [4 * 0.03, 2.5 * 0.03, 0]
+    poses = []
+    while len(poses) < 12:
+        z = rng.uniform(0.5, 0.9)
+        R = (
+            rot_z(rng.uniform(-0.3, 0.3))
+            @ rot_y(rng.uniform(-0.6, 0.6))
+            @ rot_x(rng.uniform(-0.6, 0.6))
+        )
+        T = make_T(R, [rng.uniform(-0.3, 0.3) * z, rng.uniform(-0.2, 0.2) * z, z])
+        px = CAM.project(obj @ T[:3, :3].T + T[:3, 3])
+        if np.all((px >= 0) & (px < [1280, 720])):
+            poses.append(px)
+    fits, sig = [], None
+    for _ in range(25):
+        views = [
+            BoardView(np.arange(len(obj)), BOARD.object_points(), p + rng.normal(0, 0.3, p.shape))
+            for p in poses
+        ]
+        c = calibrate(BOARD, views, CAM.image_size).cameras[0]
+        fits.append([c.camera.fx, c.camera.cx])
+        sig = c.std[[0, 2]] if sig is None else sig
+    spread = np.std(np.array(fits), axis=0, ddof=1)
+    assert np.all(spread > 0.6 * sig) and np.all(spread < 1.6 * sig), (spread, sig)
