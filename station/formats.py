@@ -647,6 +647,8 @@ def read_model(path: str | os.PathLike[str]) -> Any:
         raise InputError(f"{p}: file not found") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
+    except UnicodeDecodeError:  # e.g. a pickle: binary files are never loaded as code
+        raise InputError(f"{p}: not a model.json file (binary content, not UTF-8 JSON)") from None
     return model_from_json(doc, str(p))
 
 
