@@ -60,6 +60,7 @@ from numpy.typing import NDArray
 from scipy import special, stats
 
 from .errormodel import MOTION_WORDS, MOTIONS, ErrorModelSpec, chebyshev_basis, chebyshev_u
+from .errors import InputError
 
 F = NDArray[np.float64]
 FIGURES: tuple[str, ...] = ("mean", "std", "max")
@@ -372,7 +373,7 @@ def compare_curves(
         return ()
     sa, sb = base.spec, run.spec
     if sa.n_joints != sb.n_joints:
-        raise ValueError(f"runs have {sa.n_joints} and {sb.n_joints} joints: not comparable")
+        raise InputError(f"runs have {sa.n_joints} and {sb.n_joints} joints: not comparable")
     ca, cb = np.asarray(base.coeffs, float), np.asarray(run.coeffs, float)
     Ca, Cb = _cov_or_zero(sa, base.cov), _cov_or_zero(sb, run.cov)
     lo = np.maximum(sa.q_lo, sb.q_lo)
