@@ -6,22 +6,30 @@ Prints the wall time of a single fit (median of repeats) for
   264 coefficients): the largest model the order search considers,
 and the held-out accuracy of each.  Target on the 2-core machine: ≤ 0.5 s per fit.
 
-    .venv/bin/python benchmarks/identify_fit.py [--repeats 5]
+    .venv/bin/python benchmarks/identify_fit.py [--repeats 5] [--blas-threads=N]
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import os
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
+# BLAS threads must be set before numpy loads OpenBLAS.  Default 1: on two cores shared with
+# other work, OpenBLAS threading makes these small products (~900 x 250) about 10x slower.
+_BLAS = next((a.split("=", 1)[1] for a in sys.argv if a.startswith("--blas-threads=")), "1")
+if _BLAS != "0":
+    os.environ["OPENBLAS_NUM_THREADS"] = _BLAS
+    os.environ["OMP_NUM_THREADS"] = _BLAS
 
-from quickhealth.identify.errormodel import ErrorModelSpec
-from quickhealth.identify.fit import fit_model
+import numpy as np  # noqa: E402
+
+from quickhealth.identify.errormodel import ErrorModelSpec  # noqa: E402
+from quickhealth.identify.fit import fit_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -38,7 +46,14 @@ def synth():
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument(
+        "--blas-threads=N",
+        dest="blas",
+        default="1",
+        help="OpenBLAS threads (default 1; 0 keeps the library default)",
+    )
     args = ap.parse_args()
+    print(f"OpenBLAS threads: {os.environ.get('OPENBLAS_NUM_THREADS', 'library default')}")
     S = synth()
     truth = S.paper_truth(0)
     train = S.measure(truth, S.random_q(150, 1), 2)

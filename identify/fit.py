@@ -825,7 +825,7 @@ class _Problem:
             )
         p[~free] = 0.0
         D = self.sigma_p[free]
-        lam = 1e-3
+        lam = 0.0  # Gauss-Newton first (the loop is nearly linear); damp only on failure
         converged = False
         it = 0
         r, J = self.residual_and_jacobian(p)
@@ -841,7 +841,7 @@ class _Problem:
             g = Jf.T @ r - z
             H[np.diag_indices_from(H)] += 1.0
             accepted = False
-            for _ in range(12):
+            for _ in range(14):
                 Hd = H.copy()
                 Hd[np.diag_indices_from(Hd)] += lam * np.diag(H)
                 dz = cho_solve(cho_factor(Hd), g)
@@ -852,13 +852,13 @@ class _Problem:
                 if c_try <= c:
                     accepted = True
                     break
-                lam *= 10.0
+                lam = max(lam * 10.0, 1e-6)
             if not accepted:
                 converged = True  # no descent direction left: at the minimum to precision
                 break
             rel = (c - c_try) / max(c, 1e-300)
             p, r, J, c = p_try, r_try, J_try, c_try
-            lam = max(lam / 10.0, 1e-9)
+            lam = lam / 10.0 if lam > 1e-9 else 0.0
             if rel < tol or np.linalg.norm(dz) < 1e-10 * (1 + np.linalg.norm(z)):
                 converged = True
                 break
