@@ -9,10 +9,12 @@ Writes CAL.json and, beside it, CAL_residuals.png, CAL_coverage.png, CAL_uncerta
 The verdict ("ok" / "unreliable" with reasons) is printed and stored; exit 0 either way
 unless --fail-on-unreliable asks for exit 1.
 
-measure: reads RUN_DIR/images/index.csv (pose_id, q1..qN in deg, optional pan deg, time s,
-temp °C) and the pairs RUN_DIR/images/<pose_id>_left.png / _right.png, measures the smart
-target's pose in every pair (in parallel) and writes RUN_DIR/measurements.csv (CSV v1, one row
-per accepted pose, rejected poses listed as comments).  The calibration defaults to
+measure: reads a `quickhealth run` folder (RUN_DIR/journal.jsonl names each captured pose's
+joints, pan, time and image pair; rows give the target frame at pan 0, as the run does) or,
+without a journal, RUN_DIR/images/index.csv (pose_id, q1..qN in deg, optional pan deg, time s,
+temp °C) with the pairs RUN_DIR/images/<pose_id>_left.png / _right.png (rows give the plate
+frame).  It measures the smart target's pose in every pair (in parallel) and writes
+RUN_DIR/measurements.csv (CSV v1, one row per accepted pose, rejected poses listed as comments).  The calibration defaults to
 RUN_DIR/calibration.json, else the reference design; the target to RUN_DIR/target.json, else
 the reference target.  Nothing is written when the input is refused (exit status 2).
 """
@@ -184,6 +186,28 @@ def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
     return ids, np.radians(np.array(q)), np.radians(np.array(pan)), np.array(time), np.array(temp)
 
 
+def _read_journal(run: Path) -> tuple[list[str], Any, Any, Any, Any, list[tuple[Path, Path]]]:
+    """Captured poses of a `quickhealth run` folder (journal.jsonl), in execution order."""
+    import numpy as np
+
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station.journal import JOURNAL, read_journal
+
+    st = read_journal(run / JOURNAL)
+    if not st.captured:
+        raise InputError(f"{run / JOURNAL}: no captured poses")
+    recs = [st.captured[i] for i in sorted(st.captured)]
+    try:
+        ids = [str(r["name"]) for r in recs]
+        q = np.radians(np.array([r["q_deg"] for r in recs], dtype=float))
+        pan = np.radians(np.array([r.get("pan_deg", np.nan) for r in recs], dtype=float))
+        time = np.array([r.get("time_s", np.nan) for r in recs], dtype=float)
+        files = [(run / r["images"][0], run / r["images"][1]) for r in recs]
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        raise InputError(f"{run / JOURNAL}: captured record lacks {exc}") from None
+    return ids, q, pan, time, np.full(len(ids), np.nan), files
+
+
 def _isnum(s: str) -> bool:
     try:
         float(s)
@@ -216,24 +240,24 @@ def run_measure(args: argparse.Namespace) -> int:
     )
     tpath = args.target or (run / "target.json" if (run / "target.json").exists() else None)
     target = io.read_target(tpath)
-    ids, q, pan, time, temp = _read_index(run / "images" / "index.csv")
+    from_journal = (run / "journal.jsonl").is_file()
+    if from_journal:
+        ids, q, pan, time, temp, files = _read_journal(run)
+    else:
+        ids, q, pan, time, temp = _read_index(run / "images" / "index.csv")
+        files = [(run / "images" / f"{p}_left.png", run / "images" / f"{p}_right.png") for p in ids]
+    if len(set(ids)) != len(ids):
+        raise InputError(f"{run}: pose ids repeat; each pose needs its own id")
     jobs = []
     for k, pid in enumerate(ids):
-        lp, rp = run / "images" / f"{pid}_left.png", run / "images" / f"{pid}_right.png"
-        for p in (lp, rp):
+        for p in files[k]:
             if not p.is_file():
-                raise InputError(
-                    f"{p}: missing image for pose {pid!r} (listed in images/index.csv)"
-                )
-        jobs.append(
-            (
-                pid,
-                str(lp),
-                str(rp),
-                None if np.isnan(pan[k]) else float(pan[k]),
-                None if np.isnan(time[k]) else float(time[k]),
-            )
-        )
+                raise InputError(f"{p}: missing image for pose {pid!r}")
+        jobs.append((
+            pid, str(files[k][0]), str(files[k][1]),
+            None if np.isnan(pan[k]) else float(pan[k]),
+            None if np.isnan(time[k]) else float(time[k]),
+        ))  # fmt: skip
     # every pair is measured before anything is written: an unreadable image stops the run
     results: dict[str, Any] = {}
     if args.jobs == 1:
@@ -251,6 +275,18 @@ def run_measure(args: argparse.Namespace) -> int:
         sys.stderr.write("\n")  # end the progress line (also before an error's one line)
         if pool is not None:
             pool.shutdown(cancel_futures=True)
+    if from_journal:
+        # as `quickhealth run` records it: the target frame at pan 0 (station/hardware/target.py)
+        from dataclasses import replace
+
+        from quickhealth.station.hardware.target import target0_from_plate
+
+        for pid, res in results.items():
+            if isinstance(res, PoseMeasurement) and res.pan is not None:
+                # right-multiplying by a rotation about the origin leaves (δt, ω) unchanged
+                results[pid] = replace(
+                    res, T_left_target=target0_from_plate(res.T_left_target, res.pan)
+                )
     keep = [k for k, pid in enumerate(ids) if isinstance(results[pid], PoseMeasurement)]
     rejected = [
         f"{pid}: {results[pid].reason.value} ({results[pid].detail})"

@@ -291,3 +291,36 @@ def test_wrong_board_spec_finds_no_views(tmp_path, capsys):
     line = _one_line(capsys.readouterr().err)
     assert "only 0 images show the board" in line and "board spec" in line
     assert not out.exists()
+
+
+def test_measure_a_quickhealth_run_folder_from_its_journal(tmp_path, capsys):
+    """A folder as `quickhealth run` leaves it (journal.jsonl + images/): rows give the target
+    frame at pan 0, so the same tool pose measured at two pan angles gives the same row."""
+    from quickhealth.station.formats import read_measurements
+    from quickhealth.station.hardware.target import T_target_plate
+    from quickhealth.station.journal import SCHEMA, Journal
+
+    rig = _small_rig()
+    tgt = reference_target()
+    run = tmp_path / "run"
+    (run / "images").mkdir(parents=True)
+    (run / "calibration.json").write_text(json.dumps(rig_to_json(rig)))
+    # target frame at pan 0: z out of the plate towards the cameras
+    T_target0 = T_left_rig() @ make_T(rot_y(np.pi), [0.02, -0.01, 1.9])
+    rng = np.random.default_rng(12)
+    with Journal(run).open() as j:
+        j.append({"type": "start", "schema": SCHEMA, "run_id": "t"})
+        for k, pan_deg in enumerate((-20.0, 25.0), start=1):
+            T_plate = T_target0 @ T_target_plate(np.radians(pan_deg))
+            left, right = render_stereo(rig, T_plate, tgt, rng=rng)
+            names = [f"images/{k:04d}_p{k}_{s}.png" for s in "LR"]
+            cv2.imwrite(str(run / names[0]), left)
+            cv2.imwrite(str(run / names[1]), right)
+            j.append({"type": "captured", "index": k, "name": f"p{k}", "q_deg": [k, -90, 90, 0, 45, 0],
+                      "pan_deg": pan_deg, "time_s": 3.0 * k, "images": names})  # fmt: skip
+    assert main(["vision", "measure", str(run)]) == 0, capsys.readouterr().err
+    meas = read_measurements(run / "measurements.csv", n_joints=6)
+    assert meas.pose_id == ("p1", "p2") and np.allclose(np.degrees(meas.pan), [-20, 25])
+    for k in range(2):
+        assert np.linalg.norm(meas.pos[k] - T_target0[:3, 3]) < 0.1e-3
+        assert np.allclose(meas.R[k], T_target0[:3, :3], atol=1e-3)  # fx 1500 px here
