@@ -29,7 +29,7 @@ covariance's numerical range with ``dof = rank C`` gives a p-value; a change is 
 when ``p < alpha / n_curves`` (Bonferroni over all curves compared) *and* its largest size
 over the range exceeds a practical minimum (``min_change_m`` / ``min_change_rad``).  Fits
 tend to understate their own scatter (measured: the coefficients of 40 repeated 30-pose fits
-of the same twin varied 1.2 times more in variance than reported, median, up to 4.6 times),
+of the same twin varied 1.2 times more in variance than reported, median, up to 4.8 times),
 so χ² is divided by a genomic-control factor estimated across the curves (see
 :func:`compare_curves`, ``inflate``).  What the
 test leaves out: the covariances measure sampling noise of each fit, not model error; a motion
