@@ -293,6 +293,10 @@ def build_report(
             meas = None  # not the data this model was fitted to
     meta = run_metadata(d)
     rid = run_id or meta.get("run_id") or d.resolve().name
+    if archive is not None and robot is not None:  # the index knows what the folder may not
+        rec = next((r for r in archive.runs(robot) if r.run_id == rid), None)
+        if rec is not None:
+            meta = {**meta, **{k: v for k, v in rec.meta.items() if v}, "time_utc": rec.time_utc}
     sections: list[Section] = []
 
     # 1. summary
