@@ -176,6 +176,7 @@ class FittedModel:
     noise: InstrumentNoise = field(default_factory=InstrumentNoise)
     prior: ParameterPrior = field(default_factory=ParameterPrior)
     n_poses: int = 0
+    held: tuple[str, ...] = ()  # labels held at their start value (e.g. a known base)
 
     # ---- parameter bookkeeping
     @property
@@ -196,7 +197,7 @@ class FittedModel:
     @property
     def n_free(self) -> int:
         """Number of estimated (identifiable) parameters."""
-        return int(self.params.size - len(self.unidentifiable))
+        return int(self.params.size - len(self.unidentifiable) - len(self.held))
 
     @property
     def has_orientation(self) -> bool:
@@ -296,6 +297,8 @@ class FittedModel:
         ]
         if self.effects:
             lines.append("effects: " + ", ".join(e.name for e in self.effects))
+        if self.held:
+            lines.append(f"held at their known values: {len(self.held)} parameters")
         if self.unidentifiable:
             shown = ", ".join(self.unidentifiable[:12])
             more = len(self.unidentifiable) - 12
@@ -318,6 +321,8 @@ def fit_model(
     prior: ParameterPrior = ParameterPrior(),
     *,
     init: FittedModel | None = None,
+    setup: tuple[ArrayLike, ArrayLike] | None = None,
+    hold: Sequence[str] = (),
     rank_tol: float = 1e-3,
     max_iter: int = 50,
     tol: float = 1e-9,
@@ -339,6 +344,13 @@ def fit_model(
         Prior standard deviations of the coefficients.
     init : FittedModel, optional
         Warm start: base/tool and every coefficient with the same label are taken from it.
+    setup : (T_instr_base0, T_flange_target0), optional
+        Known base and tool start transforms instead of the robust start (e.g. a camera
+        pose measured independently).
+    hold : sequence of str
+        Labels of parameters held at their start value (0, or ``init``'s), e.g. all
+        ``base.*`` labels when the base is known: joint-1 constants that would otherwise be
+        a base motion (``j1.ez.c0``, the encoder zero offset) then become identifiable.
     rank_tol : float
         Relative size below which a column of the normalised Jacobian counts as not adding
         a new direction (unidentifiable).
@@ -363,7 +375,12 @@ def fit_model(
         for col in e.requires():
             if getattr(meas, col, None) is None:
                 raise InputError(f"effect {e.name!r} needs the {col!r} column in the measurements")
-    prob = _Problem.build(robot, meas, spec, effects, noise, prior, init)
+    labels = _labels(spec, effects)
+    unknown = sorted(set(hold) - set(labels))
+    if unknown:
+        raise InputError(f"cannot hold unknown parameters: {', '.join(unknown)}")
+    prob = _Problem.build(robot, meas, spec, effects, noise, prior, init, setup)
+    prob.held = prob._held() | np.array([lb in set(hold) for lb in labels], dtype=bool)
     return prob.solve(rank_tol=rank_tol, max_iter=max_iter, tol=tol)
 
 
@@ -591,6 +608,7 @@ class _Problem:
     d: int
     Rm: F | None
     W: F | None = None  # (n, d, d) whitening matrices
+    held: NDArray[np.bool_] | None = None  # parameters held at their start value
 
     @classmethod
     def build(
@@ -602,13 +620,18 @@ class _Problem:
         noise: InstrumentNoise,
         prior: ParameterPrior,
         init: FittedModel | None,
+        setup: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> _Problem:
         labels = _labels(spec, effects)
         p0 = np.zeros(len(labels))
+        held = np.zeros(len(labels), dtype=bool)
         if init is not None:
             T_ib0, T_ft0 = init.T_instr_base0, init.T_flange_target0
             old = dict(zip(init.labels, init.params, strict=True))
             p0 = np.array([old.get(lb, 0.0) for lb in labels])
+            held = np.array([lb in set(init.held) for lb in labels], dtype=bool)
+        elif setup is not None:
+            T_ib0, T_ft0 = (np.asarray(t, float) for t in setup)
         else:
             T_ib0, T_ft0 = initial_setup(robot, meas)
         sig = [prior.sigmas(spec)] + [np.asarray(e.prior_sigma, float) for e in effects]
@@ -630,6 +653,7 @@ class _Problem:
             ctx=ctx,
             d=d,
             Rm=meas.R if meas.has_orientation else None,
+            held=held,
         )
         return prob
 
@@ -808,11 +832,17 @@ class _Problem:
         ok[order] = ok_sorted
         return ok
 
+    def _held(self) -> NDArray[np.bool_]:
+        return self.held if self.held is not None else np.zeros(self.p0.size, bool)
+
     # ---- solve
     def solve(self, rank_tol: float, max_iter: int, tol: float) -> FittedModel:
         p = self.p0.copy()
         r, J = self.residual_and_jacobian(p)
-        free = self.identifiable(J, rank_tol)
+        held = self.held if self.held is not None else np.zeros(p.size, bool)
+        Jq = J.copy()
+        Jq[:, held] = 0.0  # held columns add no direction; they are not reported
+        free = self.identifiable(Jq, rank_tol) & ~held
         labels = _labels(self.spec, self.effects)
         n_comp = r.size
         n_free = int(free.sum())
@@ -823,7 +853,7 @@ class _Problem:
                 f"model with {n_free} identifiable parameters (needs at least "
                 f"{-(-need // self.d)} poses): measure more poses or lower the orders"
             )
-        p[~free] = 0.0
+        p[~free & ~held] = 0.0
         D = self.sigma_p[free]
         lam = 0.0  # Gauss-Newton first (the loop is nearly linear); damp only on failure
         converged = False
@@ -910,7 +940,10 @@ class _Problem:
             rms_rot=float(np.sqrt(np.mean(np.sum(raw[:, 3:] ** 2, axis=1)))) if d == 6 else None,
             n_iter=n_iter,
             converged=converged,
-            unidentifiable=tuple(lb for lb, f in zip(labels, free, strict=True) if not f),
+            unidentifiable=tuple(
+                lb for lb, f, h in zip(labels, free, self._held(), strict=True) if not f and not h
+            ),
+            held=tuple(lb for lb, h in zip(labels, self._held(), strict=True) if h),
             noise=self.noise,
             prior=self.prior,
             n_poses=n,

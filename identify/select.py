@@ -149,6 +149,8 @@ def select_orders(
     chi2_factor: float = 5.0,
     auto_rescale: bool = False,
     progress: Callable[[str], None] | None = None,
+    setup: tuple[F, F] | None = None,
+    hold: Sequence[str] = (),
 ) -> Selection:
     """Choose the Chebyshev orders by BIC and return the final fit with the search trace.
 
@@ -164,6 +166,9 @@ def select_orders(
         Rerun once with the suspected uncertainty raised when the χ² check fails.
     progress : callable, optional
         Receives one line per accepted move.
+    setup, hold :
+        Passed to the first :func:`~quickhealth.identify.fit.fit_model` (known base/tool,
+        parameters held at their start values); later fits inherit them.
     """
     say = progress or (lambda s: None)
     spec0 = start if start is not None else data_spec(robot, meas)
@@ -181,6 +186,8 @@ def select_orders(
         refits_per_step,
         chi2_factor,
         say,
+        setup,
+        tuple(hold),
     )
     if auto_rescale and sel.chi2_check.verdict != "ok":
         ratio = sel.fitted.chi2_data / max(sel.fitted.dof, 1)
@@ -206,6 +213,8 @@ def select_orders(
             refits_per_step,
             chi2_factor,
             say,
+            setup,
+            tuple(hold),
         )
         return Selection(
             fitted=sel2.fitted,
@@ -314,8 +323,8 @@ def _linearise(fitted: FittedModel, meas: Measurements) -> _Lin:
     r, J = prob.residual_and_jacobian(p)
     _, Jw, u = prob.whitened_motion_jacobian(p)
     labels = fitted.labels
-    unid = set(fitted.unidentifiable)
-    free = np.array([lb not in unid for lb in labels])
+    fixed = set(fitted.unidentifiable) | set(fitted.held)
+    free = np.array([lb not in fixed for lb in labels])
     D = prob.sigma_p[free]
     Jf = J[:, free] * D
     P = Jf.shape[1]
@@ -374,9 +383,11 @@ def _search(
     refits_per_step: int,
     chi2_factor: float,
     say: Callable[[str], None],
+    setup: tuple[F, F] | None = None,
+    hold: tuple[str, ...] = (),
 ) -> Selection:
     nj = robot.n_joints
-    fitted = fit_model(robot, meas, spec0, effects, noise, prior)
+    fitted = fit_model(robot, meas, spec0, effects, noise, prior, setup=setup, hold=hold)
     n_fits = 1
     n_scored = 0
     trace: list[SearchStep] = [SearchStep("start", "", 0, 0, np.nan, fitted.bic, True)]

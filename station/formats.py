@@ -571,6 +571,7 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
             "n_poses": fitted.n_poses,
         },
         "unidentifiable": list(fitted.unidentifiable),
+        "held": list(fitted.held),
         "noise": {
             "sigma_pos": fitted.noise.sigma_pos,
             "sigma_rot": fitted.noise.sigma_rot,
@@ -626,6 +627,7 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
             noise=InstrumentNoise(**doc["noise"]),
             prior=ParameterPrior(**doc["prior"]),
             n_poses=int(st["n_poses"]),
+            held=tuple(doc.get("held", ())),
         )
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, InputError):

@@ -262,3 +262,22 @@ def test_robust_start_for_random_setups(trial):
         meas = S.measure(truth, S.random_q(100, trial), trial + 1, full_pose=full_pose)
         fitted = fit_model(truth.robot, meas, truth.spec)
         assert fitted.converged and fitted.rms_pos < 1.2 * np.sqrt(3) * 3e-5
+
+
+def test_known_base_makes_the_joint1_encoder_offset_identifiable(paper_case):
+    truth, train, _ = paper_case
+    base = [lb for lb in truth.spec.labels() if lb.startswith("base.")]
+    fitted = fit_model(
+        truth.robot,
+        train,
+        truth.spec,
+        setup=(truth.T_instr_base, truth.T_flange_target),
+        hold=base,
+    )
+    assert "j1.ez.c0" not in fitted.unidentifiable and "j1.dz.c0" not in fitted.unidentifiable
+    assert set(fitted.held) == set(base)
+    k = fitted.labels.index("j1.ez.c0")
+    assert abs(fitted.params[k] - 8e-4) < 3 * fitted.sigma[k] and fitted.sigma[k] < 2e-5
+    assert all(fitted.params[fitted.labels.index(lb)] == 0.0 for lb in base)
+    with pytest.raises(InputError, match="unknown parameters"):
+        fit_model(truth.robot, train, truth.spec, hold=["j9.dx.c0"])
