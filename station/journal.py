@@ -3,15 +3,18 @@
 ``RUN_DIR/journal.jsonl`` holds one JSON object per line.  Each line carries ``crc``, the
 CRC-32 of the line's JSON without that key, and is flushed and ``fsync``-ed before the run
 goes on.  Images are written atomically (temporary file, ``fsync``, rename, directory
-``fsync``) *before* the record that names them, so a record never points at a missing or
-half-written image.
+``fsync``), never half: the ``captured`` record names them and they reach the disk while the
+arm moves on; the ``measured`` record follows them.  A capture whose images are not on disk
+(a crash in between) counts as not done and the pose is visited again on resume.
 
 Records (``type``):
 
 - ``start``   run id, plan hash, cell, number of poses, software version.
 - ``selfcheck`` instrument self-check on the reference board (``phase`` start/end).
-- ``captured`` a pose was reached and imaged: index, name, joints, time, pan, image files.
-- ``measured`` the 7D measurement of a captured pose (or ``failed`` with the reason).
+- ``captured`` a pose was reached and imaged: index, name, joints, time, pan, image files
+  (the last record of an index wins: a pose revisited on resume).
+- ``measured`` the 7D measurement of a captured pose, written after its images (``ok``
+  false with the reason when the vision library rejected the pair).
 - ``failed``  a pose that could not be captured (target not detected after retries …).
 - ``stop``    the run stopped cleanly on a fault (reason, what to do).
 - ``resume``  a later process continued the run.
@@ -89,7 +92,7 @@ class JournalState:
 
     @property
     def done_indices(self) -> set[int]:
-        """Poses that need no more robot motion: captured (measured or not) or failed."""
+        """Poses with a capture or failure record (``run_plan`` also checks the images)."""
         return set(self.captured) | set(self.failed)
 
     @property

@@ -516,7 +516,7 @@ class _Runner:
             self.emit("pose", pose.index, pose.name, "failed", reason)
             return
         td = time.monotonic()
-        images = self.write_images(pose, frame)
+        images = [f"images/{pose.index:04d}_{pose.name}_{side}.png" for side in "LR"]
         t_capture = time.time() - (time.monotonic() - frame.time) - self.t_epoch
         self.append({
             "type": "captured", "index": pose.index, "name": pose.name,
@@ -525,31 +525,46 @@ class _Runner:
         })  # fmt: skip
         te = time.monotonic()
         self.tick("journal_s", te - td)
-        self.submit_measure(pose.index, pose.name, frame.left, frame.right, pan, T_pred)
+        # Images are written (atomically) and measured by the worker while the arm moves on;
+        # a capture whose images never reached the disk is revisited on resume.
+        self.submit_measure(
+            pose.index, pose.name, frame.left, frame.right, pan, T_pred, write=images
+        )
         self.emit("pose", pose.index, pose.name, "captured", f"attempt {attempt}")
 
-    def write_images(self, pose: Any, frame: StereoFrame) -> list[str]:
+    def write_images(self, names: list[str], left: Any, right: Any) -> None:
+        """Both images, each atomically, then the folder entry made durable."""
         import cv2
 
-        img_dir = self.dir / "images"
-        out = []
-        for side, img in (("L", frame.left), ("R", frame.right)):
+        for name, img in zip(names, (left, right), strict=True):
             ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, self.cfg.png_level])
             if not ok:
                 raise HardwareError("cannot encode an image as PNG")
-            name = f"{pose.index:04d}_{pose.name}_{side}.png"
-            write_bytes_atomic(img_dir / name, buf.tobytes(), sync_dir=False)
-            out.append(f"images/{name}")
+            write_bytes_atomic(self.dir / name, buf.tobytes(), sync_dir=False)
         from .journal import fsync_dir
 
-        fsync_dir(img_dir)
-        return out
+        fsync_dir(self.dir / "images")
 
     def submit_measure(
-        self, index: int, name: str, left: Any, right: Any, pan: float, T_pred: F
+        self,
+        index: int,
+        name: str,
+        left: Any,
+        right: Any,
+        pan: float,
+        T_pred: F,
+        write: list[str] | None = None,
     ) -> None:
+        # At most two poses in flight: the worker never falls far behind the arm.
+        while sum(1 for f in self.pending if not f.done()) >= 2:
+            time.sleep(0.005)
+
         def job() -> None:
             try:
+                if write is not None:
+                    t0 = time.monotonic()
+                    self.write_images(write, left, right)
+                    self.tick("images_s", time.monotonic() - t0)
                 t0 = time.monotonic()
                 m = measure_frame(self.s, self.s.target, left, right, T_pred)
                 self.tick("measure_s", time.monotonic() - t0)
@@ -581,10 +596,10 @@ class _Runner:
             err, self.worker_error = self.worker_error, None
             raise err
 
-    def remeasure(self, state: JournalState) -> None:
+    def remeasure(self, state: JournalState, unmeasured: list[int]) -> None:
         import cv2
 
-        for i in state.unmeasured:
+        for i in unmeasured:
             rec = state.captured[i]
             imgs = [cv2.imread(str(self.dir / p), cv2.IMREAD_GRAYSCALE) for p in rec["images"]]
             if any(im is None for im in imgs):
@@ -658,7 +673,15 @@ def run_plan(
         state = JournalState()
     (run_dir / "images").mkdir(exist_ok=True)
     r = _Runner(station, plan, run_dir, settings, progress, cancel)
-    todo = [p for p in plan.poses if p.index not in state.done_indices]
+    # A capture counts once its images are on disk (they are written after the record).
+    imaged = {
+        i
+        for i, rec in state.captured.items()
+        if all((run_dir / p).is_file() for p in rec.get("images", []))
+    }
+    done = imaged | set(state.failed)
+    unmeasured = sorted(i for i in imaged if i not in state.measured)
+    todo = [p for p in plan.poses if p.index not in done]
     lines = preflight(station, plan, run_dir, len(todo), settings, resume=resume)
     for ln in lines:
         r.emit("preflight", status="ok", message=ln)
@@ -667,11 +690,11 @@ def run_plan(
     try:
         if resume:
             r.t_epoch = float(state.start["epoch"])
-            r.append({"type": "resume", "at_utc": _utc(), "done": len(state.done_indices),
+            r.append({"type": "resume", "at_utc": _utc(), "done": len(done),
                       "truncated_tail": state.truncated_tail})  # fmt: skip
-            r.emit("resume", message=f"{len(state.done_indices)} of {r.n} poses done; "
-                   f"{len(state.unmeasured)} to measure from images")  # fmt: skip
-            r.remeasure(state)
+            r.emit("resume", message=f"{len(done)} of {r.n} poses done; "
+                   f"{len(unmeasured)} to measure from images")  # fmt: skip
+            r.remeasure(state, unmeasured)
         else:
             r.append({
                 "type": "start", "schema": SCHEMA, "run_id": run_dir.name, "plan_hash": plan.hash,

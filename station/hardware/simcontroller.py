@@ -956,30 +956,36 @@ def _dashboard(ctrl: Controller, conn: socket.socket) -> None:
 
 
 def _script(ctrl: Controller, conn: socket.socket) -> None:
-    """Receive one URScript program; start it when complete (never interpreted)."""
+    """Receive URScript programs on one connection (the client reuses it for reuploads).
+
+    A program is complete at a trailing unindented ``end``, a 100 ms idle gap or the socket
+    closing; it is never interpreted: a ``def``/``sec`` program starts the emulated script.
+    """
     conn.settimeout(0.1)
     buf = b""
-    try:
-        while len(buf) < 1_000_000:
-            try:
-                chunk = conn.recv(65536)
-            except TimeoutError:
-                if buf:
-                    break
-                continue
+    closed = False
+    while not closed and not ctrl.stop_event.is_set():
+        complete = False
+        try:
+            chunk = conn.recv(65536)
             if not chunk:
-                break
-            buf += chunk
-            if buf.rstrip().endswith(b"\nend") or buf.rstrip() == b"end":
-                break
-    except OSError:
-        pass
-    if buf.strip():
-        text = buf.decode("utf-8", "replace")
-        first = text.strip().splitlines()[0][:60]
-        ctrl.say(f"script received: {len(buf)} bytes, {first!r}")
-        if text.lstrip().startswith("def ") or text.lstrip().startswith("sec "):
-            ctrl.start_program()
+                closed = complete = True
+            else:
+                buf += chunk
+                tail = buf.rstrip()
+                complete = tail.endswith(b"\nend") or tail == b"end" or len(buf) > 1_000_000
+        except TimeoutError:
+            complete = bool(buf)
+        except OSError:
+            closed = complete = True
+        if complete and buf.strip():
+            text = buf.decode("utf-8", "replace")
+            first = text.strip().splitlines()[0][:60]
+            ctrl.say(f"script received: {len(buf)} bytes, {first!r}")
+            if text.lstrip().startswith(("def ", "sec ")):
+                ctrl.start_program()
+            buf = b""
+    _close(conn)
 
 
 def _control(ctrl: Controller, conn: socket.socket) -> None:
@@ -1136,9 +1142,10 @@ class SimControllerHandle:
     >>> sim.stop()                                         # doctest: +SKIP
     """
 
-    def __init__(self, proc: Any, control_port: int) -> None:
+    def __init__(self, proc: Any, control_port: int, port_lock: int = -1) -> None:
         self.proc = proc
         self.control_port = control_port
+        self._port_lock = port_lock
         self._sock: socket.socket | None = None
         self._file: Any = None
         self._lock = threading.Lock()
@@ -1190,12 +1197,42 @@ class SimControllerHandle:
             except Exception:  # noqa: BLE001 - last resort: the process did not exit in time
                 self.proc.kill()
                 self.proc.wait(timeout=timeout)
+            self.proc = None
+        if self._port_lock >= 0:
+            import os
+
+            os.close(self._port_lock)  # releases the host-wide port lock
+            self._port_lock = -1
 
     def __enter__(self) -> SimControllerHandle:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+PORT_LOCK = "/tmp/quickhealth-ur-ports.lock"
+
+
+def _take_port_lock(wait_s: float) -> int:
+    import fcntl
+    import os
+
+    from quickhealth.identify.errors import HardwareError
+
+    fd = os.open(PORT_LOCK, os.O_RDWR | os.O_CREAT, 0o666)
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return fd
+        except BlockingIOError:
+            if time.monotonic() > deadline:
+                os.close(fd)
+                raise HardwareError(
+                    f"another controller simulator holds the UR ports (waited {wait_s:.0f} s)"
+                ) from None
+            time.sleep(0.1)
 
 
 def ports_free() -> bool:
@@ -1221,11 +1258,14 @@ def start_sim_controller(
     timeout: float = 15.0,
     verbose: bool = False,
     speed_factor: float = 1.0,
+    wait_s: float = 120.0,
 ) -> SimControllerHandle:
     """Start the simulator as a separate process and wait until it answers.
 
     The ur-rtde constructors hold the GIL, so the simulator must never run as a thread of
-    the process that uses the client.
+    the process that uses the client.  The UR ports are fixed, so one simulator runs per
+    host: a host-wide lock (``/tmp/quickhealth-ur-ports.lock``) is taken first, waiting up to
+    ``wait_s`` seconds for another simulator started this way to stop (tests run serially).
 
     Raises
     ------
@@ -1238,7 +1278,9 @@ def start_sim_controller(
 
     from quickhealth.identify.errors import HardwareError
 
+    lock = _take_port_lock(wait_s)
     if not ports_free():
+        os.close(lock)
         raise HardwareError(
             "UR ports 30004/29999/30003 on 127.0.0.1 are in use: another simulator runs; stop it first"
         )
@@ -1262,18 +1304,18 @@ def start_sim_controller(
     if verbose:
         cmd.append("--verbose")
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
-    handle = SimControllerHandle(proc, control_port)
+    handle = SimControllerHandle(proc, control_port, lock)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if proc.poll() is not None:
+            handle.stop()
             raise HardwareError(f"controller simulator exited at start (status {proc.returncode})")
         try:
             handle.request("ping")
             return handle
         except OSError:
             time.sleep(0.05)
-    proc.kill()
-    proc.wait()
+    handle.stop(timeout=1.0)
     raise HardwareError(f"controller simulator did not answer within {timeout:.0f} s")
 
 

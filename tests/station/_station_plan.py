@@ -12,8 +12,17 @@ from pathlib import Path
 
 
 def plan_file(cache_dir: Path, n_poses: int = 20) -> Path:
-    """Path of the cached plan (created on first use; safe across processes)."""
+    """Path of the cached plan of ``n_poses`` ≤ 20 poses (created on first use)."""
     path = cache_dir / f"station_plan{n_poses}.json"
+    if n_poses < 20:
+        if not path.exists():
+            from quickhealth.station.planning.planfile import content_hash
+
+            doc = json.loads(plan_file(cache_dir, 20).read_text())
+            doc["poses"] = doc["poses"][:n_poses]
+            doc["hash"] = content_hash(doc)
+            path.write_text(json.dumps(doc))
+        return path
     with open(cache_dir / ".station_plan.lock", "w") as lk:
         fcntl.flock(lk, fcntl.LOCK_EX)
         if not path.exists():
