@@ -109,3 +109,17 @@ def test_data_spec_spans_the_measured_range():
     spec = data_spec(truth.robot, meas)
     assert np.all(spec.q_lo <= meas.q.min(0)) and np.all(spec.q_hi >= meas.q.max(0))
     assert np.all(spec.orders == 0)
+
+
+@pytest.mark.slow
+def test_search_from_a_too_rich_start_lowers_to_the_true_orders():
+    """Lowering moves and pruning: from order 4 everywhere down to the truth."""
+    truth = S.paper_truth(0)
+    meas = S.measure(truth, S.random_q(150, 1), 2)
+    spec = data_spec(truth.robot, meas)
+    rich = spec.orders.copy()
+    rich[1:-1] = 4
+    sel = select_orders(truth.robot, meas, start=spec.with_orders(rich))
+    np.testing.assert_array_equal(sel.orders, truth.spec.orders)
+    kinds = {s.kind for s in sel.trace if s.accepted}
+    assert {"lower", "prune"} <= kinds
