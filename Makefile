@@ -27,10 +27,10 @@ chromium:
 test: $(STAMP) chromium
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(VENV)/bin/pytest -q -p no:cacheprovider
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(VENV)/bin/pytest -q -p no:cacheprovider
 
 check: $(STAMP)
-	$(VENV)/bin/pytest -q -m "not slow" -x
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(VENV)/bin/pytest -q -m "not slow" -x
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check --fix .
