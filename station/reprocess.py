@@ -181,6 +181,12 @@ def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = Non
     for i in sorted(st.captured):
         rec = st.captured[i]
         left, right = (read_gray(d / p) for p in rec["images"])
+        for cam, img in zip(rig.cameras, (left, right), strict=True):
+            if tuple(cam.image_size) != (img.shape[1], img.shape[0]):
+                raise InputError(
+                    f"{calibration}: calibrated for {cam.image_size[0]}×{cam.image_size[1]} px "
+                    f"images, the run's are {img.shape[1]}×{img.shape[0]} px"
+                )
         pan = math.radians(rec["pan_deg"])
         hint = old[rec["name"]] @ T_target_plate(pan) if rec["name"] in old else None
         m = measure_stereo(rig, target, left, right, roi_hint=hint, pan=pan)
