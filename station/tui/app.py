@@ -54,6 +54,7 @@ class QuickhealthApp(App[int]):
         Binding("5", "switch_mode('diagnose')", "Diagnose", show=False),
         Binding("6", "switch_mode('history')", "History", show=False),
         Binding("q", "quit", "Quit", priority=True, show=False),
+        Binding("question_mark", "toggle_help", "Keys"),
     ]
 
     def __init__(self, station: Station) -> None:
@@ -64,6 +65,13 @@ class QuickhealthApp(App[int]):
     def on_mount(self) -> None:
         """Follow the terminal's light or dark default; keep it readable over SSH."""
         self.theme = "textual-dark"
+
+    def action_toggle_help(self) -> None:
+        """``?``: the keys of this screen with what they do, beside the screen."""
+        if self.screen.query("HelpPanel"):
+            self.action_hide_help_panel()
+        else:
+            self.action_show_help_panel()
 
     def action_quit(self) -> None:  # type: ignore[override]
         """Quit; a running plan is stopped first so the arm never moves unattended."""

@@ -35,7 +35,7 @@ WHAT_TO_DO = {
     "program-stopped": "start the control program on the teach pendant again",
     "error": "read the message, fix the cause",
 }
-PREFLIGHT_ORDER = ("robot", "plan", "cameras", "pan motor", "disk")
+PREFLIGHT_ORDER = ("robot", "plan", "home", "cameras", "pan motor", "disk")
 
 
 def classify(robot: Any, message: str) -> Fault:
@@ -137,19 +137,25 @@ class CellControl:
 
     def preflight(self) -> Preflight:
         """``station.run.preflight`` (it captures one frame, pings the motor; nothing moves)."""
+        from quickhealth.station.journal import JOURNAL
         from quickhealth.station.run import preflight
 
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        resume = (self.run_dir / JOURNAL).is_file()
         remaining = sum(1 for p in self.plan.poses if p.index not in self._done_indices())
         checks: list[Check] = []
         try:
-            lines = preflight(self.station, self.plan, self.run_dir, remaining, self.settings)
+            lines = preflight(
+                self.station, self.plan, self.run_dir, remaining, self.settings, resume=resume
+            )
         except (QuickhealthError, OSError) as exc:
             lines, failure = [], str(exc).removeprefix("pre-flight: ")
         else:
             failure = None
         for ln in lines:
-            name, _, why = ln.partition(": ")
+            name, sep, why = ln.partition(": ")
+            if not sep:  # a sentence without a "name: " head, e.g. "robot at the plan's home …"
+                name, why = ("home" if "home" in ln else "check"), ln
             checks.append(Check(name, True, why))
         if failure is not None:
             done = {c.name for c in checks}

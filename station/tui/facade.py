@@ -316,6 +316,56 @@ class Station:
             self._measured(self.run_dir / "measurements.csv")
 
     @classmethod
+    def open(
+        cls,
+        *,
+        cell: str = "reference",
+        plan: Path | None = None,
+        archive: Path = Path("archive"),
+        robot_name: str = "ur5-sim",
+        sim: bool = True,
+        robot_ip: str | None = None,
+        motor_port: str | None = None,
+        cameras: tuple[str, str] | None = None,
+        calibration: str | None = None,
+        n_poses: int = 40,
+        threshold_mm: float = 2.0,
+        run_id: str | None = None,
+    ) -> Station:
+        """The station for ``quickhealth tui``: the simulated cell (controller simulator
+        subprocess, emulated pan motor, rendered cameras) or the real one."""
+        from datetime import UTC, datetime
+
+        from quickhealth.station import run as station_run
+        from quickhealth.station.planning import load_cell, load_plan
+
+        c = load_cell(cell)
+        the_plan = load_plan(plan) if plan is not None else make_plan(c, n_poses, 0)
+        if sim:
+            hw, _ = station_run.sim_station(cell, image_scale=0.3)
+        else:
+            if not (robot_ip and motor_port and cameras and calibration):
+                raise InputError(
+                    "tui: a real station needs --robot-ip, --motor-port, --cameras and --calibration"
+                )
+            hw = station_run.ur_station(
+                cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
+            )
+        rid = run_id or datetime.now(UTC).strftime("%Y-%m-%d-%H%M%S")
+        return cls(
+            robot=c.robot,
+            robot_name=robot_name,
+            archive_root=Path(archive),
+            run_id=rid,
+            cell_name=c.name,
+            threshold_mm=threshold_mm,
+            sim=sim,
+            hardware=hw,
+            plan=the_plan,
+            plan_path=plan,
+        )
+
+    @classmethod
     def simulated(
         cls,
         archive_root: str | Path,
@@ -616,6 +666,11 @@ class Station:
         return History(self.robot_name, rows, words, flagged=result.flagged, pngs=(png,))
 
     # ----- run -------------------------------------------------------------------------------
+    @property
+    def can_run(self) -> bool:
+        """True when a cell is attached (not just a measurement file)."""
+        return self.cell is not None
+
     @property
     def running(self) -> bool:
         """True while a run is moving the arm (or paused between poses)."""

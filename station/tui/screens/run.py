@@ -83,14 +83,24 @@ class RunScreen(Screen[None]):
     def _fill_table(self) -> None:
         table = self.query_one("#poses", DataTable)
         table.clear()
-        for ps in self.app.station.pose_table():  # type: ignore[attr-defined]
+        rows = self.app.station.pose_table()  # type: ignore[attr-defined]
+        for ps in rows:
             table.add_row(str(ps.index + 1), ps.pose_id, *_pose_cells(ps), key=str(ps.index))
-        self.query_one("#run-bar", ProgressBar).update(total=max(1, table.row_count), progress=0)
+        done = sum(ps.status in ("done", "failed") for ps in rows)
+        self.query_one("#run-bar", ProgressBar).update(total=max(1, len(rows)), progress=done)
+        self.query_one("#run-eta", Static).update(f"{done}/{len(rows)}")
+        if not self.app.station.can_run:  # type: ignore[attr-defined]
+            self.query_one("#run-state", Static).update(
+                f"Measured data, no station attached: {done} poses."
+            )
 
     # ----- control ---------------------------------------------------------------------------
     def action_start(self) -> None:
         """Pre-flight, then ask before the arm moves, then run in a worker."""
         station = self.app.station  # type: ignore[attr-defined]
+        if not station.can_run:
+            self.notify("No station attached: start with --sim or --robot-ip.", severity="error")
+            return
         if station.running:
             self.notify("The run is already going.", severity="warning")
             return

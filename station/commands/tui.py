@@ -1,0 +1,66 @@
+"""``quickhealth tui [--sim]``: the technician's terminal application (CONTRACTS.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "tui",
+        help="the technician's terminal application (q quits)",
+        description="The technician's terminal application: station, plan, run, results, "
+        "diagnose, history. Keys 1-6 switch screens, q quits.",
+    )
+    p.add_argument("--sim", action="store_true", help="attach to the built-in simulated cell")
+    p.add_argument(
+        "--cell", default="reference", help="cell file or built-in name (default: reference)"
+    )
+    p.add_argument("--plan", type=Path, help="plan.json to run (default: plan the cell now)")
+    p.add_argument(
+        "--n", type=int, default=40, help="poses to generate when planning now (default 40)"
+    )
+    p.add_argument("--robot-ip", help="the real robot's address (without --sim)")
+    p.add_argument("--motor-port", help="serial port of the pan motor (real station)")
+    p.add_argument("--cameras", help="left,right camera ids or devices (real station)")
+    p.add_argument("--calibration", help="stereo calibration CAL.json (real station)")
+    p.add_argument(
+        "--archive",
+        type=Path,
+        default=Path("archive"),
+        help="archive folder: runs and baselines (default ./archive)",
+    )
+    p.add_argument("--robot-name", default="ur5-sim", help="the robot's name in the archive")
+    p.add_argument(
+        "--threshold-mm", type=float, default=0.5, help="degraded above this mean error (mm)"
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from quickhealth.identify.errors import InputError
+
+    from ..tui.app import QuickhealthApp
+    from ..tui.facade import Station
+
+    if not args.sim and not args.robot_ip:
+        raise InputError("tui: give --sim for the simulated cell or --robot-ip IP for a real robot")
+    station = Station.open(
+        cell=args.cell,
+        plan=args.plan,
+        archive=args.archive,
+        robot_name=args.robot_name,
+        sim=args.sim,
+        robot_ip=args.robot_ip,
+        motor_port=args.motor_port,
+        cameras=None if not args.cameras else tuple(args.cameras.split(",", 1)),
+        calibration=args.calibration,
+        n_poses=args.n,
+        threshold_mm=args.threshold_mm,
+    )
+    try:
+        app = QuickhealthApp(station)
+        return int(app.run() or 0)
+    finally:
+        station.shutdown()
