@@ -462,8 +462,20 @@ class Archive:
         """The run's folder in the archive."""
         return self.run_path(rec.robot, rec.run_id)
 
-    def run_state(self, rec: RunRecord) -> RunState:
-        """What the trend needs of a run: figures and their uncertainty, error model, metadata."""
+    def run_state(self, rec: RunRecord, like: RunRecord | None = None) -> RunState:
+        """What the trend needs of a run: figures and their uncertainty, error model, metadata.
+
+        Parameters
+        ----------
+        rec : RunRecord
+        like : RunRecord, optional
+            The baseline.  When the run's model has other orders than the baseline's, the run's
+            measurements are fitted again at the baseline's orders (cached in the run folder as
+            ``model.like-<baseline>.json``), so that a term one fit selected and the other did
+            not is not mistaken for a change.
+        """
+        from quickhealth.station import formats
+
         folder = self.folder(rec)
         figs, sig = rec.figures_mm, {}
         rp = folder / "report.json"
@@ -472,13 +484,23 @@ class Archive:
             figs = {**figs, **{k: v for k, v in f2.items() if math.isnan(figs.get(k, math.nan))}}
         spec = coeffs = cov = None
         mp = folder / "model.json"
+        csv = folder / "measurements.csv"
         if mp.is_file():
             spec, coeffs, cov = model_arrays(_read_json(mp), str(mp))
+            if like is not None and like.run_id != rec.run_id and csv.is_file():
+                bp = self.folder(like) / "model.json"
+                if bp.is_file():
+                    bspec, _, _ = model_arrays(_read_json(bp), str(bp))
+                    same = (
+                        bspec.orders.shape == spec.orders.shape
+                        and np.array_equal(bspec.orders, spec.orders)
+                        and np.allclose(bspec.q_lo, spec.q_lo)
+                        and np.allclose(bspec.q_hi, spec.q_hi)
+                    )
+                    if not same and bspec.n_joints == spec.n_joints:
+                        spec, coeffs, cov = self._like_model(folder, mp, csv, like, bspec)
         q_measured = None
-        csv = folder / "measurements.csv"
         if spec is not None and csv.is_file():
-            from quickhealth.station import formats
-
             q = formats.read_measurements(csv, spec.n_joints).q
             q_measured = (q.min(axis=0), q.max(axis=0))
         return RunState(
@@ -492,6 +514,20 @@ class Archive:
             meta=rec.meta,
             q_measured=q_measured,
         )
+
+    def _like_model(
+        self, folder: Path, mp: Path, csv: Path, like: RunRecord, bspec: ErrorModelSpec
+    ) -> tuple[ErrorModelSpec, np.ndarray, np.ndarray | None]:
+        from quickhealth.identify.fit import fit_model
+        from quickhealth.station import formats
+
+        cache = folder / f"model.like-{safe_name(like.run_id, 'run id')}.json"
+        if not cache.is_file():
+            own = formats.read_model(mp)
+            meas = formats.read_measurements(csv, own.robot.n_joints)
+            refit = fit_model(own.robot, meas, bspec, own.effects, own.noise, own.prior)
+            formats.write_model(cache, refit)
+        return model_arrays(_read_json(cache), str(cache))
 
 
 def _software_version() -> str:

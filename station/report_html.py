@@ -457,7 +457,7 @@ def _trend_section(
     b = next((i for i, r in enumerate(recs) if r.baseline), None)
     if b is None:
         return Section("trend", title, missing=f"robot {robot} has no baseline before this run")
-    states = [archive.run_state(r) for r in recs]
+    states = [archive.run_state(r, like=recs[b]) for r in recs]
     res = assess_trend(states, b, threshold_mm=threshold_mm)
     flags = res.flags()
     lines = [

@@ -256,7 +256,7 @@ def trend_for(arch: Any, robot: str, **kwargs: Any) -> Any:
             f"robot {robot!r} has no healthy run to be its baseline: "
             "quickhealth archive baseline ROBOT RUN_ID"
         )
-    states = [arch.run_state(r) for r in recs]
+    states = [arch.run_state(r, like=recs[b]) for r in recs]
     return assess_trend(states, b, **kwargs)
 
 

@@ -188,3 +188,23 @@ def test_cli_errors_are_one_line_with_status_2(tmp_path, run_dirs, capsys):
     assert main(["archive", "list", "--archive", arch]) == 0
     out = capsys.readouterr().out
     assert "ok: 1 runs, baseline r0" in out
+
+
+def test_runs_fitted_at_other_orders_are_refitted_like_the_baseline(tmp_path, run_dirs):
+    """A term one fit selected and the other did not is not a change: the later run is
+    refitted at the baseline's orders (cached next to it) before the curves are compared."""
+    other = _runs.make_run(tmp_path / "o2", 5, n_poses=30, order=2, time_utc="2026-05-01T08:00:00Z")
+    a = Archive.open(tmp_path / "arch")
+    a.add_run("ur5-a", run_dirs[0])
+    a.add_run("ur5-a", other, run_id="o2")
+    base, rec = a.runs("ur5-a")
+    plain = a.run_state(rec)
+    like = a.run_state(rec, like=base)
+    assert plain.spec.orders.max() == 2 and np.array_equal(
+        like.spec.orders, a.run_state(base).spec.orders
+    )
+    assert (a.folder(rec) / "model.like-r0.json").is_file()
+    from quickhealth.station.commands.trend import trend_for
+
+    res = trend_for(a, "ur5-a")
+    assert not res.flags(), res.flags()
