@@ -66,6 +66,7 @@ def _history(rng, n_runs, drift_per_run=0.0, fig_drift_per_run=0.0, spec=None):
     return runs
 
 
+@pytest.mark.slow
 def test_no_false_alarm_over_30_healthy_runs():
     """30 healthy runs with fit noise and figure noise: not one run is flagged, 20 robots."""
     flagged = 0

@@ -179,6 +179,7 @@ def imaged_run(tmp_path_factory):
     return run_dir, cal, cal2, world
 
 
+@pytest.mark.slow
 def test_redetect_with_a_new_calibration(imaged_run):
     from quickhealth.station import formats
     from quickhealth.station.reprocess import redetect_run
