@@ -709,10 +709,12 @@ class Controller:
             for s in list(self.connections):
                 _close(s)
             self.connections.clear()
-        elif kind == "clear":
+        elif kind == "clear":  # back to a healthy controller (tests): faults and stops gone
             self.frozen = None
             self.refuse_connections = False
             self.pending_faults.clear()
+            self.safety_mode = SAFETY_NORMAL
+            self.robot_mode = ROBOT_MODE_RUNNING
 
 
 FAULT_KINDS = (

@@ -19,7 +19,7 @@ from quickhealth.station.hardware.robot import (
 )
 from quickhealth.station.hardware.simcontroller import start_sim_controller
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(90)]
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)  # includes waiting for the UR ports]
 
 Q1 = np.radians([10.0, -80.0, 80.0, -90.0, -90.0, 10.0])
 Q2 = np.radians([25.0, -70.0, 70.0, -95.0, -85.0, 20.0])
@@ -75,6 +75,6 @@ def test_fault_mid_move_ends_it_quickly_with_advice(sim, robot, kind, exc, words
     assert dt < 1.5, dt
     msg = str(err.value)
     assert words in msg and "--resume" in msg and "\n" not in msg
-    sim.fault("clear")
     if kind == "protective_stop":
         assert sim.state()["safety_mode"] == 3
+    sim.fault("clear")

@@ -14,7 +14,7 @@ import pytest
 
 from quickhealth.station.hardware import simcontroller as sc
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(60)]
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)  # includes waiting for the UR ports]
 
 
 @pytest.fixture(scope="module")
