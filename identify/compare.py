@@ -32,6 +32,7 @@ from .diagnose import (
     regressor_values,
     sensitivities,
     state_from_fitted,
+    whitening,
 )
 from .effects import Effect, EffectContext, parse_effects
 from .errors import InputError
@@ -328,17 +329,13 @@ def _panels(
     ctx = _context(fitted_after, meas)
     sens = sensitivities(state, ctx)
     T = fitted_after.predict(meas.q, time=meas.time, temp=meas.temp)
-    c = res0.shape[1]
-    sigma = np.tile(
-        [state.sigma_pos] * 3 + [state.sigma_rot] * 3,
-        (meas.n_poses, 1),
-    )[:, :c]
+    wh = whitening(state, meas, sens)
     out = []
     names = [e.name for e in fitted_after.effects]
     for e in new:
         p = fitted_after.effect_params[names.index(e.name)]
-        y0, _, label = implied_channel(e, p, ctx, sens, T, res0, sigma)
-        y1, _, _ = implied_channel(e, p, ctx, sens, T, res1, sigma)
+        y0, _, label = implied_channel(e, p, ctx, sens, T, res0, wh)
+        y1, _, _ = implied_channel(e, p, ctx, sens, T, res1, wh)
         x, xlabel = regressor_values(e, ctx, T)
         out.append(EffectPanel(e.name, np.asarray(x, float), xlabel, y0, y1, y0 - y1, label))
     return tuple(out)

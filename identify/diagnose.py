@@ -83,6 +83,8 @@ class LoopState:
         Instrument position noise the model assumes (per axis).
     sigma_rot : float, rad
         Instrument rotation noise the model assumes (per axis).
+    sigma_q : float, rad
+        Encoder noise of the joint readings, propagated through the loop (0 = exact).
     """
 
     robot: RobotModel
@@ -94,6 +96,7 @@ class LoopState:
     effect_params: tuple[F, ...] = ()
     sigma_pos: float = DEFAULT_SIGMA_POS
     sigma_rot: float = DEFAULT_SIGMA_ROT
+    sigma_q: float = 0.0
 
     @property
     def effect_names(self) -> tuple[str, ...]:
@@ -162,6 +165,43 @@ def noise_sigmas(state: LoopState, meas: Measurements) -> F:
         return np.asarray(sp, float)
     sr = meas.sigma_rpy if meas.sigma_rpy is not None else np.full((n, 3), state.sigma_rot)
     return np.concatenate([sp, sr], axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class Whitening:
+    """Per-pose whitening ``W_i = L_i⁻¹`` with ``L_i L_iᵀ = Σ_i`` (instrument + encoders).
+
+    ``Σ_i = diag(σ²) + σ_q² Σ_j g_ij g_ijᵀ`` with ``g_ij`` the pose's sensitivity to joint j:
+    encoder noise makes the noise pose-dependent, and a test that ignored it would see
+    structure in it.
+    """
+
+    W: F  # (n, c, c)
+    L: F  # (n, c, c)
+
+    def white(self, x: F) -> F:
+        """``W_i x_i`` for residual-like ``x`` (n, c) or Jacobian-like ``x`` (n, c, k)."""
+        if x.ndim == 2:
+            return np.einsum("nij,nj->ni", self.W, x)
+        return np.einsum("nij,njk->nik", self.W, x)
+
+    def unwhite(self, x: F) -> F:
+        """``L_i x_i`` for ``x`` (n, c): back to SI units."""
+        return np.einsum("nij,nj->ni", self.L, x)
+
+
+def whitening(state: LoopState, meas: Measurements, sens: Sensitivities) -> Whitening:
+    """The per-pose whitening of ``meas`` under ``state``'s noise model."""
+    sig = noise_sigmas(state, meas)
+    c = sig.shape[1]
+    cov = np.zeros((sig.shape[0], c, c))
+    idx = np.arange(c)
+    cov[:, idx, idx] = sig**2
+    if state.sigma_q > 0:
+        g = sens.dq[:, :, :c]
+        cov += state.sigma_q**2 * np.einsum("nji,njk->nik", g, g)
+    L = np.linalg.cholesky(cov)
+    return Whitening(W=np.linalg.inv(L), L=L)
 
 
 @dataclass(frozen=True, eq=False)
@@ -308,7 +348,7 @@ class WhitenedProblem:
     r: F  # (n_obs,)
     J: F  # (n_obs, n_params)
     labels: tuple[str, ...]
-    sigma: F  # (n, c): per-component σ used
+    whiten: Whitening
     n_comp: int  # 6 for pose data, 3 for position-only
     ctx: EffectContext
     sens: Sensitivities
@@ -321,19 +361,19 @@ def whitened(state: LoopState, meas: Measurements) -> WhitenedProblem:
     T = model_pose(state, ctx)
     res = pose_residuals(meas, T)
     c = res.shape[1]
-    sig = noise_sigmas(state, meas)
     sens = sensitivities(state, ctx)
+    wh = whitening(state, meas, sens)
     cols = [chebyshev_jacobian(state, ctx, sens)]
     labels = list(state.spec.labels())
     for e in state.effects:
         cols.append(effect_jacobian(e, ctx, sens))
         labels += [f"{e.name}.{p}" for p in e.param_names]
-    Jp = np.concatenate(cols, axis=2)[:, :c, :] / sig[:, :, None]
+    Jp = wh.white(np.concatenate(cols, axis=2)[:, :c, :])
     return WhitenedProblem(
-        r=(res / sig).reshape(-1),
+        r=wh.white(res).reshape(-1),
         J=Jp.reshape(-1, Jp.shape[2]),
         labels=tuple(labels),
-        sigma=sig,
+        whiten=wh,
         n_comp=c,
         ctx=ctx,
         sens=sens,
@@ -563,9 +603,9 @@ def diagnose(
         (``Diagnosis.suggested``).  A large effect leaves side peaks in other candidates;
         this tells them apart from a second real effect.
 
-    The residuals and Jacobians are computed here (:func:`whitened`), with the model's
-    instrument noise on the diagonal, so the candidates' columns and the model's share one
-    whitening; the model pose equals ``FittedModel.predict`` to rounding.
+    The residuals and Jacobians are computed here (:func:`whitened`) with the model's
+    instrument and encoder noise (:func:`whitening`), so the candidates' columns and the
+    model's share one whitening; the model pose equals ``FittedModel.predict`` to rounding.
 
     Returns
     -------
@@ -590,7 +630,7 @@ def diagnose(
     dof_res = n_obs - Q.shape[1]
     s2 = rss / max(dof_res, 1)
     c = wp.n_comp
-    res_now = r.reshape(-1, c) * wp.sigma
+    res_now = wp.whiten.unwhite(r.reshape(-1, c))
     rms_now = rms_pos_mm(res_now)
     rms_rot = float(np.sqrt(np.mean(np.sum(res_now[:, 3:] ** 2, axis=1))) * 1e3) if c == 6 else None
     m_tests = max(len(names), 1)
@@ -719,9 +759,9 @@ def _forward(
     while len(chosen) < max_effects:
         Z = np.concatenate(
             [
-                (
-                    effect_jacobian(by_name[n], wp.ctx, wp.sens)[:, :c, :] / wp.sigma[:, :, None]
-                ).reshape(-1, by_name[n].n_params)
+                (wp.whiten.white(effect_jacobian(by_name[n], wp.ctx, wp.sens)[:, :c, :])).reshape(
+                    -1, by_name[n].n_params
+                )
                 for n in chosen
             ],
             axis=1,
@@ -747,7 +787,7 @@ def _one_step(
     ``None`` when the effect's columns lie in the model's column space (not identifiable).
     """
     c = wp.n_comp
-    Z = effect_jacobian(effect, wp.ctx, wp.sens)[:, :c, :] / wp.sigma[:, :, None]
+    Z = wp.whiten.white(effect_jacobian(effect, wp.ctx, wp.sens)[:, :c, :])
     Z = Z.reshape(-1, effect.n_params)
     Zp = Z - Q @ (Q.T @ Z)
     zn = np.linalg.norm(Z, axis=0)
@@ -759,7 +799,7 @@ def _one_step(
     Uk = U[:, keep]
     proj = Uk.T @ r_perp
     theta = Vt[keep].T @ (proj / sv[keep])
-    return k, float(proj @ proj), theta, (Uk @ proj).reshape(-1, c) * wp.sigma
+    return k, float(proj @ proj), theta, wp.whiten.unwhite((Uk @ proj).reshape(-1, c))
 
 
 def _evidence(
@@ -812,6 +852,7 @@ def state_from_fitted(fitted: Any) -> LoopState:
         effect_params=tuple(np.asarray(p, float) for p in fitted.effect_params),
         sigma_pos=float(getattr(noise, "sigma_pos", DEFAULT_SIGMA_POS)),
         sigma_rot=float(getattr(noise, "sigma_rot", DEFAULT_SIGMA_ROT)),
+        sigma_q=float(getattr(noise, "sigma_q", 0.0)),
     )
 
 
@@ -869,7 +910,7 @@ def implied_channel(
     sens: Sensitivities,
     T_model: F,
     residual: F,
-    sigma: F,
+    whiten: Whitening,
 ) -> tuple[F, F, str]:
     """Per-pose value of the effect's quantity implied by ``residual`` (n, c).
 
@@ -899,8 +940,8 @@ def implied_channel(
         label = "base motion along the fitted drift (mm or mrad)"
     else:
         raise ValueError(f"{effect.name}: no channel to show")
-    gw = g[:, :c] / sigma
-    rw = residual / sigma
+    gw = whiten.white(g[:, :c])
+    rw = whiten.white(residual)
     implied = np.einsum("nc,nc->n", gw, rw) / np.maximum(np.einsum("nc,nc->n", gw, gw), 1e-300)
     return implied * scale, np.asarray(pred, float) * scale, label
 
@@ -920,20 +961,22 @@ def effect_view(state: LoopState, meas: Measurements, effect_name: str) -> Effec
     """
     effect = parse_effect(effect_name, state.robot)
     wp = whitened(state, meas)
-    res = wp.r.reshape(-1, wp.n_comp) * wp.sigma
+    res = wp.whiten.unwhite(wp.r.reshape(-1, wp.n_comp))
     x, xlabel = regressor_values(effect, wp.ctx, wp.T_model)
     if effect.name in state.effect_names:  # in the model: show it with what is left around it
         theta = np.asarray(state.effect_params[state.effect_names.index(effect.name)], float)
-        y, pred, ylabel = implied_channel(effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.sigma)
+        y, pred, ylabel = implied_channel(
+            effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.whiten
+        )
         y = y + pred
     else:  # not in the model: the residual, and what a one-step refit would explain of it
         Q = _orthonormal_basis(wp.J)
         one = _one_step(wp, Q, wp.r - Q @ (Q.T @ wp.r), effect)
         theta = np.zeros(effect.n_params) if one is None else one[2]
         explained = np.zeros_like(res) if one is None else one[3]
-        y, _, ylabel = implied_channel(effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.sigma)
+        y, _, ylabel = implied_channel(effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.whiten)
         pred, _, _ = implied_channel(
-            effect, theta, wp.ctx, wp.sens, wp.T_model, explained, wp.sigma
+            effect, theta, wp.ctx, wp.sens, wp.T_model, explained, wp.whiten
         )
     return EffectView(effect.name, np.asarray(x, float), xlabel, y, pred, ylabel, theta)
 

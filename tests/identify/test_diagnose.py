@@ -83,6 +83,23 @@ def test_noise_only_data_is_adequate(seed) -> None:
     assert diag.n_tested > 150
 
 
+@pytest.mark.parametrize("seed", [55, 57])
+def test_encoder_noise_is_not_mistaken_for_an_effect(seed) -> None:
+    """Encoder noise makes the pose noise configuration-dependent; the whitening knows it."""
+    from quickhealth.identify.fit import InstrumentNoise
+
+    twin = make_twin(seed=seed, sigma_q=3e-5)
+    q = random_joints(twin.robot, 150, seed=seed - 50, T_instr_base=twin.truth.T_instr_base)
+    train = twin.measure(q, *schedules(150), seed=seed - 41)
+    orders = twin.truth.orders.copy()
+    orders[[0, -1]] = 0
+    spec = ErrorModelSpec(orders, q.min(0) - 0.02, q.max(0) + 0.02)
+    fitted = fit_model(twin.robot, train, spec, noise=InstrumentNoise(3e-5, 1e-4, 3e-5))
+    diag = diagnose(state_from_fitted(fitted), train)
+    assert diag.verdict is Verdict.ADEQUATE, diag.summary(3)
+    assert 0.85 < diag.noise_scale < 1.15
+
+
 def test_high_harmonic_found_from_the_residual_spectrum() -> None:
     _, train, _, fitted = make_case("cyclic:j2:h13", 1.5e-4, seed=21)
     diag = diagnose(state_from_fitted(fitted), train)
