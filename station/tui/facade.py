@@ -71,13 +71,6 @@ def _slug(name: str) -> str:
     return name.replace(":", "_")
 
 
-def _save(fig, path: Path) -> str:  # type: ignore[no-untyped-def]
-    """Write a matplotlib Figure as PNG (Agg, no display needed)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    return str(path)
-
-
 class Analysis:
     """Fit, results, diagnosis and refit of one data set (a run's measurements).
 
@@ -230,20 +223,20 @@ class Analysis:
             step(done[0], total, line)
 
         step(0, total, f"fitting with {effect}…")
-        cmp, fig = offload(
+        png = None if self.out_dir is None else str(self.out_dir / f"refit_{_slug(effect)}.png")
+        cmp = offload(
             jobs.compare_job,
             self.model(),
             self.meas,
             effect,
             self.heldout,
             folds,
+            png,
             progress=progress,
         )
         with self._lock:
             self.effects = tuple(e.name for e in cmp.fitted_after.effects)
             self._model = _Model(cmp.fitted_after, self.effects, self.meas.n_poses)
-        if self.out_dir is not None:
-            _save(fig, self.out_dir / f"refit_{_slug(effect)}.png")
         step(total, total, "done")
         b, a = cmp.before, cmp.after
         return Refit(
@@ -576,8 +569,6 @@ class Station:
         """Fit the run, write model.json, report.json and the PNGs, archive it, summarise."""
         from quickhealth.station.formats import write_model, write_report
 
-        from . import figures
-
         if self.analysis is None:
             raise InputError("no measurements yet: run the plan first")
         if self._health is not None and not self.results_stale():
@@ -591,11 +582,13 @@ class Station:
         )
         d = self.run_dir
         d.mkdir(parents=True, exist_ok=True)
-        pngs = (
-            figures.histogram_png(
-                h.hist_counts, h.hist_edges_mm, self.threshold_mm, d / "workspace_error.png"
-            ),
-            figures.curves_png(h.curves, d / "joint_curves.png"),
+        pngs = offload(
+            jobs.results_pngs_job,
+            h.hist_counts,
+            h.hist_edges_mm,
+            self.threshold_mm,
+            h.curves,
+            str(d),
         )
         report["healthy"] = h.verdict == "healthy"
         report["run_id"] = self.run_id
@@ -632,8 +625,6 @@ class Station:
         """This robot's archived runs, oldest first, and the trend of the main figures."""
         from quickhealth.identify.trend import assess_trend
 
-        from . import figures
-
         try:
             recs = self.archive.runs(self.robot_name)
         except InputError:
@@ -662,7 +653,7 @@ class Station:
         words = "; ".join(flags[:2]) if flags else "no significant change since the baseline"
         if prog is not None and len(recs) > 2:
             words += "; " + prog.words()
-        png = figures.trend_png(rows, self.threshold_mm, self.run_dir / "trend.png")
+        png = offload(jobs.trend_png_job, rows, self.threshold_mm, str(self.run_dir / "trend.png"))
         return History(self.robot_name, rows, words, flagged=result.flagged, pngs=(png,))
 
     # ----- run -------------------------------------------------------------------------------

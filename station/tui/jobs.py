@@ -2,7 +2,7 @@
 
 Each takes plain data (robot, measurements, fitted model, names) and a ``progress`` callback,
 and returns picklable results, so :func:`~quickhealth.station.tui.offload.offload` can run
-it in a child process.  Nothing here reads or writes files.
+it in a child process.  Nothing here reads files; figures are written where asked (PNG).
 """
 
 from __future__ import annotations
@@ -48,13 +48,51 @@ def compare_job(
     effect: str,
     heldout: Measurements | None,
     folds: int,
+    png: str | None = None,
     progress: Progress | None = None,
 ) -> Any:
-    """``identify.compare.compare_effect`` and its before/after figure (a Comparison, Figure)."""
+    """``identify.compare.compare_effect``; its before/after figure written to ``png`` if given."""
     from quickhealth.identify.compare import compare_effect, plot_comparison
 
     cmp = compare_effect(fitted, meas, effect, heldout=heldout, folds=folds, progress=progress)
-    return cmp, plot_comparison(cmp)
+    if png is not None:
+        from pathlib import Path
+
+        path = Path(png)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        plot_comparison(cmp).savefig(path, dpi=90)
+    return cmp
+
+
+def results_pngs_job(
+    counts: Sequence[int],
+    edges_mm: Sequence[float],
+    threshold_mm: float,
+    curves: Sequence[Any],
+    out_dir: str,
+    progress: Progress | None = None,
+) -> tuple[str, str]:
+    """The Results screen's PNGs: workspace error histogram and joint curves."""
+    from pathlib import Path
+
+    from . import figures
+
+    d = Path(out_dir)
+    return (
+        figures.histogram_png(counts, edges_mm, threshold_mm, d / "workspace_error.png"),
+        figures.curves_png(curves, d / "joint_curves.png"),
+    )
+
+
+def trend_png_job(
+    rows: Sequence[Any], threshold_mm: float, png: str, progress: Progress | None = None
+) -> str:
+    """The History screen's PNG: the main figures over the runs."""
+    from pathlib import Path
+
+    from . import figures
+
+    return figures.trend_png(rows, threshold_mm, Path(png))
 
 
 def workspace_job(fitted: Any, progress: Progress | None = None) -> tuple[Any, Any, Any]:

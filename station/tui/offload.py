@@ -29,8 +29,10 @@ PRELOAD = [
     "quickhealth.identify.compare",
     "quickhealth.identify.workspace",
     "quickhealth.station.tui.jobs",
+    "quickhealth.station.tui.figures",
 ]
 
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 _ctx_lock = threading.Lock()
 _ctx: Any = None
 
@@ -52,10 +54,22 @@ def warm_up() -> None:
     server they start, and a terminal UI (or its test driver) replaces stderr with an object
     that has no file descriptor.
     """
+    import os
     from multiprocessing import forkserver
 
     _context()
-    forkserver.ensure_running()
+    # The server (and every fit forked from it) loads OpenBLAS with one thread: the UI and
+    # the fit share the machine, and threaded BLAS on small matrices only adds contention.
+    saved = {k: os.environ.get(k) for k in BLAS_THREADS}
+    os.environ.update(dict.fromkeys(BLAS_THREADS, "1"))
+    try:
+        forkserver.ensure_running()
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def _child(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:

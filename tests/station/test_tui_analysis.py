@@ -68,7 +68,8 @@ async def test_diagnose_loop_on_hidden_effect_lowers_heldout_error(tmp_path: Pat
         await pilot.press("a")
         await settle(app, pilot)
         refit = screen.refit
-        assert refit is not None and refit.effects_after == ("backlash:j2",)
+        assert refit is not None, text_of(app, "#before-after")
+        assert refit.effects_after == ("backlash:j2",)
         assert refit.after_mm < 0.7 * refit.before_mm
         shown = text_of(app, "#before-after")
         assert "Held-out error" in shown
