@@ -169,7 +169,7 @@ async def test_abort_stops_the_robot_first_and_keeps_the_journal(tmp_path: Path,
         assert app.screen.progress.state == "finished"
         again = journal_indices(station.run_dir)
         assert sorted(again) == list(range(1, len(plan.poses) + 1))
-        assert read_journal(station.run_dir / JOURNAL).resumes == 1
+        assert read_journal(station.run_dir / JOURNAL).resumes >= 1
 
 
 @pytest.mark.slow
@@ -216,3 +216,17 @@ async def test_connection_loss_is_shown_at_once_and_recovered(tmp_path: Path, pl
         after = journal_indices(station.run_dir)
         assert after[: len(before)] == before
         assert sorted(after) == list(range(1, len(plan.poses) + 1))
+
+
+def test_a_protective_stop_is_named_with_what_to_do() -> None:
+    from quickhealth.station.hardware.robot import FakeRobot
+    from quickhealth.station.tui.cell import classify
+
+    robot = FakeRobot()
+    robot.inject("protective_stop")
+    fault = classify(robot, "the move did not finish: protective stop")
+    assert fault.kind == "protective-stop"
+    assert "protective stop" in fault.message and "teach pendant" in fault.what_to_do
+    robot.release()
+    robot.inject("connection_drop")
+    assert classify(robot, "lost the RTDE connection").kind == "connection-lost"
