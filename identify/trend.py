@@ -170,6 +170,7 @@ class Prognosis:
     crossing_late_t_s: float | None  # 95 % band, late end; None = beyond the horizon
     already_above: bool
     last_t_s: float | None = None  # time of the last run the line was fitted to
+    n_runs: int = 0  # runs the line was fitted to (0: too few for a trend)
 
     def days_from_last(self, t: float | None) -> float | None:
         """Days from the last run to ``t`` (None stays None)."""
@@ -182,6 +183,8 @@ class Prognosis:
         name = FIGURE_WORDS.get(self.figure, self.figure)
         if self.already_above:
             return f"{name} is already above the tolerance of {self.tolerance_mm:g} mm"
+        if not self.trend and self.n_runs == 0:
+            return f"{name}: no trend (too few runs since the baseline for a trend)"
         if not self.trend:
             return f"{name}: no trend (slope p = {self.p_value:.2f})"
         s = f"{name} rises by {self.slope_mm_per_day * 30:.3f} mm per 30 days"
@@ -626,11 +629,31 @@ def prognosis(
         p = float(stats.t.sf(res.slope / se_b, dof))
     if not (res.slope > 0 and p < p_max):
         return Prognosis(
-            figure, False, float(res.slope), p, tolerance_mm, None, None, None, above, float(t[-1])
+            figure,
+            False,
+            float(res.slope),
+            p,
+            tolerance_mm,
+            None,
+            None,
+            None,
+            above,
+            float(t[-1]),
+            n,
         )
     if tolerance_mm is None or above:
         return Prognosis(
-            figure, True, float(res.slope), p, tolerance_mm, None, None, None, above, float(t[-1])
+            figure,
+            True,
+            float(res.slope),
+            p,
+            tolerance_mm,
+            None,
+            None,
+            None,
+            above,
+            float(t[-1]),
+            n,
         )
     t_cross_d = (tolerance_mm - res.intercept) / res.slope
     span = max(td[-1] - td[0], 1.0)
@@ -657,6 +680,7 @@ def prognosis(
         to_s(None if late is None else float(late)),
         above,
         float(t[-1]),
+        n,
     )
 
 
