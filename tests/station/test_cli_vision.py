@@ -254,7 +254,14 @@ def test_calibrate_stereo_pair_writes_R_T_baseline(tmp_path, capsys):
     assert d["stereo_rms_px"] < 2 * d["mono_rms_px"]
 
 
-def test_measure_refuses_a_corrupt_image_in_a_worker_and_writes_nothing(tmp_path, capsys):
+@pytest.mark.parametrize(
+    ("bad", "needle"),
+    [
+        (b"garbage", "not a readable image"),
+        ("small", "image is 120×90, the calibration's camera 1200×900"),
+    ],
+)
+def test_measure_refuses_a_bad_image_in_a_worker_and_writes_nothing(tmp_path, capsys, bad, needle):
     rig = _small_rig()
     run = tmp_path / "run"
     (run / "images").mkdir(parents=True)
@@ -264,11 +271,14 @@ def test_measure_refuses_a_corrupt_image_in_a_worker_and_writes_nothing(tmp_path
     for k in range(3):
         cv2.imwrite(str(run / "images" / f"p{k}_left.png"), left)
         cv2.imwrite(str(run / "images" / f"p{k}_right.png"), right)
-    (run / "images" / "p1_right.png").write_bytes(b"garbage")
+    if bad == "small":
+        cv2.imwrite(str(run / "images" / "p1_right.png"), np.zeros((90, 120), np.uint8))
+    else:
+        (run / "images" / "p1_right.png").write_bytes(bad)
     (run / "images" / "index.csv").write_text("pose_id,q1,q2\np0,1,2\np1,1,2\np2,1,2\n")
     assert main(["vision", "measure", str(run), "--jobs", "2"]) == 2
     line = _one_line(capsys.readouterr().err)
-    assert "p1_right.png" in line and "not a readable image" in line
+    assert "p1_right.png" in line and needle in line
     assert not (run / "measurements.csv").exists()
 
 
