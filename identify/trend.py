@@ -133,11 +133,14 @@ class CurveChange:
 
     def hint(self) -> str:
         """The change in words, e.g. "joint 2 tilt about x grew by 0.30 mrad since baseline"."""
-        scale, unit = (1e3, "mrad") if self.is_angle else (1e3, "mm")
+        size = (
+            f"{self.max_change * 1e3:.2f} mrad"
+            if self.is_angle
+            else f"{self.max_change * 1e3:.3f} mm"
+        )
         verb = "grew" if self.peak_run > self.peak_baseline else "changed"
         return (
-            f"joint {self.joint} {MOTION_WORDS[self.motion]} {verb} by "
-            f"{self.max_change * scale:.2f} {unit} since baseline "
+            f"joint {self.joint} {MOTION_WORDS[self.motion]} {verb} by {size} since baseline "
             f"({self.z_max:.1f}σ, p = {self.p_value:.1e})"
         )
 
