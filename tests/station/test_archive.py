@@ -2,6 +2,7 @@
 
 import importlib.util
 import json
+import os
 import sqlite3
 from pathlib import Path
 
@@ -208,3 +209,25 @@ def test_runs_fitted_at_other_orders_are_refitted_like_the_baseline(tmp_path, ru
 
     res = trend_for(a, "ur5-a")
     assert not res.flags(), res.flags()
+
+
+@pytest.mark.skipif(
+    not os.environ.get("QUICKHEALTH_TEST_PG_URL"),
+    reason="no PostgreSQL to test against: set QUICKHEALTH_TEST_PG_URL "
+    "(e.g. postgresql+psycopg://user@/db?host=/tmp) to run the shared-index test",
+)
+def test_postgresql_index_shared_by_two_stations(tmp_path, run_dirs):
+    import sqlalchemy as sa
+
+    url = os.environ["QUICKHEALTH_TEST_PG_URL"]
+    eng = sa.create_engine(url)
+    with eng.begin() as con:  # a clean index
+        con.execute(sa.text("drop table if exists runs"))
+        con.execute(sa.text("drop table if exists robots"))
+    a = Archive.open(tmp_path / "shared", url=url)
+    b = Archive.open(tmp_path / "shared", url=url)
+    a.add_run("ur5-a", run_dirs[0])
+    b.add_run("ur5-a", run_dirs[1])
+    b.set_baseline("ur5-a", "r1")
+    assert [(r.run_id, r.baseline) for r in a.runs("ur5-a")] == [("r0", False), ("r1", True)]
+    assert a.run_state(a.runs("ur5-a")[0]).spec is not None
