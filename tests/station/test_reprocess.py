@@ -57,7 +57,15 @@ def test_localcluster_equals_local_path(fleet):
         with Client(cl) as client:
             seen = []
             dask = reprocess(jobs, scheduler=client, progress=lambda k, n, r: seen.append(k))
-    t2 = time.perf_counter()
+        t2 = time.perf_counter()
+        # the command line reaches the same cluster by its address
+        rc = main(["reprocess", "ur5-0", "--archive", str(fleet.root), "--runs", "run00,run02",
+                   "--tag", "t1", "--workspace-samples", "1000", "--scheduler", cl.scheduler_address])  # fmt: skip
+        assert rc == 0
+    by_addr = [
+        reprocess_run(j) for j in jobs if j.robot == "ur5-0" and j.run_id in ("run00", "run02")
+    ]
+    _same(by_addr, [r for r in local if r.robot == "ur5-0" and r.run_id in ("run00", "run02")])
     print(f"local {t1 - t0:.1f} s, LocalCluster {t2 - t1:.1f} s for {len(jobs)} runs")
     _same(local, dask)
     assert sorted(seen) == list(range(1, 21))
