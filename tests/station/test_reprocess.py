@@ -60,13 +60,13 @@ def test_localcluster_equals_local_path(fleet):
         t2 = time.perf_counter()
         # the command line reaches the same cluster by its address
         rc = main(["reprocess", "ur5-0", "--archive", str(fleet.root), "--runs", "run00,run02",
-                   "--tag", "t1", "--workspace-samples", "1000", "--scheduler", cl.scheduler_address])  # fmt: skip
+                   "--tag", "addr", "--workspace-samples", "1000", "--scheduler", cl.scheduler_address])  # fmt: skip
         assert rc == 0
     from quickhealth.station import formats
 
     for r in local:
         if r.robot == "ur5-0" and r.run_id in ("run00", "run02"):  # written by the CLI run
-            written = formats.read_model(Path(r.out_dir) / "model.json").coeffs
+            written = formats.read_model(Path(r.out_dir).parent / "addr" / "model.json").coeffs
             np.testing.assert_allclose(written, r.coeffs, rtol=0, atol=1e-12)
     print(f"local {t1 - t0:.1f} s, LocalCluster {t2 - t1:.1f} s for {len(jobs)} runs")
     _same(local, dask)
