@@ -106,6 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--random", type=int, default=0, help="also N random cases")
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--skip-fixed", action="store_true", help="only the random cases")
+    ap.add_argument(
+        "--controls", type=int, default=0, help="also N noise-only sets: the false-alarm rate"
+    )
     args = ap.parse_args(argv)
     cases = [] if args.skip_fixed else list(CASES)
     rng = np.random.default_rng(args.seed)
@@ -133,6 +136,17 @@ def main(argv: list[str] | None = None) -> int:
             ok &= r["rank"] == 1 and aft is not None and aft <= 1.3 * fl
         else:
             ok &= r["verdict"] == "adequate"
+    if args.controls:
+        alarms = []
+        for k in range(args.controls):
+            r = run_case(None, 0.0, seed=5000 + 7 * k)
+            if r["verdict"] != "adequate":
+                alarms.append(f"seed {5000 + 7 * k}: {r['top']}")
+        print(
+            f"noise-only sets: {len(alarms)} false alarms in {args.controls}"
+            + (f" ({'; '.join(alarms)})" if alarms else "")
+        )
+        ok &= len(alarms) <= max(1, round(0.05 * args.controls))
     print("all acceptance checks pass" if ok else "SOME ACCEPTANCE CHECKS FAIL")
     return 0 if ok else 1
 

@@ -43,6 +43,7 @@ from scipy import stats
 
 from .effects import Effect, EffectContext, Perturbation, parse_effect, total_perturbation
 from .effects._base import perturbed_loop_pose
+from .effects.cyclic import Cyclic
 from .effects.depthscale import UNIFORM_SCALE_EXPLANATION
 from .errormodel import ErrorModelSpec, chebyshev_basis, chebyshev_u
 from .measurements import Measurements
@@ -498,6 +499,9 @@ class Diagnosis:
     not_identifiable : tuple of str
         Candidates the model already absorbs completely (with why).
     notes : tuple of str
+    order_hints : tuple of str
+        Joints whose residuals still follow a smooth function of the joint angle (the
+        Chebyshev orders are too low there: refit, this is no physical effect).
     suggested : tuple of str
         Forward selection: the effects to add together (the best first), each significant
         with the ones before it in the model; empty when adequate.
@@ -514,6 +518,7 @@ class Diagnosis:
     not_identifiable: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     suggested: tuple[str, ...] = ()
+    order_hints: tuple[str, ...] = ()
 
     def to_dict(self, top: int | None = None) -> dict[str, Any]:
         """The contract's JSON: ``verdict`` and ``candidates`` (best first), plus details."""
@@ -530,6 +535,7 @@ class Diagnosis:
             "not_identifiable": list(self.not_identifiable),
             "notes": list(self.notes),
             "suggested": list(self.suggested),
+            "order_hints": list(self.order_hints),
         }
 
     def summary(self, top: int = 5) -> list[str]:
@@ -546,13 +552,13 @@ class Diagnosis:
                 f"{mark}{i:2d}. {c.effect:<16} score {c.score:7.2f}  "
                 f"drop {c.predicted_rms_drop_mm:.4f} mm  — {c.evidence}"
             )
-        if self.verdict is Verdict.ADEQUATE and self.noise_scale <= 1.5:
+        if self.verdict is Verdict.ADEQUATE and self.noise_scale <= 1.5 and not self.order_hints:
             lines.append(
                 "no candidate is significant: the model explains the data down to the noise"
             )
         elif self.verdict is Verdict.ADEQUATE:
             lines.append("no candidate effect is significant")
-        lines += list(self.notes)
+        lines += list(self.order_hints) + list(self.notes)
         return lines
 
 
@@ -644,7 +650,8 @@ def diagnose(
         effects.append(effect)
     raw: list[tuple[float, Candidate]] = []
     spectra: dict[str, list[float]] = {}
-    for effect, one, logp_adj in _scan(wp, Q, r_perp, effects, m_tests):
+    bases = _bases(state, wp, Q, r)
+    for effect, one, logp_adj, s2_c in _scan(wp, bases, effects, m_tests):
         if one is None:
             not_ident.append(
                 f"{effect.name}: the fitted model already expresses it (its Jacobian lies in "
@@ -655,8 +662,8 @@ def diagnose(
         p_adj = float(np.exp(logp_adj))
         score = max(0.0, float(-logp_adj / np.log(10.0)))
         rms_after = rms_pos_mm(res_now - fit_res)
-        lm = S / s2
-        dbic = -S / s2 + k * np.log(n_obs)
+        lm = S / s2_c
+        dbic = -S / s2_c + k * np.log(n_obs)
         cand = Candidate(
             effect=effect.name,
             score=score,
@@ -685,7 +692,9 @@ def diagnose(
     verdict = Verdict.MISSING_EFFECT if cands and cands[0].significant else Verdict.ADEQUATE
     suggested: tuple[str, ...] = ()
     if verdict is Verdict.MISSING_EFFECT:
-        suggested = _forward(wp, Q, r, effects, cands[0].effect, m_tests, alpha, max_suggested)
+        suggested = _forward(
+            state, wp, Q, r, effects, cands[0].effect, m_tests, alpha, max_suggested
+        )
         rest = [c_.effect for c_ in cands[1:] if c_.significant and c_.effect not in suggested]
         if len(suggested) == 1:
             notes.append(
@@ -698,7 +707,8 @@ def diagnose(
                 "ones before them in the model: add them together"
             )
     noise_scale = float(np.sqrt(s2))
-    if verdict is Verdict.ADEQUATE and noise_scale > 1.5:
+    hints = _order_hints(state, wp, bases, alpha) if verdict is Verdict.ADEQUATE else []
+    if verdict is Verdict.ADEQUATE and noise_scale > 1.5 and not hints:
         notes.append(
             f"the residuals are {noise_scale:.1f}× the assumed instrument noise but have no "
             "structure any candidate explains: the instrument may be worse than assumed, or "
@@ -716,33 +726,137 @@ def diagnose(
         not_identifiable=tuple(not_ident),
         notes=tuple(notes),
         suggested=suggested,
+        order_hints=tuple(hints),
     )
 
 
+ORDER_BLOCK = 6  # Chebyshev orders a joint candidate must beat (see _nuisance_joints)
+
+
+def _order_block(state: LoopState, wp: WhitenedProblem, joint: int, order: int = ORDER_BLOCK) -> F:
+    """Whitened columns of every error motion of ``joint`` (0-based) at orders 1 … ``order``."""
+    spec = state.spec
+    u = chebyshev_u(wp.ctx.q[:, joint], spec.q_lo[joint], spec.q_hi[joint])
+    B = chebyshev_basis(u, order)[:, 1:]  # (n, order)
+    S = wp.sens.frame_motion[:, joint + 1, :, : wp.n_comp]  # (n, 6 motions, c)
+    cols = S[:, :, None, :] * B[:, None, :, None]  # (n, 6, order, c)
+    cols = np.moveaxis(cols.reshape(cols.shape[0], -1, wp.n_comp), 1, 2)  # (n, c, 6·order)
+    return wp.whiten.white(cols).reshape(-1, 6 * order)
+
+
+@dataclass(frozen=True, eq=False)
+class _Basis:
+    """What a candidate is tested against: the model's columns (plus nuisance columns)."""
+
+    Q: F
+    r_perp: F
+    rss: float
+    dof: int
+
+    @classmethod
+    def of(cls, Q: F, r: F) -> _Basis:
+        rp = r - Q @ (Q.T @ r)
+        return cls(Q, rp, float(rp @ rp), int(r.size - Q.shape[1]))
+
+
+def _nuisance_joints(effect: Effect, nj: int) -> tuple[int, ...]:
+    """Joints whose smooth (Chebyshev) errors a candidate must be more than.
+
+    Backlash and cyclic errors of joint K are tested against higher Chebyshev orders of joint
+    K: a low harmonic *is* a smooth function of q_K, and under a random execution order the
+    approach direction correlates with q_K itself (a high reading was most likely approached
+    from below), so an order search that stopped early would otherwise show up as backlash.
+    Compliance of joint K is tested against joints K and K+1, whose angles its gravity
+    torque depends on most; what remains is the torque's non-additive dependence (on
+    q_K + q_K+1), which no per-joint polynomial expresses.
+    """
+    from .effects.backlash import Backlash
+    from .effects.compliance import Compliance
+
+    if isinstance(effect, Cyclic | Backlash):
+        return (effect.joint,)
+    if isinstance(effect, Compliance):
+        return tuple(j for j in (effect.joint, effect.joint + 1) if j < nj)
+    return ()
+
+
+class _Bases:
+    """What candidates are tested against: the model's columns plus nuisance columns (cached)."""
+
+    def __init__(self, state: LoopState, wp: WhitenedProblem, Q: F, r: F) -> None:
+        self.state, self.wp, self.Q, self.r = state, wp, Q, r
+        self._cache: dict[tuple[int, ...], _Basis] = {(): _Basis.of(Q, r)}
+        self._blocks: dict[int, F] = {}
+
+    def __getitem__(self, joints: tuple[int, ...]) -> _Basis:
+        if joints not in self._cache:
+            for j in joints:
+                if j not in self._blocks:
+                    self._blocks[j] = _order_block(self.state, self.wp, j)
+            cols = np.concatenate([self.Q, *[self._blocks[j] for j in joints]], axis=1)
+            self._cache[joints] = _Basis.of(_orthonormal_basis(cols), self.r)
+        return self._cache[joints]
+
+
+def _bases(state: LoopState, wp: WhitenedProblem, Q: F, r: F) -> _Bases:
+    """Bases for the candidates of :func:`diagnose` (see :func:`_nuisance_joints`)."""
+    return _Bases(state, wp, Q, r)
+
+
 def _scan(
-    wp: WhitenedProblem, Q: F, r_perp: F, effects: Sequence[Effect], m_tests: int
-) -> list[tuple[Effect, tuple[int, float, F, F] | None, float]]:
-    """Score test of every effect: ``(effect, one-step result or None, log adjusted p)``."""
-    rss = float(r_perp @ r_perp)
-    dof_res = r_perp.size - Q.shape[1]
-    out: list[tuple[Effect, tuple[int, float, F, F] | None, float]] = []
+    wp: WhitenedProblem,
+    bases: _Bases,
+    effects: Sequence[Effect],
+    m_tests: int,
+) -> list[tuple[Effect, tuple[int, float, F, F] | None, float, float]]:
+    """Score test of every effect: ``(effect, one-step result or None, log adjusted p, σ̂²)``."""
+    out: list[tuple[Effect, tuple[int, float, F, F] | None, float, float]] = []
     for effect in effects:
-        one = _one_step(wp, Q, r_perp, effect)
+        b = bases[_nuisance_joints(effect, bases.state.robot.n_joints)]
+        one = _one_step(wp, b.Q, b.r_perp, effect)
+        s2 = b.rss / max(b.dof, 1)
         if one is None:
-            out.append((effect, None, 0.0))
+            out.append((effect, None, 0.0, s2))
             continue
         k, S = one[0], one[1]
-        d2 = max(dof_res - k, 1)
-        F_stat = (S / k) / max((rss - S) / d2, 1e-300)
+        d2 = max(b.dof - k, 1)
+        F_stat = (S / k) / max((b.rss - S) / d2, 1e-300)
         logp = float(stats.f.logsf(F_stat, k, d2))
         if not np.isfinite(logp):  # beyond double precision: the χ² tail's asymptote
             logp = float(stats.chi2.logsf(k * F_stat, k))
             logp = logp if np.isfinite(logp) else -0.5 * k * F_stat
-        out.append((effect, one, min(0.0, logp + np.log(m_tests))))
+        out.append((effect, one, min(0.0, logp + np.log(m_tests)), s2))
     return out
 
 
+def _order_hints(state: LoopState, wp: WhitenedProblem, bases: _Bases, alpha: float) -> list[str]:
+    """Joints whose residuals still follow a smooth function of the joint angle."""
+    base = bases[()]
+    nj = state.robot.n_joints
+    res_now = wp.whiten.unwhite(base.r_perp.reshape(-1, wp.n_comp))
+    hints = []
+    for j in range(nj):
+        bj = bases[(j,)]
+        k = bj.Q.shape[1] - base.Q.shape[1]
+        if k <= 0:
+            continue
+        S = base.rss - bj.rss
+        F_stat = (S / k) / max(bj.rss / max(bj.dof, 1), 1e-300)
+        p = float(np.exp(min(0.0, float(stats.f.logsf(F_stat, k, max(bj.dof, 1))) + np.log(nj))))
+        if p < alpha:
+            drop = wp.whiten.unwhite((base.r_perp - bj.r_perp).reshape(-1, wp.n_comp))
+            hints.append(
+                f"the residuals still follow a smooth function of q{j + 1} (Chebyshev orders up "
+                f"to {ORDER_BLOCK} of joint {j + 1} would lower the position RMS from "
+                f"{rms_pos_mm(res_now):.4f} to {rms_pos_mm(res_now - drop):.4f} mm, p = {p:.2g}): "
+                "the error model's orders are too low there, not a missing effect; refit with "
+                "a higher --max-order"
+            )
+    return hints
+
+
 def _forward(
+    state: LoopState,
     wp: WhitenedProblem,
     Q: F,
     r: F,
@@ -759,7 +873,7 @@ def _forward(
     while len(chosen) < max_effects:
         Z = np.concatenate(
             [
-                (wp.whiten.white(effect_jacobian(by_name[n], wp.ctx, wp.sens)[:, :c, :])).reshape(
+                wp.whiten.white(effect_jacobian(by_name[n], wp.ctx, wp.sens)[:, :c, :]).reshape(
                     -1, by_name[n].n_params
                 )
                 for n in chosen
@@ -767,9 +881,12 @@ def _forward(
             axis=1,
         )
         Qc = _orthonormal_basis(np.concatenate([Q, Z], axis=1))
-        r_perp = r - Qc @ (Qc.T @ r)
         rest = [e for e in effects if e.name not in chosen]
-        scored = [(lp, e.name) for e, one, lp in _scan(wp, Qc, r_perp, rest, m_tests) if one]
+        scored = [
+            (lp, e.name)
+            for e, one, lp, _ in _scan(wp, _bases(state, wp, Qc, r), rest, m_tests)
+            if one
+        ]
         if not scored:
             break
         lp, name = min(scored)

@@ -100,6 +100,25 @@ def test_encoder_noise_is_not_mistaken_for_an_effect(seed) -> None:
     assert 0.85 < diag.noise_scale < 1.15
 
 
+def test_orders_too_low_are_not_called_a_physical_effect() -> None:
+    """With joint 1's position-dependent error left out of the model, the residual is a
+    smooth function of q1.  Under a random execution order the approach direction correlates
+    with q1, so without conditioning this would read as backlash:j1; it must instead be an
+    order hint for joint 1."""
+    twin = make_twin(seed=4)
+    q = random_joints(twin.robot, 150, seed=5, T_instr_base=twin.truth.T_instr_base)
+    train = twin.measure(q, *schedules(150), seed=6)
+    orders = twin.truth.orders.copy()
+    orders[[0, -1]] = 0
+    assert orders[1, 5] >= 2
+    orders[1, 5] = 0  # drop joint 1's angular positioning orders
+    fitted = fit_model(twin.robot, train, ErrorModelSpec(orders, q.min(0) - 0.02, q.max(0) + 0.02))
+    diag = diagnose(state_from_fitted(fitted), train)
+    assert diag.verdict is Verdict.ADEQUATE, diag.summary(3)
+    assert any("smooth function of q1" in h for h in diag.order_hints)
+    assert any("orders are too low" in line for line in diag.summary())
+
+
 def test_high_harmonic_found_from_the_residual_spectrum() -> None:
     _, train, _, fitted = make_case("cyclic:j2:h13", 1.5e-4, seed=21)
     diag = diagnose(state_from_fitted(fitted), train)
