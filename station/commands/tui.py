@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -58,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
         calibration=args.calibration,
         n_poses=args.n,
         threshold_mm=args.threshold_mm,
+        say=lambda line: print(f"quickhealth: {line}", file=sys.stderr, flush=True),
     )
     try:
         app = QuickhealthApp(station)

@@ -324,19 +324,27 @@ class Station:
         n_poses: int = 40,
         threshold_mm: float = 2.0,
         run_id: str | None = None,
+        say: Callable[[str], None] | None = None,
     ) -> Station:
         """The station for ``quickhealth tui``: the simulated cell (controller simulator
-        subprocess, emulated pan motor, rendered cameras) or the real one."""
+        subprocess, emulated pan motor, rendered cameras) or the real one.
+
+        ``say`` receives a line before each slow step (planning, starting the cell)."""
         from datetime import UTC, datetime
 
         from quickhealth.station import run as station_run
         from quickhealth.station.planning import load_cell, load_plan
 
+        tell = say or (lambda line: None)
         c = load_cell(cell)
+        if plan is None:
+            tell(f"planning cell {c.name}: {n_poses} candidate targets…")
         the_plan = load_plan(plan) if plan is not None else make_plan(c, n_poses, 0)
         if sim:
+            tell("starting the simulated cell (UR controller simulator, pan motor, cameras)…")
             hw, _ = station_run.sim_station(cell, image_scale=0.3)
         else:
+            tell(f"connecting to the robot at {robot_ip}…")
             if not (robot_ip and motor_port and cameras and calibration):
                 raise InputError(
                     "tui: a real station needs --robot-ip, --motor-port, --cameras and --calibration"
