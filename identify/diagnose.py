@@ -1087,8 +1087,10 @@ def effect_view(state: LoopState, meas: Measurements, effect_name: str) -> Effec
         )
         y = y + pred
     else:  # not in the model: the residual, and what a one-step refit would explain of it
-        Q = _orthonormal_basis(wp.J)
-        one = _one_step(wp, Q, wp.r - Q @ (Q.T @ wp.r), effect)
+        b = _bases(state, wp, _orthonormal_basis(wp.J), wp.r)[
+            _nuisance_joints(effect, state.robot.n_joints)
+        ]
+        one = _one_step(wp, b.Q, b.r_perp, effect)
         theta = np.zeros(effect.n_params) if one is None else one[2]
         explained = np.zeros_like(res) if one is None else one[3]
         y, _, ylabel = implied_channel(effect, theta, wp.ctx, wp.sens, wp.T_model, res, wp.whiten)
