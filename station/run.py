@@ -883,10 +883,12 @@ def sim_station(
     image_scale: float = 0.5,
     q0_deg: list[float] | None = None,
     speed_factor: float = 1.0,
+    degrade: dict[str, float] | None = None,
 ) -> tuple[Station, Any]:
     """A :class:`Station` on the built-in simulated cell, and the :class:`SimCell` behind it.
 
-    ``station.close()`` stops the simulators too.
+    ``station.close()`` stops the simulators too.  ``degrade`` changes the twin's true
+    error coefficients (``{"j2.ex.c0": 5e-4}``, m or rad): a worn robot for demos and tests.
     """
     from .hardware.simcell import start_sim_cell
     from .planning import load_cell
@@ -895,7 +897,12 @@ def sim_station(
     if q0_deg is None and getattr(c, "home", None) is not None:
         q0_deg = [float(v) for v in np.degrees(c.home)]
     sc = start_sim_cell(
-        cell, twin_seed=twin_seed, image_scale=image_scale, q0_deg=q0_deg, speed_factor=speed_factor
+        cell,
+        twin_seed=twin_seed,
+        image_scale=image_scale,
+        q0_deg=q0_deg,
+        speed_factor=speed_factor,
+        degrade=degrade,
     )
     w = sc.world
     st = Station(

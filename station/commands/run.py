@@ -57,6 +57,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--sim-image-scale", type=float, default=0.5, help=argparse.SUPPRESS)
     p.add_argument("--twin-seed", type=int, default=1, help=argparse.SUPPRESS)
     p.add_argument("--sim-speed-factor", type=float, default=1.0, help=argparse.SUPPRESS)
+    p.add_argument(
+        "--sim-degrade",
+        default=None,
+        help="--sim only: change the simulated robot's true errors, e.g. j2.ex.c0=5e-4 (m or rad)",
+    )
     p.set_defaults(func=run)
 
     s = subparsers.add_parser(
@@ -127,11 +132,14 @@ def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: igno
 
     try:
         if args.sim:
+            from quickhealth.station.hardware.world import parse_degradation
+
             station, _ = sim_station(
                 args.cell,
                 twin_seed=args.twin_seed,
                 image_scale=args.sim_image_scale,
                 speed_factor=args.sim_speed_factor,
+                degrade=parse_degradation(args.sim_degrade),
             )
             if args.robot_name:
                 station.robot_name = args.robot_name

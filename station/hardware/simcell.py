@@ -71,6 +71,7 @@ def start_sim_cell(
     control_port: int = CONTROL_PORT,
     camera_seed: int = 0,
     speed_factor: float = 1.0,
+    degrade: dict[str, float] | None = None,
 ) -> SimCell:
     """Start the simulated cell and connect the real drivers to it.
 
@@ -82,14 +83,17 @@ def start_sim_cell(
         The digital twin's seed (its true errors).
     image_scale : float
         Simulated sensor size relative to the reference cameras (1 = 4000×3000 px).
+    degrade : dict, optional
+        Changes of the twin's true error coefficients (``{"j2.ex.c0": 5e-4}``, m or rad).
     """
-    world = build_world(cell, twin_seed=twin_seed)
+    world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
     sim = start_sim_controller(
         control_port=control_port,
         q0_deg=q0_deg,
         twin_seed=twin_seed,
         cell=cell,
         speed_factor=speed_factor,
+        degrade=degrade,
     )
     emu = MotorEmulator().start()
     robot = motor = None

@@ -1261,6 +1261,7 @@ def start_sim_controller(
     verbose: bool = False,
     speed_factor: float = 1.0,
     wait_s: float = 120.0,
+    degrade: dict[str, float] | None = None,
 ) -> SimControllerHandle:
     """Start the simulator as a separate process and wait until it answers.
 
@@ -1303,6 +1304,8 @@ def start_sim_controller(
     ]
     if q0_deg is not None:
         cmd += ["--q0-deg", ",".join(f"{v:.9g}" for v in q0_deg)]
+    if degrade:
+        cmd += ["--degrade", ",".join(f"{k}={v:.12g}" for k, v in degrade.items())]
     if verbose:
         cmd.append("--verbose")
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
@@ -1331,11 +1334,12 @@ def build_controller(
     twin_seed: int = 1,
     cell: str = "reference",
     verbose: bool = False,
+    degrade: dict[str, float] | None = None,
 ) -> Controller:
     """A controller whose arm is the digital twin of ``twin_seed`` placed in ``cell``."""
     from .world import build_world
 
-    world = build_world(cell, twin_seed=twin_seed)
+    world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
     q0 = np.radians(q0_deg if q0_deg is not None else HOME_Q_DEG)
     arm = Arm(world.twin.robot, q0, truth=world.T_instr_target0)
     ctrl = Controller(arm, control_port=control_port, verbose=verbose)
@@ -1371,6 +1375,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="seed of the digital twin whose errors the arm has (default %(default)s)",
     )
     p.add_argument("--cell", default="reference", help="cell name or file (camera placement)")
+    p.add_argument(
+        "--degrade",
+        default=None,
+        help="change the twin's true errors, e.g. j2.ex.c0=5e-4 (m or rad; comma-separated)",
+    )
     p.add_argument("--verbose", action="store_true", help="log controller events to stderr")
     p.add_argument(
         "--speed-factor",
@@ -1416,13 +1425,23 @@ def run_from_args(args: argparse.Namespace) -> int:
     if not 1024 <= args.control_port <= 65535:
         sys.stderr.write("quickhealth: error: --control-port must be in 1024..65535\n")
         return 2
-    ctrl = build_controller(
-        control_port=args.control_port,
-        q0_deg=q0,
-        twin_seed=args.twin_seed,
-        cell=args.cell,
-        verbose=args.verbose,
-    )
+    from quickhealth.identify.errors import InputError
+
+    from .world import parse_degradation
+
+    try:
+        degrade = parse_degradation(getattr(args, "degrade", None))
+        ctrl = build_controller(
+            control_port=args.control_port,
+            q0_deg=q0,
+            twin_seed=args.twin_seed,
+            cell=args.cell,
+            verbose=args.verbose,
+            degrade=degrade,
+        )
+    except InputError as exc:
+        sys.stderr.write(f"quickhealth: error: {exc}\n")
+        return 2
     ctrl.speed_factor = float(args.speed_factor)
     if args.parent_pid:
         threading.Thread(target=_watch_parent, args=(ctrl, args.parent_pid), daemon=True).start()

@@ -16,13 +16,15 @@ SYNOPSIS
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from quickhealth.identify.errors import InputError
 from quickhealth.identify.transforms import inv_T, make_T
-from quickhealth.identify.twin import Twin, make_twin
+from quickhealth.identify.twin import Twin, TwinTruth, make_twin, twin_from_truth
 from quickhealth.vision.boards import TargetDescription, _grid_markers
 from quickhealth.vision.boards import reference_target as _reference_target
 from quickhealth.vision.camera import StereoRig
@@ -88,8 +90,49 @@ class SimWorld:
         return self.T_instr_target0(q, approach) @ T_target_plate(pan)
 
 
-def build_world(cell: str = "reference", *, twin_seed: int = 1) -> SimWorld:
-    """The simulated cell for a cell name or file, with a twin drawn from ``twin_seed``."""
+def parse_degradation(text: str | None) -> dict[str, float]:
+    """``"j2.ex.c0=5e-4,j3.dz.c1=2e-5"`` → ``{"j2.ex.c0": 5e-4, ...}`` (SI: m or rad)."""
+    out: dict[str, float] = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        label, sep, value = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError
+            out[label.strip()] = float(value)
+        except ValueError:
+            raise InputError(
+                f"degradation {item.strip()!r}: expected LABEL=VALUE such as j2.ex.c0=5e-4 (m or rad)"
+            ) from None
+    return out
+
+
+def degrade_truth(truth: TwinTruth, changes: Mapping[str, float]) -> TwinTruth:
+    """The same twin with some true Chebyshev coefficients changed (wear, a crash, a repair).
+
+    ``changes`` maps coefficient labels (``j2.ex.c0``: joint 2, tilt about x, order 0) to the
+    amount added, in m or rad.  The simulated cell uses it for "a month later" runs.
+    """
+    labels = truth.spec.labels()
+    coeffs = truth.coeffs.copy()
+    for label, delta in changes.items():
+        if label not in labels:
+            raise InputError(
+                f"degradation {label!r}: not a coefficient of the twin's error model "
+                f"(e.g. {labels[0]}, j2.ex.c0)"
+            )
+        coeffs[labels.index(label)] += float(delta)
+    return replace(truth, coeffs=coeffs)
+
+
+def build_world(
+    cell: str = "reference", *, twin_seed: int = 1, degrade: Mapping[str, float] | None = None
+) -> SimWorld:
+    """The simulated cell for a cell name or file, with a twin drawn from ``twin_seed``.
+
+    ``degrade`` changes the twin's true error coefficients (see :func:`degrade_truth`).
+    """
     from quickhealth.station.planning import load_cell
 
     c = load_cell(cell)
@@ -101,6 +144,8 @@ def build_world(cell: str = "reference", *, twin_seed: int = 1) -> SimWorld:
         T_instr_base=inv_T(T_world_instr) @ c.T_world_base,
         T_flange_target=c.T_flange_target,
     )
+    if degrade:
+        twin = twin_from_truth(degrade_truth(twin.truth, degrade), c.robot)
     board_center = _board_center(c)
     T_world_board = make_T(_R_WORLD_BOARD, board_center)
     return SimWorld(
