@@ -651,14 +651,15 @@ def diagnose(
     raw: list[tuple[float, Candidate]] = []
     spectra: dict[str, list[float]] = {}
     bases = _bases(state, wp, Q, r)
-    for effect, one, logp_adj, s2_c in _scan(wp, bases, effects, m_tests):
+    for effect, one, logp_adj, s2_c, one_plain in _scan(wp, bases, effects, m_tests):
         if one is None:
             not_ident.append(
                 f"{effect.name}: the fitted model already expresses it (its Jacobian lies in "
                 "the model's), so the data cannot tell it apart"
             )
             continue
-        k, S, theta, fit_res = one
+        k, S = one[0], one[1]
+        _, _, theta, fit_res = one_plain if one_plain is not None else one
         p_adj = float(np.exp(logp_adj))
         score = max(0.0, float(-logp_adj / np.log(10.0)))
         rms_after = rms_pos_mm(res_now - fit_res)
@@ -803,21 +804,33 @@ def _bases(state: LoopState, wp: WhitenedProblem, Q: F, r: F) -> _Bases:
     return _Bases(state, wp, Q, r)
 
 
+_OneStep = tuple[int, float, F, F]
+
+
 def _scan(
     wp: WhitenedProblem,
     bases: _Bases,
     effects: Sequence[Effect],
     m_tests: int,
-) -> list[tuple[Effect, tuple[int, float, F, F] | None, float, float]]:
-    """Score test of every effect: ``(effect, one-step result or None, log adjusted p, σ̂²)``."""
-    out: list[tuple[Effect, tuple[int, float, F, F] | None, float, float]] = []
+) -> list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]]:
+    """Score test of every effect.
+
+    Returns ``(effect, conditional one-step, log adjusted p, σ̂², plain one-step)``: the test
+    is conditional on the candidate's nuisance columns (:func:`_nuisance_joints`); the plain
+    one-step (against the model alone) gives what adding the effect to *this* model would
+    do, for the predicted RMS drop and the parameter estimate.
+    """
+    out: list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]] = []
+    plain = bases[()]
     for effect in effects:
-        b = bases[_nuisance_joints(effect, bases.state.robot.n_joints)]
+        nuisance = _nuisance_joints(effect, bases.state.robot.n_joints)
+        b = bases[nuisance]
         one = _one_step(wp, b.Q, b.r_perp, effect)
         s2 = b.rss / max(b.dof, 1)
         if one is None:
-            out.append((effect, None, 0.0, s2))
+            out.append((effect, None, 0.0, s2, None))
             continue
+        one_plain = _one_step(wp, plain.Q, plain.r_perp, effect) if nuisance else one
         k, S = one[0], one[1]
         d2 = max(b.dof - k, 1)
         F_stat = (S / k) / max((b.rss - S) / d2, 1e-300)
@@ -825,7 +838,7 @@ def _scan(
         if not np.isfinite(logp):  # beyond double precision: the χ² tail's asymptote
             logp = float(stats.chi2.logsf(k * F_stat, k))
             logp = logp if np.isfinite(logp) else -0.5 * k * F_stat
-        out.append((effect, one, min(0.0, logp + np.log(m_tests)), s2))
+        out.append((effect, one, min(0.0, logp + np.log(m_tests)), s2, one_plain))
     return out
 
 
@@ -884,7 +897,7 @@ def _forward(
         rest = [e for e in effects if e.name not in chosen]
         scored = [
             (lp, e.name)
-            for e, one, lp, _ in _scan(wp, _bases(state, wp, Qc, r), rest, m_tests)
+            for e, one, lp, _, _ in _scan(wp, _bases(state, wp, Qc, r), rest, m_tests)
             if one
         ]
         if not scored:
