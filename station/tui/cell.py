@@ -53,6 +53,12 @@ def classify(robot: Any, message: str) -> Fault:
         kind = "connection-lost"
     if kind == "error" and "froze" in message:
         kind = "frozen-stream"
+    for cli_hint in (
+        ", then rerun with --resume",
+        "; rerun with --resume",
+        " then rerun with --resume",
+    ):
+        message = message.replace(cli_hint, "")
     words = {
         "connection-lost": "Lost the connection to the robot controller",
         "protective-stop": "The robot is in a protective stop",
@@ -316,6 +322,9 @@ class CellControl:
                 self.running = False
                 self.paused = False
                 self._current = None
+                for i, ps in self._status.items():  # a move that did not finish: still to do
+                    if ps.status == "moving":
+                        self._status[i] = PoseStatus(ps.index, ps.pose_id, "pending")
         if (self.run_dir / "measurements.csv").is_file() and self.on_finished is not None:
             self.on_finished(self.run_dir / "measurements.csv")
         final = self._snapshot()

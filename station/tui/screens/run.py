@@ -201,6 +201,11 @@ class RunScreen(Screen[None]):
             fault.display = True
         else:
             fault.display = False
+        if p.current is None and p.state != "running":
+            self.query_one("#run-current", Static).update("Current pose: –")
+            for ps in self.app.station.pose_table():  # type: ignore[attr-defined]
+                if ps.status == "pending":
+                    self._update_row(ps)
         if p.current is not None:
             c = p.current
             q = " ".join(f"{v:+7.1f}" for v in c.q_deg)
