@@ -884,6 +884,7 @@ def sim_station(
     q0_deg: list[float] | None = None,
     speed_factor: float = 1.0,
     degrade: dict[str, float] | None = None,
+    camera_seed: int = 0,
 ) -> tuple[Station, Any]:
     """A :class:`Station` on the built-in simulated cell, and the :class:`SimCell` behind it.
 
@@ -903,6 +904,7 @@ def sim_station(
         q0_deg=q0_deg,
         speed_factor=speed_factor,
         degrade=degrade,
+        camera_seed=camera_seed,
     )
     w = sc.world
     st = Station(
