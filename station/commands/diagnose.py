@@ -11,7 +11,7 @@ quickhealth twin --out MEAS.csv [--effects NAME=SIZE,...] [--n N] [--seed S] [--
     a camera 2 m away) as CSV v1, and its truth as JSON beside it.
 
 quickhealth compare DIR/model.json MEAS.csv --effects LIST [--heldout HELD.csv]
-    Same as ``quickhealth identify compare``.
+    The comparison of :mod:`quickhealth.station.compare` (also for ``identify compare``).
 """
 
 from __future__ import annotations
@@ -95,14 +95,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     t.add_argument("--position-only", action="store_true", help="no orientation columns")
     t.set_defaults(func=run_twin)
 
+    from quickhealth.station import compare as compare_cmd  # light: heavy imports are in run
+
     c = sub.add_parser(
         "compare",
         help="fit with and without an effect, held-out error before and after",
-        description="Same as 'quickhealth identify compare'.",
+        description=compare_cmd.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    from quickhealth.station.compare import add_arguments
-
-    add_arguments(c)
+    compare_cmd.add_arguments(c)
     c.set_defaults(func=_run_compare)
 
 
