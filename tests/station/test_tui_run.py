@@ -147,8 +147,20 @@ async def test_abort_stops_the_robot_first_and_keeps_the_journal(tmp_path: Path,
         await settle(app, pilot)
         await start_run(app, pilot)
         await wait_for(
-            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 2
+            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 1
         )
+        # p pauses after the current pose: the arm stays still until p again
+        await pilot.press("p")
+        await wait_for(app, pilot, lambda: app.screen.progress.state == "paused")
+        assert station.paused and "Paused" in text(app, "#run-state")
+        moves = robot.n_moves
+        await pilot.pause(0.5)
+        assert robot.n_moves == moves
+        await pilot.press("p")
+        await wait_for(app, pilot, lambda: robot.n_moves > moves)
+        assert app.screen.progress.state == "running"
+        paused_at = app.screen.progress.done
+        await wait_for(app, pilot, lambda: app.screen.progress.done > paused_at)
         await pilot.press("a")
         events.append(f"state after a: {app.screen.progress.state}")
         await wait_for(app, pilot, lambda: ended(app))
@@ -169,7 +181,9 @@ async def test_abort_stops_the_robot_first_and_keeps_the_journal(tmp_path: Path,
         assert app.screen.progress.state == "finished"
         again = journal_indices(station.run_dir)
         assert sorted(again) == list(range(1, len(plan.poses) + 1))
-        assert read_journal(station.run_dir / JOURNAL).resumes >= 1
+        kinds = [rec["type"] for _, rec, _ in iter_records(station.run_dir / JOURNAL)]
+        assert kinds.count("resume") == 2 and kinds.count("stop") == 2, kinds  # pause, abort
+        assert kinds[-1] == "end"
 
 
 @pytest.mark.slow
