@@ -450,7 +450,14 @@ class Station:
 
     def cell_line(self) -> str:
         """The Station screen's first line: cell, plan, run folder (Rich markup)."""
-        return f"Robot [b]{self.robot_name}[/b] · cell [b]{self.cell_name}[/b] · run [b]{self.run_id}[/b]"
+        line = f"Robot [b]{self.robot_name}[/b] · cell [b]{self.cell_name}[/b] · run [b]{self.run_id}[/b]"
+        if self.plan is not None:
+            where = self.plan_path.name if self.plan_path is not None else "planned now"
+            line += (
+                f"\nPlan [b]{where}[/b]: {len(self.plan.poses)} poses, "
+                f"hash {self.plan.hash.removeprefix('sha256:')[:12]}"
+            )
+        return line
 
     # ----- devices ---------------------------------------------------------------------------
     def connect(self) -> tuple[Connection, ...]:
