@@ -16,6 +16,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--sim", action="store_true", help="attach to the built-in simulated cell")
     p.add_argument(
+        "--data",
+        type=Path,
+        help="open a measurement file (CSV v1) without a station: results, diagnose, history",
+    )
+    p.add_argument("--heldout", type=Path, help="with --data: held-out measurements for Diagnose")
+    p.add_argument(
         "--cell", default="reference", help="cell file or built-in name (default: reference)"
     )
     p.add_argument("--plan", type=Path, help="plan.json to run (default: plan the cell now)")
@@ -34,7 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--robot-name", default="ur5-sim", help="the robot's name in the archive")
     p.add_argument(
-        "--threshold-mm", type=float, default=0.5, help="degraded above this mean error (mm)"
+        "--threshold-mm",
+        type=float,
+        default=2.0,
+        help="degraded when the workspace max TCP error is above this (mm, default 2)",
     )
     p.set_defaults(func=run)
 
@@ -42,11 +51,22 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def run(args: argparse.Namespace) -> int:
     from quickhealth.identify.errors import InputError
 
-    from ..tui.app import QuickhealthApp
     from ..tui.facade import Station
 
+    if args.data is not None:
+        station = Station.from_data(
+            args.data,
+            args.heldout,
+            robot_name=args.robot_name,
+            archive_root=args.archive,
+            threshold_mm=args.threshold_mm,
+        )
+        return _run_app(station)
     if not args.sim and not args.robot_ip:
-        raise InputError("tui: give --sim for the simulated cell or --robot-ip IP for a real robot")
+        raise InputError(
+            "tui: give --sim for the simulated cell, --robot-ip IP for a real robot, "
+            "or --data MEAS.csv"
+        )
     station = Station.open(
         cell=args.cell,
         plan=args.plan,
@@ -61,8 +81,13 @@ def run(args: argparse.Namespace) -> int:
         threshold_mm=args.threshold_mm,
         say=lambda line: print(f"quickhealth: {line}", file=sys.stderr, flush=True),
     )
+    return _run_app(station)
+
+
+def _run_app(station) -> int:  # type: ignore[no-untyped-def]
+    from ..tui.app import QuickhealthApp
+
     try:
-        app = QuickhealthApp(station)
-        return int(app.run() or 0)
+        return int(QuickhealthApp(station).run() or 0)
     finally:
         station.shutdown()
