@@ -122,6 +122,12 @@ async def test_whole_run_from_preflight_to_results(tmp_path: Path, plan) -> None
         assert "HEALTHY" in text(app, "#summary")
         for name in ("measurements.csv", "journal.jsonl", "report.json", "joint_curves.png"):
             assert (station.run_dir / name).is_file(), name
+        await pilot.press("5")
+        await settle(app, pilot)
+        d = app.screen.diagnosis
+        assert d is not None and d.verdict in ("adequate", "missing-effect")
+        assert app.screen.query_one("#residuals").row_count == n
+        assert "model: chebyshev" in text(app, "#diag-verdict")
         await pilot.press("6")
         await settle(app, pilot)
         assert [r.run_id for r in app.screen.history.rows] == ["sim-run-1"]
