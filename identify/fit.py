@@ -26,10 +26,12 @@ only identifies small corrections ``E0``, ``Etool``.
 
 Rank deficiency: some coefficients cannot be told apart from others (a constant ``εz`` of
 joint 1 is a rotation of the base; every constant of the last joint is a tool offset; tool
-rotations are invisible to position-only data).  A QR factorisation of the column-normalised
-whitened Jacobian, taken in a fixed priority order (base, tool, joint constants, then higher
-orders, then effects), finds the columns that add less than ``rank_tol`` of new direction;
-those are held at zero and reported in ``FittedModel.unidentifiable``.  Their prior keeps
+rotations are invisible to position-only data).  A sequential Gram–Schmidt selection over the
+column-normalised whitened Jacobian, taken in a fixed priority order (base, tool, joint
+constants, then higher orders, then effects), finds the columns that add less than
+``rank_tol`` of new direction to the columns kept before them (a rejected column removes no
+direction from later ones); those are held at zero and reported in
+``FittedModel.unidentifiable``.  Their prior keeps
 the remaining weakly determined combinations from amplifying noise.
 """
 
@@ -821,13 +823,7 @@ class _Problem:
         order = np.lexsort((np.arange(nall), key[:, 3], key[:, 2], key[:, 1], key[:, 0]))
         norms = np.linalg.norm(J, axis=0)
         Jn = J[:, order] / np.where(norms[order] > 0, norms[order], 1.0)
-        R = np.linalg.qr(Jn, mode="r")
-        diag = (
-            np.abs(np.diag(R))
-            if R.shape[0] >= nall
-            else np.r_[np.abs(np.diag(R)), np.zeros(nall - R.shape[0])]
-        )
-        ok_sorted = (diag > rank_tol) & (norms[order] > 0)
+        ok_sorted = sequential_independent(Jn, rank_tol) & (norms[order] > 0)
         ok = np.zeros(nall, bool)
         ok[order] = ok_sorted
         return ok
@@ -948,6 +944,35 @@ class _Problem:
             prior=self.prior,
             n_poses=n,
         )
+
+
+def sequential_independent(J: F, rank_tol: float) -> NDArray[np.bool_]:
+    """Greedy column selection in the given order: column ``k`` is kept if the part of it
+    outside the span of the columns *kept* before it has a norm above ``rank_tol``.
+
+    Unlike one QR over all columns, a column judged dependent takes nothing away from the
+    later ones: its small remainder (e.g. ``j1.dz.c0`` beside ``base.dz.c0`` while a drift
+    rotates the base) is not projected out of them.  Equivalent to Gram–Schmidt that skips
+    dependent columns, computed on the Gram matrix ``JᵀJ`` as an incremental Cholesky
+    factorisation (one BLAS-3 product, then ``O(p²)`` vector work per kept column).  ``J``
+    should have unit-norm columns (``rank_tol`` is relative to the column norm).
+    """
+    p = J.shape[1]
+    G = J.T @ J
+    resid = np.diag(G).copy()  # squared norm of each column outside the kept span
+    L = np.zeros((p, p))  # L[:, k]: coordinates of all columns on the k-th kept direction
+    keep = np.zeros(p, bool)
+    tol2 = rank_tol * rank_tol
+    k = 0
+    for j in range(p):
+        if resid[j] <= tol2:
+            continue
+        keep[j] = True
+        col = (G[j:, j] - L[j:, :k] @ L[j, :k]) / np.sqrt(resid[j])
+        L[j:, k] = col
+        resid[j:] -= col * col
+        k += 1
+    return keep
 
 
 def bic_value(R: F, n_params: int, rss_si: float = 0.0) -> float:

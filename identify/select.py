@@ -9,8 +9,10 @@ The search (a greedy descent over the order vector that may *jump*):
    lower the BIC), and lowering any motion to any lower order.  A move's new residual is the
    current one with the new columns' component projected out (ridge-regularised by their
    prior), so all ``nj·6·max_order`` moves cost one QR and a few matrix products.
-3. Refit the best moves by the full ML fit (warm start) until one lowers the exact BIC by more
-   than ``margin``; accept it, then apply the pruning rules; stop when no move is accepted.
+3. Refit the best moves by the full ML fit (warm start) until one is accepted: a raise must
+   lower the exact BIC by more than ``margin``, a lower is accepted unless it raises the BIC
+   by more than ``margin`` (the same evidence bar for a term whichever side the search comes
+   from); then apply the pruning rules; stop when no move is accepted.
 4. Pruning (paper): the highest coefficient of a series is dropped (the order lowered) while
    it is below ``prune_fraction`` (8 %) of the largest non-constant coefficient of its
    series, or below its own standard uncertainty; kept only if the exact BIC does not rise.
@@ -419,12 +421,18 @@ def _search(
                         continue
                     moves.append((_score_lower(lin, np.array(cols)), "lower", j, m, new))
         n_scored += len(moves)
-        moves.sort(key=lambda t: t[0])
+        # the same evidence bar in both directions: a raise must lower the BIC by more than
+        # the margin, and a lower is taken unless it raises the BIC by more than the margin
+        # (else a start above the truth keeps the largest of many noise terms).
+        moves = sorted(
+            (mv for mv in moves if mv[0] < fitted.bic - _need(mv[1], margin)),
+            key=lambda t: t[0],
+        )
         accepted = False
         tried = 0
         for bic_lin, kind, j, m, new in moves:
-            need = margin if kind == "raise" else 0.0
-            if bic_lin >= fitted.bic - need or tried >= refits_per_step:
+            need = _need(kind, margin)
+            if tried >= refits_per_step:
                 break
             o2 = orders.copy()
             o2[j + 1, m] = new
@@ -468,6 +476,11 @@ def _search(
         noise=noise,
         prior=prior,
     )
+
+
+def _need(kind: str, margin: float) -> float:
+    """BIC drop a move must reach: ``margin`` for a raise, ``−margin`` for a lower."""
+    return margin if kind == "raise" else -margin
 
 
 def _prune(

@@ -253,19 +253,8 @@ def test_acceptance_pipeline_fixed_cases(effect, size) -> None:
     assert after <= 1.3 * fl, (after, fl)
 
 
-_FIT_QR_BUG = (
-    "fit.py _Problem.identifiable runs one QR over all columns, so a column already judged "
-    "dependent (j1.dz.c0 ~ base.dz.c0, whose tiny difference is time-linear once the drift "
-    "rotates the base) still eliminates later ones: drift.vy/wy are held at 0. A sequential "
-    "Gram-Schmidt that skips dependent columns gives 1.12x the floor here."
-)
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "draw",
-    [0, 1, 2, pytest.param(3, marks=pytest.mark.xfail(strict=True, reason=_FIT_QR_BUG)), 4, 5],
-)
+@pytest.mark.parametrize("draw", [0, 1, 2, 3, 4, 5])
 def test_acceptance_pipeline_random_cases(draw) -> None:
     rng = np.random.default_rng(2000 + draw)
     effect, size = _random_case(rng)

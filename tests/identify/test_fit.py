@@ -10,16 +10,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quickhealth.identify.effects import EffectContext, Perturbation
+from quickhealth.identify.effects import EffectContext, Perturbation, parse_effects
 from quickhealth.identify.errormodel import ErrorModelSpec, loop_pose
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.fit import (
     InstrumentNoise,
     _forward,
     fit_model,
+    sequential_independent,
     whitened_problem,
 )
 from quickhealth.identify.transforms import R_to_rpy
+from quickhealth.identify.twin import make_twin, random_joints, schedules
 from quickhealth.identify.workspace import joint_curves
 
 
@@ -159,6 +161,38 @@ def test_rank_deficient_uniform_model_reports_instead_of_noise(paper_case):
     assert np.all(fitted.sigma < 0.01)  # nothing exploded
     assert _heldout_rms(fitted, test) / NOISE_FLOOR_3D < 1.3
     assert any("not identifiable" in line for line in fitted.summary())
+
+
+def test_a_dependent_column_removes_no_direction_from_later_ones():
+    # b = a + 1e-4·c is dependent on a (below rank_tol); c itself is new.  One QR over all
+    # columns would project b's tiny remainder (c's direction) out of c and drop c too.
+    rng = np.random.default_rng(0)
+    a, c = rng.normal(size=(2, 50))
+    c -= a * (a @ c) / (a @ a)
+    J = np.stack([a, a + 1e-4 * c, c], axis=1)
+    J /= np.linalg.norm(J, axis=0)
+    assert sequential_independent(J, 1e-3).tolist() == [True, False, True]
+    assert sequential_independent(J[:, [0, 2, 1]], 1e-3).tolist() == [True, True, False]
+
+
+def test_drift_stays_identifiable_when_it_rotates_the_base():
+    # Warm start at a fitted drift: the base turns with time, so j1.dz.c0 differs from
+    # base.dz.c0 by a small time-linear column.  It is still dependent, but it must not take
+    # the time-linear direction away from drift.vy / drift.wy.
+    twin = make_twin(seed=2947, effects={"drift": 3e-7})
+    q = random_joints(twin.robot, 80, seed=2948, T_instr_base=twin.truth.T_instr_base)
+    train = twin.measure(q, *schedules(80), seed=2949)
+    orders = twin.truth.orders.copy()
+    orders[[0, -1]] = 0
+    spec = ErrorModelSpec(orders, q.min(0) - 0.02, q.max(0) + 0.02)
+    drift = parse_effects("drift", twin.robot)
+    first = fit_model(twin.robot, train, spec, drift)
+    again = fit_model(twin.robot, train, spec, drift, init=first)
+    for f in (first, again):
+        assert not [lb for lb in f.unidentifiable if lb.startswith("drift")], f.unidentifiable
+        assert {"j1.dz.c0", "j1.ez.c0"} <= set(f.unidentifiable)
+        err = (f.effect_params[0] - np.asarray(twin.truth.effects["drift"])) / f.sigma[-6:]
+        assert np.all(np.abs(err) < 4.5), err
 
 
 def test_per_row_sigmas_override_instrument_defaults(paper_case):
