@@ -8,6 +8,10 @@ quickhealth identify predict DIR/model.json INPUT --out PRED.csv [--threshold-mm
     some command's predicted error exceeds it.
 quickhealth identify import-wam WAM.csv --out MEAS.csv [--sign auto|+1|-1] [--robot R]
     Converts the Barrett WAM laser-tracker files to CSV v1.
+quickhealth identify compare DIR/model.json MEAS.csv --effects LIST [--heldout HELD.csv]
+    [--folds K] [--json OUT.json] [--plots DIR]
+    Held-out error without and with the effects (:mod:`quickhealth.station.compare`; the
+    same command as the top-level ``quickhealth compare``).
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ DEFAULT_SIGMA_ROT_DEG = 0.0057  # 0.1 mrad
 
 
 def register(subparsers: Any) -> None:
-    """Add ``identify fit``, ``identify predict`` and ``identify import-wam``."""
+    """Add ``identify fit``, ``identify predict``, ``identify import-wam`` and ``identify compare``."""
     p = subparsers.add_parser("identify", help="fit the error model; predict new commands")
     sub = p.add_subparsers(dest="identify_command", metavar="SUBCOMMAND")
     p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
@@ -79,6 +83,23 @@ def register(subparsers: Any) -> None:
     )
     w.add_argument("--robot", default=None, help="robot file for --sign auto (WAM DH table)")
     w.set_defaults(func=_import_wam)
+
+    from quickhealth.station import compare as compare_cmd  # light: heavy imports are in run
+
+    c = sub.add_parser(
+        "compare",
+        help="fit with and without an effect, held-out error before and after",
+        description=compare_cmd.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    compare_cmd.add_arguments(c)
+    c.set_defaults(func=_compare)
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from quickhealth.station.compare import run
+
+    return run(args)
 
 
 # --------------------------------------------------------------------------- fit

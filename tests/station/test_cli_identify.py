@@ -312,3 +312,43 @@ def test_wam_fit_on_grid_predict_random(tmp_path, capsys):
     err = np.array([float(r["meas_minus_model_mm"]) for r in rows])
     print(f"WAM held-out mean error {err.mean():.2f} mm (published best 2.92 mm)")
     assert len(err) == 20 and err.mean() < 3.5  # uncalibrated: 17.77 mm
+
+
+@pytest.fixture(scope="module")
+def backlash_fit(tmp_path_factory):
+    """Twin data with hidden backlash on joint 2, fitted by ``identify fit`` without it."""
+    d = tmp_path_factory.mktemp("cmp")
+    twin = ["twin", "--out", str(d / "meas.csv"), "--effects", "backlash:j2=0.025"]
+    assert main([*twin, "--n", "120", "--heldout", "150", "--seed", "7"]) == 0
+    fit = ["identify", "fit", str(d / "meas.csv"), "--robot", "ur5", "--out", str(d / "fit")]
+    assert main([*fit, "--max-order", "3", "--quiet"]) == 0
+    return d
+
+
+def test_identify_compare_shows_the_held_out_error_fall(backlash_fit, tmp_path, capsys):
+    d = backlash_fit
+    out = tmp_path / "cmp.json"
+    args = [str(d / "fit" / "model.json"), str(d / "meas.csv"), "--effects", "backlash:j2"]
+    rc = main(
+        ["identify", "compare", *args, "--heldout", str(d / "meas.heldout.csv"), "--json", str(out)]
+    )
+    assert rc == 0
+    doc = json.loads(out.read_text())
+    assert doc["method"] == "held-out" and doc["n_eval"] == 150
+    assert doc["after"]["pos_mm"] < 0.6 * doc["before"]["pos_mm"]
+    assert doc["after"]["pos_mm"] < 1.3 * doc["noise_floor_pos_mm"]
+    assert "without" in capsys.readouterr().out
+    # the top-level command is the same one
+    assert main(["compare", *args, "--folds", "3", "--json", str(tmp_path / "cv.json")]) == 0
+    assert json.loads((tmp_path / "cv.json").read_text())["method"].startswith("cross-validation")
+
+
+def test_identify_compare_bad_input_exit_2_one_line(backlash_fit, tmp_path, capsys):
+    d = backlash_fit
+    args = [str(d / "fit" / "model.json"), str(d / "meas.csv"), "--effects", "uniformscale"]
+    assert main(["identify", "compare", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "indistinguishable" in err[0]
+    assert main(["identify", "compare", str(tmp_path / "no.json"), *args[1:]]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not found" in err[0]
