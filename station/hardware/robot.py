@@ -274,6 +274,8 @@ class UrRobot:
         self.host = host
         self.stale_after = stale_after
         self.move_timeout = move_timeout
+        self.command_timeout = 5.0  # s for a command to be acknowledged
+        self._stuck = False
         self._rc = None
         try:
             self._rr = rtde_receive.RTDEReceiveInterface(host, frequency)
@@ -284,7 +286,7 @@ class UrRobot:
         try:
             self._rc = rtde_control.RTDEControlInterface(host, frequency)
         except RuntimeError as exc:
-            self._safe_disconnect(self._rr)
+            self._rr.disconnect()
             raise ConnectionLost(
                 f"cannot start the control interface at {host}: {exc} "
                 "(is the robot in remote control and the dashboard server reachable?)"
@@ -341,10 +343,8 @@ class UrRobot:
         q, leg, speed, accel = check_move(self.model, q, leg, speed, accel)
         self._check_ready()
         qs = [float(v) for v in q]
-        if leg is Leg.JOINT:
-            ok = self._rc.moveJ(qs, speed, accel, True)
-        else:
-            ok = self._rc.moveL_FK(qs, speed, accel, True)
+        fn = self._rc.moveJ if leg is Leg.JOINT else self._rc.moveL_FK
+        ok = self._call("the move", fn, qs, speed, accel, True)
         if not ok:
             self._raise_for_state("the controller refused the move")
         self._wait_move(q)
@@ -385,15 +385,60 @@ class UrRobot:
             self._raise_for_state("the robot is not ready")
         if not st.program_running:
             # The control script stopped (e.g. after a released protective stop): restart it.
-            self._rc.reuploadScript()
+            self._call("restart the control program", self._rc.reuploadScript)
             deadline = time.monotonic() + 5.0
             while not self._rc.isProgramRunning():
                 if time.monotonic() > deadline:
                     raise ProgramStopped("the control program on the robot does not start")
                 time.sleep(0.01)
 
+    def _call(self, what: str, fn: Callable[..., object], *args: object) -> object:
+        """Call a ur-rtde command that may block (it waits for the controller's answer) in a
+        helper thread, and watch the stream meanwhile: a frozen or lost stream ends the wait
+        with the right error instead of the client's 300 s timeout."""
+        import threading
+
+        box: dict[str, object] = {}
+
+        def run() -> None:
+            try:
+                box["value"] = fn(*args)
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller
+                box["error"] = exc
+
+        th = threading.Thread(target=run, daemon=True, name="ur-rtde-call")
+        th.start()
+        deadline = time.monotonic() + self.command_timeout
+        while True:
+            th.join(0.02)
+            if not th.is_alive():
+                break
+            try:
+                self._check_stream()
+            except HardwareError:
+                self._stuck = True  # the client thread may never return: close gently
+                raise
+            if time.monotonic() > deadline:
+                self._stuck = True
+                raise HardwareError(
+                    f"{what}: the controller did not answer within {self.command_timeout:.0f} s; "
+                    "restart it, then rerun with --resume"
+                )
+        if "error" in box:
+            err = box["error"]
+            raise ConnectionLost(f"{what}: ur-rtde failed ({err}); rerun with --resume")
+        return box.get("value")
+
     def _raise_for_state(self, what: str) -> None:
-        self._check_stream()
+        # The receive connection may lag the control connection by a packet or two: give the
+        # cause a moment to show before settling for a generic message.
+        deadline = time.monotonic() + 0.2
+        while True:
+            self._check_stream()
+            st = self.status()
+            if not st.ready or not st.program_running or time.monotonic() > deadline:
+                break
+            time.sleep(0.008)
         st = self.status()
         if not st.connected or not self._rc.isConnected():
             raise ConnectionLost(f"{what}: lost the connection to {self.host}; rerun with --resume")
@@ -415,29 +460,40 @@ class UrRobot:
         raise HardwareError(f"{what}: {st.describe()}")
 
     def stop(self) -> None:
-        if self._rc is not None and self._rc.isConnected():
+        if self._rc is not None and not self._stuck and self._rc.isConnected():
             try:
-                self._rc.stopJ(2.0, False)
-            except RuntimeError:
+                self._call("stop", self._rc.stopJ, 2.0, False)
+            except (RuntimeError, HardwareError):
                 pass
 
     def close(self) -> None:
         rc, self._rc = self._rc, None
         if rc is not None:
-            try:
-                if rc.isConnected() and self._rr.isConnected():
-                    rc.stopScript()
-            except RuntimeError:
-                pass
+            if not self._stuck:
+                try:
+                    if rc.isConnected() and self._rr.isConnected():
+                        self._call("stop script", rc.stopScript)
+                except (RuntimeError, HardwareError):
+                    pass
             self._safe_disconnect(rc)
         self._safe_disconnect(self._rr)
 
-    @staticmethod
-    def _safe_disconnect(iface: object) -> None:
-        try:
-            iface.disconnect()  # type: ignore[attr-defined]
-        except RuntimeError:
-            pass
+    def _safe_disconnect(self, iface: object) -> None:
+        """Disconnect; after a stuck call, in a helper thread that may be abandoned."""
+        import threading
+
+        def run() -> None:
+            try:
+                iface.disconnect()  # type: ignore[attr-defined]
+            except RuntimeError:
+                pass
+
+        if not self._stuck:
+            run()
+            return
+        th = threading.Thread(target=run, daemon=True, name="ur-rtde-disconnect")
+        th.start()
+        th.join(3.0)
 
     def __enter__(self) -> UrRobot:
         return self
