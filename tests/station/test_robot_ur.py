@@ -19,7 +19,8 @@ from quickhealth.station.hardware.robot import (
 )
 from quickhealth.station.hardware.simcontroller import start_sim_controller
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)  # includes waiting for the UR ports]
+# The timeout includes waiting for the UR ports (one simulator per host).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)]
 
 Q1 = np.radians([10.0, -80.0, 80.0, -90.0, -90.0, 10.0])
 Q2 = np.radians([25.0, -70.0, 70.0, -95.0, -85.0, 20.0])

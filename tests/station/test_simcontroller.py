@@ -14,7 +14,8 @@ import pytest
 
 from quickhealth.station.hardware import simcontroller as sc
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)  # includes waiting for the UR ports]
+# The timeout includes waiting for the UR ports (one simulator per host).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)]
 
 
 @pytest.fixture(scope="module")
