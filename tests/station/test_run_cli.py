@@ -132,3 +132,20 @@ def test_second_unattended_run_exits_at_once(plan_path, tmp_path, capsys, monkey
     assert err.count("\n") == 1 and "another quickhealth run holds the cell" in err
     assert f"pid {first.pid}" in err
     assert not (tmp_path / "r2").exists()
+
+
+def test_run_lock_is_exclusive_and_names_its_holder(tmp_path):
+    from quickhealth.station.lock import RunBusy, RunLock
+
+    with RunLock.acquire(tmp_path / "night1", directory=tmp_path / "lk"):
+        with pytest.raises(RunBusy) as err:
+            RunLock.acquire(tmp_path / "night2", directory=tmp_path / "lk")
+        assert f"pid {os.getpid()}" in str(err.value) and "night1" in str(err.value)
+    RunLock.acquire(tmp_path / "night3", directory=tmp_path / "lk").release()  # free again
+
+
+def test_sim_controller_refuses_bad_options(capsys):
+    assert main(["sim-controller", "--speed-factor", "1e9"]) == 2
+    assert "--speed-factor" in capsys.readouterr().err
+    assert main(["sim-controller", "--q0-deg", "1,2,x"]) == 2
+    assert "--q0-deg" in capsys.readouterr().err
