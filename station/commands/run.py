@@ -10,7 +10,8 @@ simulated cell: the UR controller simulator (a separate process the real ur-rtde
 talks to), the emulated pan motor on a pseudo-terminal and rendered stereo images of the
 digital twin.  --resume continues an interrupted run with no pose lost or repeated.
 --unattended never prompts, holds the single-run lock (a second run exits at once) and logs
-to RUN_DIR/run.log.  Exit status: 0 all poses recorded, 2 bad input, 3 hardware or runtime
+to RUN_DIR/run.log.  --archive DIR (with --robot-name) fits the finished run and registers it
+in the archive, so a nightly cron line is one command.  Exit status: 0 all poses recorded, 2 bad input, 3 hardware or runtime
 failure (the run stopped cleanly: everything captured is kept; the message says what to do).
 
     quickhealth sim-controller [--control-port PORT] [--twin-seed N] [--cell CELL]
@@ -46,6 +47,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="never prompt; hold the run lock; log to RUN_DIR/run.log",
     )
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in RUN_DIR")
+    p.add_argument(
+        "--archive",
+        default=None,
+        help="after a complete run: fit it (identify fit) and register it in this archive "
+        "under --robot-name (nightly use)",
+    )
     p.add_argument(
         "--robot-name", default=None, help="robot name for the journal and archive (plain name)"
     )
@@ -102,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"{args.plan}: made for cell {plan.cell_name!r} with other contents than {args.cell}: plan again"
         )
+    if args.archive is not None and args.robot_name is None:
+        raise InputError("--archive needs --robot-name (the robot's name in the archive)")
     if not args.sim and args.calibration is None:
         raise InputError("--robot-ip needs --calibration CAL.json (quickhealth vision calibrate)")
     from quickhealth.station.lock import RunLock
@@ -176,6 +185,8 @@ def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: igno
                 f"; WARNING instrument drift {res.selfcheck_drift_mm:.3f} mm / "
                 f"{res.selfcheck_drift_deg:.4f}° during the run (self-check board): the camera moved"
             )
+        if args.archive is not None:
+            summary += "; " + _register(out, args, plan)
         if log is not None:
             log.write(summary + "\n")
         print(summary)
@@ -183,3 +194,27 @@ def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: igno
     finally:
         if log is not None:
             log.close()
+
+
+def _register(out: Path, args: argparse.Namespace, plan) -> str:  # type: ignore[no-untyped-def]
+    """Fit the finished run and add it to the archive (``identify fit``, ``archive add``)."""
+    import contextlib
+    import io
+
+    from quickhealth.identify.errors import HardwareError
+    from quickhealth.station.cli import main
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+        rc = main(
+            ["identify", "fit", str(out / "measurements.csv"), "--robot", "ur5", "--out", str(out)]
+        )
+        if rc == 0:
+            rc = main(
+                ["archive", "add", str(out), "--robot", args.robot_name, "--archive",
+                 str(args.archive), "--plan-hash", plan.hash, "--cell", plan.cell_name]
+            )  # fmt: skip
+    if rc != 0:
+        last = (buf.getvalue().strip().splitlines() or ["?"])[-1]
+        raise HardwareError(f"the run is complete but could not be archived: {last}")
+    return f"fitted and archived for robot {args.robot_name} in {args.archive}"

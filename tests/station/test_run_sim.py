@@ -59,10 +59,19 @@ def test_twenty_poses_match_the_twin_within_the_vision_accuracy(
 ):
     monkeypatch.setenv("QUICKHEALTH_LOCK_DIR", str(tmp_path / "lock"))
     out = tmp_path / "run"
-    code = main(["run", "--cell", "reference", "--plan", str(plan20), "--out", str(out), *SIM])
+    arch = tmp_path / "archive"
+    code = main(
+        ["run", "--cell", "reference", "--plan", str(plan20), "--out", str(out), *SIM,
+         "--unattended", "--robot-name", "ur5-sim", "--archive", str(arch)]
+    )  # fmt: skip
     text = capsys.readouterr()
     assert code == 0, text.err
     assert "20 of 20 poses measured, 0 failed" in text.out
+    assert "archived for robot ur5-sim" in text.out  # nightly: fitted and registered
+    from quickhealth.station.archive import Archive
+
+    assert len(Archive.open(arch).runs("ur5-sim")) == 1
+    assert "done: complete 20 measured" in (out / "run.log").read_text()
     m = read_measurements(out / "measurements.csv")
     assert m.n_poses == 20 and m.pose_id == tuple(p.name for p in load_plan(plan20).poses)
     T = world.twin.true_pose(m.q)  # the twin's true target frame (pan 0) at the read joints
