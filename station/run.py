@@ -659,6 +659,8 @@ def run_plan(
         state = read_journal(jpath)
         if state.start is None:
             raise InputError(f"{jpath}: empty journal")
+        if state.ended:
+            raise InputError(f"{run_dir}: this run is already complete; nothing to resume")
         if state.start.get("plan_hash") != plan.hash:
             raise InputError(
                 f"{jpath}: the interrupted run used plan {state.start.get('plan_hash', '?')[:19]}…, "

@@ -165,6 +165,12 @@ def test_protective_stop_stops_cleanly_and_resume_loses_or_repeats_nothing(world
     finally:
         fc.close()
     assert res2.complete and res2.n_measured == 5
+    from quickhealth.identify.errors import InputError
+
+    with pytest.raises(InputError, match="already complete"):
+        run_plan(fc.station, subplan(plan, 5), run_dir, resume=True, settings=SETTINGS)
+    with pytest.raises(InputError, match="already holds a run"):
+        run_plan(fc.station, subplan(plan, 5), run_dir, settings=SETTINGS)
     st = read_journal(run_dir / JOURNAL)
     assert st.resumes == 1 and sorted(st.captured) == [1, 2, 3, 4, 5]
     names = [ln.split(",")[0] for ln in (run_dir / "measurements.csv").read_text().splitlines()]
