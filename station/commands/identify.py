@@ -53,7 +53,7 @@ def register(subparsers: Any) -> None:
         "--sigma-rot-deg",
         type=float,
         default=DEFAULT_SIGMA_ROT_DEG,
-        help=f"instrument angle uncertainty where the file has no spitch.. ({DEFAULT_SIGMA_ROT_DEG})",
+        help=f"instrument orientation noise per rotation axis where the file has no spitch.. ({DEFAULT_SIGMA_ROT_DEG})",
     )
     f.add_argument("--sigma-q-deg", type=float, default=0.0, help="joint encoder uncertainty (0)")
     f.add_argument("--margin", type=float, default=None, help="BIC drop a raise must reach")

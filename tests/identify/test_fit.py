@@ -22,7 +22,7 @@ from quickhealth.identify.fit import (
 )
 from quickhealth.identify.transforms import R_to_rpy
 from quickhealth.identify.twin import make_twin, random_joints, schedules
-from quickhealth.identify.workspace import joint_curves
+from quickhealth.identify.workspace import joint_curves, predict_commands
 
 
 def _load_synth():
@@ -315,3 +315,37 @@ def test_known_base_makes_the_joint1_encoder_offset_identifiable(paper_case):
     assert all(fitted.params[fitted.labels.index(lb)] == 0.0 for lb in base)
     with pytest.raises(InputError, match="unknown parameters"):
         fit_model(truth.robot, train, truth.spec, hold=["j9.dx.c0"])
+
+
+def test_reported_covariance_matches_the_scatter_of_refits():
+    """Monte Carlo (mrcal's test-projection-uncertainty style): one twin truth, 40 fits with
+    fresh noise at fixed, true orders; the empirical covariance of the coefficients and of the
+    predicted TCP error must be the reported one within sampling error."""
+    twin = make_twin(seed=1, position_dependent=False)  # camera 2 m away: yaw up to ±75°
+    q = random_joints(twin.robot, 60, seed=2, T_instr_base=twin.truth.T_instr_base)
+    q_new = random_joints(twin.robot, 40, seed=100, T_instr_base=twin.truth.T_instr_base)
+    orders = np.zeros((8, 6), np.int64)
+    orders[1:-1] = 1
+    spec = ErrorModelSpec(orders, q.min(0) - 0.02, q.max(0) + 0.02)
+    fits = [
+        fit_model(twin.robot, twin.measure(q, *schedules(60), seed=1000 + r), spec)
+        for r in range(40)
+    ]
+    labels = fits[0].labels
+    joint = np.array(
+        [lb.startswith("j") and lb not in fits[0].unidentifiable for lb in labels], dtype=bool
+    )
+    assert all(f.unidentifiable == fits[0].unidentifiable for f in fits)
+    P = np.array([f.params[joint] for f in fits])
+    C_rep = np.mean([f.cov[np.ix_(joint, joint)] for f in fits], axis=0)
+    C_emp = np.cov(P.T)
+    # whitened: mean eigenvalue of C_rep^-1/2 C_emp C_rep^-1/2 (1 ± 0.03 here; was 2.2 when
+    # the rotation noise was weighted as per-Euler-angle noise)
+    Li = np.linalg.inv(np.linalg.cholesky(C_rep))
+    assert np.trace(Li @ C_emp @ Li.T) / joint.sum() == pytest.approx(1.0, abs=0.12)
+    assert np.median(np.diag(C_emp) / np.diag(C_rep)) == pytest.approx(1.0, abs=0.2)
+    pred = [predict_commands(f, q_new) for f in fits]
+    var_emp = np.var([p.err for p in pred], axis=0, ddof=1)
+    var_rep = np.mean([p.err_sigma**2 for p in pred], axis=0)
+    assert np.median(var_emp / var_rep) == pytest.approx(1.0, abs=0.2)
+    assert np.mean([f.chi2_data / f.dof for f in fits]) == pytest.approx(1.0, abs=0.04)
