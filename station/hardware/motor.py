@@ -173,7 +173,7 @@ class SerialPanMotor:
         *,
         dev_id: int = 1,
         baudrate: int = 115200,
-        timeout: float = 0.05,
+        timeout: float = 0.2,
         retries: int = 3,
         limit_deg: float = 170.0,
         move_timeout: float = 5.0,
