@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import cho_factor, cho_solve
 
-from .effects import Effect, EffectContext, Perturbation, total_perturbation
+from .effects import Effect, EffectContext, Perturbation, effect_context, total_perturbation
 from .errormodel import (
     MOTIONS,
     ErrorModelSpec,
@@ -55,7 +55,7 @@ from .errormodel import (
 )
 from .errors import InputError
 from .measurements import Measurements
-from .robot import RobotModel, gravity_torques
+from .robot import RobotModel
 from .transforms import (
     kabsch,
     log_so3,
@@ -457,25 +457,7 @@ def _labels(spec: ErrorModelSpec, effects: Sequence[Effect]) -> list[str]:
 
 
 def _context(robot: RobotModel, q: F, approach, time, temp) -> EffectContext:  # type: ignore[no-untyped-def]
-    if approach is None:
-        d = np.sign(np.diff(q, axis=0, prepend=q[:1]))
-        out = np.empty_like(d)
-        last = np.ones(q.shape[1])
-        for i in range(q.shape[0]):
-            last = np.where(d[i] != 0, d[i], last)
-            out[i] = last
-        approach = out
-    tau = None
-    if robot.masses is not None and robot.coms is not None:
-        tau = gravity_torques(robot, q)
-    return EffectContext(
-        robot=robot,
-        q=q,
-        approach=np.asarray(approach, float),
-        gravity_torque=tau,
-        time=None if time is None else np.asarray(time, float),
-        temp=None if temp is None else np.asarray(temp, float),
-    )
+    return effect_context(robot, q, approach, time, temp)
 
 
 def _joint_motion_matrices(spec: ErrorModelSpec, coeffs: F, q: F) -> tuple[F, F, F]:

@@ -17,6 +17,21 @@ from .transforms import rpy_to_R
 F = NDArray[np.float64]
 
 
+def approach_from_order(q: F) -> F:
+    """Approach direction (+1 / −1) of every joint, from the previous row (CSV v1 rule).
+
+    The first row, and joints that did not move, take the direction of the last move of that
+    joint (the first row counts as approached from below, +1).  Shape ``(n, nj)``.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    s = np.sign(np.diff(q, axis=0, prepend=q[:1]))
+    # carry the last non-zero direction forward: index of the last move up to each row
+    idx = np.where(s != 0, np.arange(q.shape[0])[:, None], -1)
+    last = np.maximum.accumulate(idx, axis=0)
+    out = np.take_along_axis(s, np.maximum(last, 0), axis=0)
+    return np.where(last >= 0, out, 1.0)
+
+
 @dataclass(frozen=True, eq=False)
 class Measurements:
     """Measured poses of the target, one row per pose, in the order the robot visited them.
@@ -93,19 +108,8 @@ class Measurements:
         return rpy_to_R(self.rpy[:, 0], self.rpy[:, 1], self.rpy[:, 2])
 
     def approach_sign(self) -> F:
-        """Approach direction of every joint, from the previous row: +1, −1 (shape (n, nj)).
-
-        The first row, and joints that did not move, take the direction of the last move
-        of that joint (the first row counts as approached from below, +1).
-        """
-        d = np.diff(self.q, axis=0, prepend=self.q[:1])
-        s = np.sign(d)
-        out = np.empty_like(s)
-        last = np.ones(self.n_joints)
-        for i in range(self.n_poses):  # carry the last direction forward
-            last = np.where(s[i] != 0, s[i], last)
-            out[i] = last
-        return out
+        """Approach direction of every joint, from the previous row: see :func:`approach_from_order`."""
+        return approach_from_order(self.q)
 
     def subset(self, idx: NDArray[np.int64] | slice) -> Measurements:
         """Rows ``idx`` (execution order is kept as given)."""

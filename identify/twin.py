@@ -31,11 +31,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .effects import Effect, EffectContext, Perturbation, parse_effect, total_perturbation
+from .effects import (
+    Effect,
+    EffectContext,
+    Perturbation,
+    effect_context,
+    parse_effect,
+    total_perturbation,
+)
 from .effects._base import perturbed_loop_pose
 from .errormodel import ErrorModelSpec
 from .measurements import Measurements
-from .robot import RobotModel, gravity_torques, ur5
+from .robot import RobotModel, ur5
 from .transforms import R_to_rpy, exp_so3, inv_T, make_T, rot_x, rot_z
 
 F = NDArray[np.float64]
@@ -170,19 +177,7 @@ class Twin:
         approach: ArrayLike | None = None,
     ) -> EffectContext:
         """The effects' context for joints ``q`` (n, nj) in execution order."""
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        app = approach_from_order(q) if approach is None else np.asarray(approach, dtype=float)
-        tau = None
-        if self.robot.masses is not None and self.robot.coms is not None:
-            tau = gravity_torques(self.robot, q)
-        return EffectContext(
-            robot=self.robot,
-            q=q,
-            approach=np.atleast_2d(app),
-            gravity_torque=tau,
-            time=None if time is None else np.asarray(time, dtype=float).reshape(-1),
-            temp=None if temp is None else np.asarray(temp, dtype=float).reshape(-1),
-        )
+        return effect_context(self.robot, q, approach, time, temp)
 
     def perturbation(self, ctx: EffectContext) -> Perturbation:
         """Sum of the true effects' perturbations."""
@@ -268,12 +263,6 @@ def simulate(
 ) -> tuple[Measurements, TwinTruth]:
     """Measurements of ``twin`` at joints ``q`` (execution order) and the truth behind them."""
     return twin.measure(q, time, temp, seed=seed, orientation=orientation), twin.truth
-
-
-def approach_from_order(q: ArrayLike) -> F:
-    """Approach direction (+1/−1) of every joint from the previous row (CSV v1 rule)."""
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    return Measurements(q=q, pos=np.zeros((q.shape[0], 3))).approach_sign()
 
 
 def effect_params(effect: Effect, size: float | Sequence[float], rng: np.random.Generator) -> F:

@@ -25,7 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from ..robot import RobotModel
+from ..measurements import approach_from_order
+from ..robot import RobotModel, gravity_torques
 
 F = NDArray[np.float64]
 
@@ -95,6 +96,29 @@ class Perturbation:
             base_twist=add(self.base_twist, other.base_twist),
             instr_scale_z=add(self.instr_scale_z, other.instr_scale_z),
         )
+
+
+def effect_context(
+    robot: RobotModel,
+    q: F,
+    approach: F | None = None,
+    time: F | None = None,
+    temp: F | None = None,
+) -> EffectContext:
+    """The context of joints ``q`` (n, nj) in execution order; approach from the order if not given."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    app = approach_from_order(q) if approach is None else np.asarray(approach, dtype=float)
+    tau = None
+    if robot.masses is not None and robot.coms is not None:
+        tau = gravity_torques(robot, q)
+    return EffectContext(
+        robot=robot,
+        q=q,
+        approach=np.atleast_2d(app),
+        gravity_torque=tau,
+        time=None if time is None else np.asarray(time, dtype=float).reshape(-1),
+        temp=None if temp is None else np.asarray(temp, dtype=float).reshape(-1),
+    )
 
 
 class Effect(Protocol):

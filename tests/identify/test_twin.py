@@ -7,9 +7,9 @@ import pytest
 
 from quickhealth.identify.diagnose import pose_residuals
 from quickhealth.identify.errormodel import loop_pose
+from quickhealth.identify.measurements import approach_from_order
 from quickhealth.identify.twin import (
     TwinTruth,
-    approach_from_order,
     camera_pose,
     make_twin,
     random_joints,
