@@ -136,6 +136,40 @@ class Station:
     robot_name: str = ""
     closers: list[Callable[[], None]] = field(default_factory=list)
 
+    @classmethod
+    def on_simulated_world(
+        cls,
+        cell: Any,
+        world: Any,
+        robot: Robot,
+        motor: PanMotor,
+        camera: StereoCamera,
+        *,
+        instrument: str = "simulated stereo camera",
+        robot_name: str = "sim-ur5",
+        closers: list[Callable[[], None]] | None = None,
+    ) -> Station:
+        """A station in the simulated ``world`` (``hardware.world.SimWorld``) of ``cell``.
+
+        The nominal geometry comes from the cell file; the target and the self-check board
+        from the world.  Used by ``--sim``, the TUI's in-process cell and the tests.
+        """
+        return cls(
+            robot=robot,
+            motor=motor,
+            camera=camera,
+            target=world.target,
+            T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
+            T_flange_target=cell.T_flange_target,
+            board=world.board,
+            T_instr_board=world.T_instr_board,
+            cell_name=cell.name,
+            cell_sha256=cell.sha256,
+            instrument=instrument,
+            robot_name=robot_name,
+            closers=list(closers or []),
+        )
+
     def predicted_plate(self, q: F, pan: float) -> F:
         """Nominal ``T_instr_plate`` at joints ``q`` and pan angle ``pan``."""
         return (
@@ -909,19 +943,13 @@ def sim_station(
         camera_seed=camera_seed,
     )
     w = sc.world
-    st = Station(
-        robot=sc.robot,
-        motor=sc.motor,
-        camera=sc.camera,
-        target=w.target,
-        T_instr_base=inv_T(c.T_world_cam_left) @ c.T_world_base,
-        T_flange_target=c.T_flange_target,
-        board=w.board,
-        T_instr_board=w.T_instr_board,
-        cell_name=c.name,
-        cell_sha256=c.sha256,
+    st = Station.on_simulated_world(
+        c,
+        w,
+        sc.robot,
+        sc.motor,
+        sc.camera,
         instrument=f"simulated stereo camera ({w.rig.left.image_size[0] * image_scale:.0f} px wide)",
-        robot_name="sim-ur5",
         closers=[sc.close],
     )
     return st, sc

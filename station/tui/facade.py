@@ -780,7 +780,6 @@ def inprocess_sim_station(
     """
     import math
 
-    from quickhealth.identify.transforms import inv_T
     from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
     from quickhealth.station.hardware.motor import SerialPanMotor
     from quickhealth.station.hardware.motor_emulator import MotorEmulator
@@ -806,19 +805,13 @@ def inprocess_sim_station(
     camera = SimStereoCamera(
         scaled_rig(world.rig, image_scale), scene, static=[(world.T_instr_board, world.board)]
     )
-    hw = RunStation(
-        robot=robot,
-        motor=motor,
-        camera=camera,
-        target=world.target,
-        T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
-        T_flange_target=cell.T_flange_target,
-        board=world.board,
-        T_instr_board=world.T_instr_board,
-        cell_name=cell.name,
-        cell_sha256=cell.sha256,
+    hw = RunStation.on_simulated_world(
+        cell,
+        world,
+        robot,
+        motor,
+        camera,
         instrument=f"simulated stereo camera ({image_scale:g} × reference sensor)",
-        robot_name="sim-ur5",
         closers=[emu.stop, motor.close, camera.close, robot.close],
     )
     return hw, cell

@@ -128,7 +128,6 @@ def imaged_run(tmp_path_factory):
     import dataclasses
     import math
 
-    from quickhealth.identify.transforms import inv_T
     from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
     from quickhealth.station.hardware.motor import SerialPanMotor
     from quickhealth.station.hardware.motor_emulator import MotorEmulator
@@ -161,18 +160,9 @@ def imaged_run(tmp_path_factory):
         )
         return [(T, world.target)]
 
-    station = Station(
-        robot=robot,
-        motor=motor,
-        camera=SimStereoCamera(rig, scene, static=[(world.T_instr_board, world.board)]),
-        target=world.target,
-        T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
-        T_flange_target=cell.T_flange_target,
-        board=world.board,
-        T_instr_board=world.T_instr_board,
-        cell_name=cell.name,
-        cell_sha256=cell.sha256,
-        closers=[emu.stop, motor.close],
+    camera = SimStereoCamera(rig, scene, static=[(world.T_instr_board, world.board)])
+    station = Station.on_simulated_world(
+        cell, world, robot, motor, camera, closers=[emu.stop, motor.close]
     )
     run_dir = base / "imaged"
     try:

@@ -52,7 +52,6 @@ class FakeCell:
     """FakeRobot + emulated motor + simulated camera seeing the twin (no sockets)."""
 
     def __init__(self, world, hide_target=lambda: False):
-        from quickhealth.identify.transforms import inv_T
 
         cell = load_cell("reference")
         self.robot = FakeRobot(cell.home, time_scale=25)
@@ -71,18 +70,8 @@ class FakeCell:
         cam = SimStereoCamera(
             scaled_rig(world.rig, 0.25), scene, static=[(world.T_instr_board, world.board)]
         )
-        self.station = Station(
-            robot=self.robot,
-            motor=self.motor,
-            camera=cam,
-            target=world.target,
-            T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
-            T_flange_target=cell.T_flange_target,
-            board=world.board,
-            T_instr_board=world.T_instr_board,
-            cell_name=cell.name,
-            cell_sha256=cell.sha256,
-            closers=[self.emu.stop, self.motor.close],
+        self.station = Station.on_simulated_world(
+            cell, world, self.robot, self.motor, cam, closers=[self.emu.stop, self.motor.close]
         )
 
     def close(self):
