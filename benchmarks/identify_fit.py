@@ -12,7 +12,6 @@ and the held-out accuracy of each.  Target on the 2-core machine: ≤ 0.5 s per 
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import sys
 import time
@@ -35,12 +34,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def synth():
-    """The synthetic-data helper of the tests (loaded by path)."""
-    spec = importlib.util.spec_from_file_location("_qh_synth", ROOT / "tests/identify/_synth.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["_qh_synth"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    """The synthetic-data helper of the tests (tests/helpers/qh_synth.py)."""
+    sys.path.insert(0, str(ROOT / "tests" / "helpers"))
+    import qh_synth
+
+    return qh_synth
 
 
 def main() -> None:

@@ -14,7 +14,6 @@ are found and the range of held-out ratios.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import sys
 import time
@@ -36,12 +35,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def synth():
-    """The synthetic-data helper of the tests (loaded by path)."""
-    spec = importlib.util.spec_from_file_location("_qh_synth", ROOT / "tests/identify/_synth.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["_qh_synth"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    """The synthetic-data helper of the tests (tests/helpers/qh_synth.py)."""
+    sys.path.insert(0, str(ROOT / "tests" / "helpers"))
+    import qh_synth
+
+    return qh_synth
 
 
 def run(name, truth, train, test, S) -> None:

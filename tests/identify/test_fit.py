@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_synth as S
 
 from quickhealth.identify.effects import EffectContext, Perturbation, parse_effects
 from quickhealth.identify.errormodel import ErrorModelSpec, loop_pose
@@ -24,18 +22,6 @@ from quickhealth.identify.transforms import R_to_rpy
 from quickhealth.identify.twin import make_twin, random_joints, schedules
 from quickhealth.identify.workspace import joint_curves, predict_commands
 
-
-def _load_synth():
-    name = "_qh_synth"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("_synth.py"))
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-S = _load_synth()
 NOISE_FLOOR_3D = np.sqrt(3) * 3e-5  # rms of the 3D noise vector, 0.03 mm per axis
 
 

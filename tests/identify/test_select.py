@@ -2,30 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_synth as S
 
 from quickhealth.identify.errormodel import ErrorModelSpec
 from quickhealth.identify.fit import InstrumentNoise, ParameterPrior
 from quickhealth.identify.select import chi2_check, data_spec, select_orders
-
-
-def _load_synth():
-    name = "_qh_synth"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("_synth.py"))
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-S = _load_synth()
 
 
 def _truth_with(orders_j: dict[int, list[int]], values: dict[str, float], seed: int = 0):

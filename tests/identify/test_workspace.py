@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_synth as S
 
 from quickhealth.identify.errormodel import chebyshev_basis, chebyshev_u
 from quickhealth.identify.fit import fit_model
@@ -18,19 +16,6 @@ from quickhealth.identify.workspace import (
     predict_commands,
     workspace_error,
 )
-
-
-def _load_synth():
-    name = "_qh_synth"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("_synth.py"))
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-S = _load_synth()
 
 
 @pytest.fixture(scope="module")

@@ -1,21 +1,16 @@
 """The run archive: folders plus index, many robots, baselines, names that cannot escape."""
 
-import importlib.util
 import json
 import os
 import sqlite3
-from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_runs as _runs
 
 from quickhealth.identify.errors import InputError
 from quickhealth.station.archive import Archive, default_root, safe_name
 from quickhealth.station.cli import main
-
-_spec = importlib.util.spec_from_file_location("_runs", Path(__file__).with_name("_runs.py"))
-_runs = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_runs)
 
 
 @pytest.fixture(scope="module")

@@ -3,33 +3,18 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_synth as S
 
 from quickhealth.station import formats
 from quickhealth.station.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "fixtures"
-
-
-def _load_synth():
-    name = "_qh_synth"
-    if name not in sys.modules:
-        path = ROOT / "tests" / "identify" / "_synth.py"
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-S = _load_synth()
 
 
 @pytest.fixture(scope="module")

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_synth as S
 
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.fit import fit_model
@@ -19,18 +18,6 @@ ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "fixtures"
 
 
-def _load_synth():
-    name = "_qh_synth"
-    if name not in sys.modules:
-        path = ROOT / "tests" / "identify" / "_synth.py"
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-S = _load_synth()
 GOOD = """# robot serial: 2018301234
 # instrument: stereo
 q1,q2,q3,q4,q5,q6,x,y,z,pitch,yaw,roll,time,temp

@@ -1,6 +1,5 @@
 """The HTML report opened in headless Chromium: every section there, every plot rendered."""
 
-import importlib.util
 import json
 import shutil
 import subprocess
@@ -8,6 +7,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+import qh_runs as _runs
 
 from quickhealth.station.archive import Archive
 from quickhealth.station.cli import main
@@ -35,10 +35,6 @@ SECTIONS = [
     "trend",
     "iso9283",
 ]
-
-_spec = importlib.util.spec_from_file_location("_runs", Path(__file__).with_name("_runs.py"))
-_runs = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_runs)
 
 
 @pytest.fixture(scope="module")

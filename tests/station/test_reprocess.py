@@ -1,20 +1,16 @@
 """Fleet reprocessing: 20 archived runs on a Dask LocalCluster give what the local path gives."""
 
-import importlib.util
 import pickle
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_runs as _runs
 
 from quickhealth.station.archive import Archive
 from quickhealth.station.cli import main
 from quickhealth.station.reprocess import jobs_for_archive, reprocess, reprocess_run
-
-_spec = importlib.util.spec_from_file_location("_runs", Path(__file__).with_name("_runs.py"))
-_runs = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_runs)
 
 
 @pytest.fixture(scope="module")
@@ -128,6 +124,8 @@ def imaged_run(tmp_path_factory):
     import dataclasses
     import math
 
+    import qh_station_plan as station_plan
+
     from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
     from quickhealth.station.hardware.motor import SerialPanMotor
     from quickhealth.station.hardware.motor_emulator import MotorEmulator
@@ -138,11 +136,6 @@ def imaged_run(tmp_path_factory):
     from quickhealth.station.run import RunSettings, Station, run_plan
     from quickhealth.station.vision_io import rig_to_json, write_json
 
-    sp = importlib.util.spec_from_file_location(
-        "_station_plan", Path(__file__).with_name("_station_plan.py")
-    )
-    station_plan = importlib.util.module_from_spec(sp)
-    sp.loader.exec_module(station_plan)
     base = tmp_path_factory.getbasetemp()
     plan = load_plan(station_plan.plan_file(base))
     plan = dataclasses.replace(plan, poses=plan.poses[:3])

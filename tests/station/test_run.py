@@ -7,14 +7,13 @@ integration test with the real ur-rtde client (test_run_sim.py).
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import math
 import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_station_plan as _station_plan
 
 from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
 from quickhealth.station.hardware.motor import SerialPanMotor
@@ -26,11 +25,6 @@ from quickhealth.station.journal import JOURNAL, read_journal
 from quickhealth.station.planning import load_cell, load_plan
 from quickhealth.station.run import RunSettings, Station, is_settled, run_plan
 
-_spec = importlib.util.spec_from_file_location(
-    "_station_plan", Path(__file__).with_name("_station_plan.py")
-)
-_station_plan = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_station_plan)
 SETTINGS = RunSettings(capture_attempts=2)
 
 

@@ -3,7 +3,6 @@ written or executed; two unattended runs at once."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import pickle
@@ -14,14 +13,9 @@ import time
 from pathlib import Path
 
 import pytest
+import qh_station_plan as _station_plan
 
 from quickhealth.station.cli import main
-
-_spec = importlib.util.spec_from_file_location(
-    "_station_plan", Path(__file__).with_name("_station_plan.py")
-)
-_station_plan = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_station_plan)
 
 
 @pytest.fixture(scope="module")

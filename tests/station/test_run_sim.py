@@ -9,7 +9,6 @@ than life, to keep the suite short; the accuracy is then ~0.01–0.04 mm per axi
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import os
 import signal
 import socket
@@ -20,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import qh_station_plan as _station_plan
 
 from quickhealth.station.cli import main
 from quickhealth.station.formats import read_measurements
@@ -30,11 +30,6 @@ from quickhealth.station.run import RunSettings, run_plan, sim_station
 
 pytestmark = [pytest.mark.slow]
 
-_spec = importlib.util.spec_from_file_location(
-    "_station_plan", Path(__file__).with_name("_station_plan.py")
-)
-_station_plan = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_station_plan)
 SIM = ["--sim", "--sim-image-scale", "0.25", "--sim-speed-factor", "8"]
 
 

@@ -2,8 +2,8 @@
 
 The robot is the digital twin (one seed: the same robot every run); each run measures it
 with fresh noise, fits the error model at fixed orders and writes what the station writes:
-measurements.csv, model.json, report.json, plan.json and run.json.  Loaded by path (pytest
-runs in importlib mode).
+measurements.csv, model.json, report.json, plan.json and run.json.  Imported as ``qh_runs``
+(tests/helpers is on the test path).
 """
 
 from __future__ import annotations

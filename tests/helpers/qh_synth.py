@@ -1,7 +1,7 @@
 """Synthetic measurements of the paper's use case, made with ``loop_pose`` and known coefficients.
 
-Loaded by path (``importlib.util.spec_from_file_location``) by the identify and station
-tests and the benchmarks: pytest runs in importlib mode, so it is not importable by package.
+Imported as ``qh_synth`` by the identify and station tests (pytest puts ``tests/helpers`` on
+``sys.path``, see pyproject.toml) and by the benchmarks.
 """
 
 from __future__ import annotations
