@@ -441,8 +441,13 @@ class Candidate:
     params : tuple of float
         One-step estimate of the effect's parameters (SI).
     significant : bool
+        Bonferroni-corrected p-value below ``alpha`` *and* the effect explains at least
+        ``min_share`` of the (whitened) residual sum of squares: a statistically detectable
+        effect smaller than about a third of the noise is not worth a parameter.
     evidence : str
         The evidence in words.
+    explained_share : float
+        Fraction of the whitened residual sum of squares the effect would explain.
     """
 
     effect: str
@@ -456,6 +461,7 @@ class Candidate:
     params: tuple[float, ...]
     significant: bool
     evidence: str
+    explained_share: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         """The contract's keys (``effect``, ``score``, ``predicted_rms_drop_mm``, ``evidence``)
@@ -472,6 +478,7 @@ class Candidate:
             "delta_bic": self.delta_bic,
             "rms_after_mm": self.rms_after_mm,
             "params": list(self.params),
+            "explained_share": self.explained_share,
         }
 
 
@@ -587,6 +594,7 @@ def diagnose(
     alpha: float = 0.01,
     max_harmonic: int = 30,
     max_suggested: int = 3,
+    min_share: float = 0.1,
 ) -> Diagnosis:
     """Test the residuals of a fitted model for every candidate effect.
 
@@ -603,6 +611,9 @@ def diagnose(
         Family-wise false-alarm rate of the Bonferroni-corrected test.
     max_harmonic : int
         Highest cyclic harmonic tested by default.
+    min_share : float
+        Smallest share of the residual sum of squares a significant effect must explain
+        (practical significance; 0.1 ≈ an effect a third of the noise in RMS).
     max_suggested : int
         Forward selection: after the best candidate, the others are tested again with it
         in the model, and so on while one stays significant, up to this many effects
@@ -665,6 +676,7 @@ def diagnose(
         rms_after = rms_pos_mm(res_now - fit_res)
         lm = S / s2_c
         dbic = -S / s2_c + k * np.log(n_obs)
+        share = float(S / rss) if rss > 0 else 0.0
         cand = Candidate(
             effect=effect.name,
             score=score,
@@ -675,8 +687,9 @@ def diagnose(
             predicted_rms_drop_mm=float(rms_now - rms_after),
             rms_after_mm=float(rms_after),
             params=tuple(float(v) for v in theta),
-            significant=p_adj < alpha,
+            significant=bool(p_adj < alpha and share >= min_share),
             evidence="",
+            explained_share=share,
         )
         raw.append((logp_adj, cand))
         if effect.name.startswith("cyclic:"):
@@ -964,7 +977,12 @@ def _evidence(
                 f"; the residual spectrum against q{jk[1:]} {where} {h} cycles/rev "
                 f"(χ² {sp[h - 1]:.1f}; largest other harmonic {j2}: χ² {float(others.max()):.1f})"
             )
-    if not c.significant:
+    if not c.significant and c.p_value < 0.01 and np.isfinite(c.explained_share):
+        base = (
+            f"detectable but too small to matter (explains {100 * c.explained_share:.0f} % of "
+            "the residual): " + base
+        )
+    elif not c.significant:
         base = "not significant: " + base
     return f"{base} ({est})"
 

@@ -262,3 +262,19 @@ def test_acceptance_pipeline_random_cases(draw) -> None:
     assert diag.candidates[0].effect == effect, (effect, size, diag.summary(3))
     assert before > 1.3 * fl, (effect, size, before, fl)
     assert after <= 1.3 * fl, (effect, size, after, fl)
+
+
+def test_a_detectable_but_tiny_effect_is_not_a_missing_effect() -> None:
+    """Many poses make a cyclic error of a fifth of the noise statistically detectable; it
+    still explains only a few per cent of the residual, so the model stays "adequate"."""
+    twin, train, _, fitted = make_case("cyclic:j1:h9", 2e-5, seed=40, n_train=400, n_held=1)
+    state = state_from_fitted(fitted)
+    strict = diagnose(state, train, min_share=0.0)
+    assert strict.verdict is Verdict.MISSING_EFFECT
+    assert strict.candidates[0].effect == "cyclic:j1:h9"
+    assert strict.candidates[0].explained_share < 0.1
+    diag = diagnose(state, train)
+    assert diag.verdict is Verdict.ADEQUATE, diag.summary(2)
+    top = diag.candidates[0]
+    assert top.effect == "cyclic:j1:h9" and not top.significant and top.p_value < 0.01
+    assert "too small to matter" in top.evidence
