@@ -793,7 +793,9 @@ def inprocess_sim_station(
     robot = FakeRobot(time_scale=time_scale, model=cell.robot)
     emu = MotorEmulator().start()
     try:
-        motor = SerialPanMotor(emu.port)
+        # The emulator answers from a thread of this process, which shares the interpreter with
+        # the UI and the renderer: give it the time a busy GIL can take.
+        motor = SerialPanMotor(emu.port, timeout=1.0)
     except BaseException:
         emu.stop()
         raise

@@ -84,7 +84,8 @@ async def test_whole_run_from_preflight_to_results(tmp_path: Path, plan) -> None
         await settle(app, pilot)
         assert "GO" in text(app, "#verdict") and "NO-GO" not in text(app, "#verdict")
         conns = app.screen.query_one("#connections")
-        assert conns.row_count == 3 and all("ok" in str(conns.get_row_at(i)[1]) for i in range(3))
+        rows = [[str(c) for c in conns.get_row_at(i)] for i in range(conns.row_count)]
+        assert len(rows) == 3 and all("ok" in r[1] for r in rows), rows
         checks = app.screen.query_one("#checks")
         assert checks.row_count >= 5
         assert all("✓" in str(checks.get_row_at(i)[1]) for i in range(checks.row_count))
