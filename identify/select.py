@@ -174,39 +174,15 @@ def select_orders(
     """
     say = progress or (lambda s: None)
     spec0 = start if start is not None else data_spec(robot, meas)
-    sel = _search(
-        robot,
-        meas,
-        tuple(effects),
-        noise,
-        prior,
-        spec0,
-        max_order,
-        margin,
-        prune_fraction,
-        max_steps,
-        refits_per_step,
-        chi2_factor,
-        say,
-        setup,
-        tuple(hold),
-    )
-    if auto_rescale and sel.chi2_check.verdict != "ok":
-        ratio = sel.fitted.chi2_data / max(sel.fitted.dof, 1)
-        if sel.chi2_check.verdict == "instrument":
-            noise2, prior2 = noise.scaled(float(np.sqrt(ratio))), prior
-            note = f"instrument uncertainty × {np.sqrt(ratio):.2f}"
-        else:
-            noise2 = noise
-            prior2 = _loosen(prior)
-            note = "joint prior sigmas × 10"
-        say(f"χ² check failed ({sel.chi2_check.verdict}); rerunning with {note}")
-        sel2 = _search(
+
+    def search(noise_: InstrumentNoise, prior_: ParameterPrior) -> Selection:
+        """The search with everything but the uncertainties fixed (the χ² rerun changes them)."""
+        return _search(
             robot,
             meas,
             tuple(effects),
-            noise2,
-            prior2,
+            noise_,
+            prior_,
             spec0,
             max_order,
             margin,
@@ -218,6 +194,19 @@ def select_orders(
             setup,
             tuple(hold),
         )
+
+    sel = search(noise, prior)
+    if auto_rescale and sel.chi2_check.verdict != "ok":
+        ratio = sel.fitted.chi2_data / max(sel.fitted.dof, 1)
+        if sel.chi2_check.verdict == "instrument":
+            noise2, prior2 = noise.scaled(float(np.sqrt(ratio))), prior
+            note = f"instrument uncertainty × {np.sqrt(ratio):.2f}"
+        else:
+            noise2 = noise
+            prior2 = _loosen(prior)
+            note = "joint prior sigmas × 10"
+        say(f"χ² check failed ({sel.chi2_check.verdict}); rerunning with {note}")
+        sel2 = search(noise2, prior2)
         return Selection(
             fitted=sel2.fitted,
             trace=sel.trace + (SearchStep("rescale", "", 0, 0, np.nan, np.nan, True),) + sel2.trace,
