@@ -45,11 +45,13 @@ def text(app: QuickhealthApp, selector: str) -> str:
 async def start_run(app: QuickhealthApp, pilot) -> None:  # type: ignore[no-untyped-def]
     """``r`` on the Run screen: pre-flight, then the motion question answered yes."""
     await pilot.press("r")
-    for _ in range(100):
+    t0 = time.monotonic()  # pre-flight renders and measures a frame: slow on a loaded machine
+    while time.monotonic() - t0 < 30.0:
         await pilot.pause(0.05)
         if isinstance(app.screen, ConfirmScreen):
             break
-    assert isinstance(app.screen, ConfirmScreen), "no question before the arm moves"
+    shown = [str(w.render()) for w in app.screen.query(Static)][:6]
+    assert isinstance(app.screen, ConfirmScreen), f"no question before the arm moves: {shown}"
     await pilot.press("y")
     await pilot.pause()
 
