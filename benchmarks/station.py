@@ -38,13 +38,13 @@ def main() -> int:
     from quickhealth.station.hardware.cameras import StereoFrame, scaled_rig
     from quickhealth.station.hardware.motor import SerialPanMotor
     from quickhealth.station.hardware.motor_emulator import MotorEmulator
-    from quickhealth.station.hardware.robot import FakeRobot
     from quickhealth.station.hardware.target import T_target_plate
     from quickhealth.station.hardware.world import build_world
     from quickhealth.station.planning import load_cell
     from quickhealth.station.planning.planfile import plan_from_dict, plan_to_dict
     from quickhealth.station.planning.planner import plan_loop
     from quickhealth.station.run import RunSettings, Station, run_plan
+    from quickhealth.station.sim.fake_robot import FakeRobot
     from quickhealth.vision.render import render_stereo
 
     cell = load_cell("reference")

@@ -28,6 +28,8 @@ from numpy.typing import ArrayLike, NDArray
 from quickhealth.identify.errors import HardwareError, InputError
 from quickhealth.identify.robot import RobotModel, ur5
 
+from .urtypes import RobotMode, SafetyMode
+
 F = NDArray[np.float64]
 
 MAX_JOINT_SPEED = 3.14  # rad/s, UR5 joint limit
@@ -41,36 +43,6 @@ class Leg(Enum):
 
     JOINT = "joint"
     LINEAR = "linear"
-
-
-class SafetyMode(Enum):
-    """UR safety modes (the numbers RTDE reports)."""
-
-    NORMAL = 1
-    REDUCED = 2
-    PROTECTIVE_STOP = 3
-    RECOVERY = 4
-    SAFEGUARD_STOP = 5
-    SYSTEM_EMERGENCY_STOP = 6
-    ROBOT_EMERGENCY_STOP = 7
-    VIOLATION = 8
-    FAULT = 9
-    UNKNOWN = -1
-
-
-class RobotMode(Enum):
-    """UR robot modes (the numbers RTDE reports)."""
-
-    DISCONNECTED = 0
-    CONFIRM_SAFETY = 1
-    BOOTING = 2
-    POWER_OFF = 3
-    POWER_ON = 4
-    IDLE = 5
-    BACKDRIVE = 6
-    RUNNING = 7
-    UPDATING_FIRMWARE = 8
-    UNKNOWN = -1
 
 
 def _enum(cls: type[Enum], v: int) -> Enum:
@@ -206,7 +178,7 @@ def check_move(
     return q, leg, speed, accel
 
 
-class _ReadOnly:
+class ReadOnly:
     """A reader wrapping a robot: exposes only the read methods."""
 
     def __init__(self, robot: RobotReader) -> None:
@@ -334,7 +306,7 @@ class UrRobot:
         )
 
     def reader(self) -> RobotReader:
-        return _ReadOnly(self)
+        return ReadOnly(self)
 
     # -- commanding ------------------------------------------------------------------------
     def move(
@@ -496,154 +468,6 @@ class UrRobot:
         th.join(3.0)
 
     def __enter__(self) -> UrRobot:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-# ---------------------------------------------------------------------------------------
-# Pure-Python fake
-# ---------------------------------------------------------------------------------------
-
-
-class FakeRobot:
-    """A robot in this process: the simulator's arm model, a settable clock speed, faults.
-
-    Parameters
-    ----------
-    q0 : array, rad
-        Start joints.
-    time_scale : float
-        Motions run this many times faster than on the real arm (tests use 20–100).
-    truth : callable, optional
-        ``q -> T_instr_flange`` of the simulated world (for :mod:`cameras`).
-
-    Faults: :meth:`inject` ``("protective_stop" | "connection_drop" | "frozen_stream" |
-    "program_stop", after_moves=n)``.
-    """
-
-    def __init__(
-        self,
-        q0: ArrayLike | None = None,
-        *,
-        time_scale: float = 1.0,
-        model: RobotModel | None = None,
-        truth: Callable[[F], F] | None = None,
-        stale_after: float = 0.5,
-    ) -> None:
-        from .simcontroller import HOME_Q_DEG, Arm
-
-        self.model = model or ur5()
-        q0 = np.radians(HOME_Q_DEG) if q0 is None else np.asarray(q0, dtype=float)
-        self.arm = Arm(self.model, q0, truth=truth)
-        self.time_scale = float(time_scale)
-        self.stale_after = stale_after
-        self._t0 = time.monotonic()
-        self.safety_mode = SafetyMode.NORMAL
-        self.robot_mode = RobotMode.RUNNING
-        self.program_running = True
-        self.connected = True
-        self.frozen_at: float | None = None
-        self.n_moves = 0
-        self._faults: list[tuple[str, int]] = []
-        self.moves: list[tuple[F, Leg]] = []
-        self.sample_period = 0.008 / self.time_scale  # a 125 Hz stream in simulated time
-
-    def now(self) -> float:
-        """Simulated controller time, s."""
-        return (time.monotonic() - self._t0) * self.time_scale
-
-    def inject(self, kind: str, *, after_moves: int = 0) -> None:
-        """Fault at the start of move number ``n_moves + after_moves + 1`` (0: now)."""
-        if kind not in ("protective_stop", "connection_drop", "frozen_stream", "program_stop"):
-            raise ValueError(f"unknown fault {kind!r}")
-        if after_moves <= 0:
-            self._apply(kind)
-        else:
-            self._faults.append((kind, self.n_moves + after_moves))
-
-    def _apply(self, kind: str) -> None:
-        self.arm.halt(self.now())
-        if kind == "protective_stop":
-            self.safety_mode = SafetyMode.PROTECTIVE_STOP
-            self.program_running = False
-        elif kind == "connection_drop":
-            self.connected = False
-        elif kind == "frozen_stream":
-            self.frozen_at = self.now()
-        elif kind == "program_stop":
-            self.program_running = False
-
-    def release(self) -> None:
-        """Clear every fault (the technician released the stop, the network is back)."""
-        self.safety_mode = SafetyMode.NORMAL
-        self.program_running = True
-        self.connected = True
-        self.frozen_at = None
-
-    def _check_stream(self) -> float:
-        if not self.connected:
-            raise ConnectionLost("lost the RTDE connection to the fake robot; rerun with --resume")
-        if self.frozen_at is not None:
-            raise StreamFrozen(
-                "the controller's RTDE stream froze: restart the controller, then rerun with --resume"
-            )
-        return self.now()
-
-    def joints(self) -> F:
-        return self.arm.actual(self._check_stream())
-
-    def sample(self) -> JointSample:
-        t = self._check_stream()
-        return JointSample(t, self.arm.actual(t))
-
-    def tcp_pose(self) -> F:
-        return self.model.fk(self.joints())
-
-    def status(self) -> RobotStatus:
-        return RobotStatus(
-            self.robot_mode, self.safety_mode, self.program_running, connected=self.connected
-        )
-
-    def reader(self) -> RobotReader:
-        return _ReadOnly(self)
-
-    def move(
-        self, q: ArrayLike, leg: Leg = Leg.JOINT, *, speed: float = 1.0, accel: float = 1.4
-    ) -> None:
-        q, leg, speed, accel = check_move(self.model, q, leg, speed, accel)
-        self._check_stream()
-        self.n_moves += 1
-        for kind, at in list(self._faults):
-            if at <= self.n_moves:
-                self._faults.remove((kind, at))
-                self._apply(kind)
-        self._raise_unless_ready()
-        self.moves.append((q, leg))
-        if leg is Leg.JOINT:
-            m = self.arm.move_joint(q, speed, accel, self.now())
-        else:
-            m = self.arm.move_joint(q, speed * 3.0, accel * 3.0, self.now())  # ≈ tool speed
-        time.sleep(max(m.duration / self.time_scale, 0.0))
-        self.arm.target(self.now())
-
-    def _raise_unless_ready(self) -> None:
-        self._check_stream()
-        if self.safety_mode is not SafetyMode.NORMAL:
-            raise ProtectiveStop(f"the move did not finish: protective stop; {RECOVERY_HINT}")
-        if not self.program_running:
-            raise ProgramStopped(
-                "the move did not finish: the control program stopped; rerun with --resume"
-            )
-
-    def stop(self) -> None:
-        self.arm.halt(self.now())
-
-    def close(self) -> None:
-        self.stop()
-
-    def __enter__(self) -> FakeRobot:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -384,7 +384,7 @@ class Station:
     ) -> Station:
         """The built-in simulated cell, in this process (fast; for tests and demos).
 
-        The arm is the pure-Python :class:`~quickhealth.station.hardware.robot.FakeRobot`
+        The arm is the pure-Python :class:`~quickhealth.station.sim.fake_robot.FakeRobot`
         (``time_scale`` times faster than real), the pan motor the serial emulator on a
         pseudo-terminal behind the real serial driver, and the cameras render the digital
         twin's true target pose (:func:`~quickhealth.station.hardware.world.build_world`) at
@@ -533,7 +533,8 @@ class Station:
         Runs on a pure-Python simulated controller at 50× speed from the first pose, so the
         reported loop time is the simulated arm's, scaled back to real time.
         """
-        from quickhealth.station.hardware.robot import FakeRobot, Leg
+        from quickhealth.station.hardware.robot import Leg
+        from quickhealth.station.sim.fake_robot import FakeRobot
 
         plan = self.plan
         if plan is None:
@@ -783,10 +784,10 @@ def inprocess_sim_station(
     from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
     from quickhealth.station.hardware.motor import SerialPanMotor
     from quickhealth.station.hardware.motor_emulator import MotorEmulator
-    from quickhealth.station.hardware.robot import FakeRobot
     from quickhealth.station.hardware.world import build_world
     from quickhealth.station.planning import load_cell
     from quickhealth.station.run import Station as RunStation
+    from quickhealth.station.sim.fake_robot import FakeRobot
 
     cell = load_cell(cell_name)
     world = build_world(cell_name, twin_seed=twin_seed)

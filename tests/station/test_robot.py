@@ -9,7 +9,6 @@ from quickhealth.identify.errors import HardwareError, InputError
 from quickhealth.identify.robot import ur5
 from quickhealth.station.hardware.robot import (
     ConnectionLost,
-    FakeRobot,
     Leg,
     ProgramStopped,
     ProtectiveStop,
@@ -20,6 +19,7 @@ from quickhealth.station.hardware.robot import (
     check_move,
 )
 from quickhealth.station.hardware.simcontroller import trapezoid_duration, trapezoid_fraction
+from quickhealth.station.sim.fake_robot import FakeRobot
 
 Q1 = np.radians([10.0, -80.0, 80.0, -90.0, -90.0, 10.0])
 

@@ -18,12 +18,12 @@ import qh_station_plan as _station_plan
 from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
 from quickhealth.station.hardware.motor import SerialPanMotor
 from quickhealth.station.hardware.motor_emulator import MotorEmulator
-from quickhealth.station.hardware.robot import FakeRobot
 from quickhealth.station.hardware.target import T_target_plate
 from quickhealth.station.hardware.world import build_world
 from quickhealth.station.journal import JOURNAL, read_journal
 from quickhealth.station.planning import load_cell, load_plan
 from quickhealth.station.run import RunSettings, Station, is_settled, run_plan
+from quickhealth.station.sim.fake_robot import FakeRobot
 
 SETTINGS = RunSettings(capture_attempts=2)
 

@@ -242,7 +242,7 @@ async def test_connection_loss_is_shown_at_once_and_recovered(tmp_path: Path, pl
 
 
 def test_a_protective_stop_is_named_with_what_to_do() -> None:
-    from quickhealth.station.hardware.robot import FakeRobot
+    from quickhealth.station.sim.fake_robot import FakeRobot
     from quickhealth.station.tui.cell import classify
 
     robot = FakeRobot()

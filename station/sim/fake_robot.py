@@ -1,0 +1,176 @@
+"""A robot in this process: the controller simulator's arm model behind the driver's interface.
+
+:class:`FakeRobot` implements :class:`~quickhealth.station.hardware.robot.Robot` in pure
+Python with the same timing model and faults as the controller simulator, for fast unit
+tests, the in-process simulated cell of the TUI and the planner's dry run.  It is a fake at
+the hardware boundary: the driver never imports it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from quickhealth.identify.robot import RobotModel, ur5
+from quickhealth.station.hardware.robot import (
+    RECOVERY_HINT,
+    ConnectionLost,
+    JointSample,
+    Leg,
+    ProgramStopped,
+    ProtectiveStop,
+    ReadOnly,
+    RobotReader,
+    RobotStatus,
+    StreamFrozen,
+    check_move,
+)
+from quickhealth.station.hardware.urtypes import RobotMode, SafetyMode
+
+from .arm import HOME_Q_DEG, Arm
+
+F = NDArray[np.float64]
+
+
+class FakeRobot:
+    """A robot in this process: the simulator's arm model, a settable clock speed, faults.
+
+    Parameters
+    ----------
+    q0 : array, rad
+        Start joints.
+    time_scale : float
+        Motions run this many times faster than on the real arm (tests use 20–100).
+    truth : callable, optional
+        ``q -> T_instr_flange`` of the simulated world (for :mod:`cameras`).
+
+    Faults: :meth:`inject` ``("protective_stop" | "connection_drop" | "frozen_stream" |
+    "program_stop", after_moves=n)``.
+    """
+
+    def __init__(
+        self,
+        q0: ArrayLike | None = None,
+        *,
+        time_scale: float = 1.0,
+        model: RobotModel | None = None,
+        truth: Callable[[F], F] | None = None,
+        stale_after: float = 0.5,
+    ) -> None:
+        self.model = model or ur5()
+        q0 = np.radians(HOME_Q_DEG) if q0 is None else np.asarray(q0, dtype=float)
+        self.arm = Arm(self.model, q0, truth=truth)
+        self.time_scale = float(time_scale)
+        self.stale_after = stale_after
+        self._t0 = time.monotonic()
+        self.safety_mode = SafetyMode.NORMAL
+        self.robot_mode = RobotMode.RUNNING
+        self.program_running = True
+        self.connected = True
+        self.frozen_at: float | None = None
+        self.n_moves = 0
+        self._faults: list[tuple[str, int]] = []
+        self.moves: list[tuple[F, Leg]] = []
+        self.sample_period = 0.008 / self.time_scale  # a 125 Hz stream in simulated time
+
+    def now(self) -> float:
+        """Simulated controller time, s."""
+        return (time.monotonic() - self._t0) * self.time_scale
+
+    def inject(self, kind: str, *, after_moves: int = 0) -> None:
+        """Fault at the start of move number ``n_moves + after_moves + 1`` (0: now)."""
+        if kind not in ("protective_stop", "connection_drop", "frozen_stream", "program_stop"):
+            raise ValueError(f"unknown fault {kind!r}")
+        if after_moves <= 0:
+            self._apply(kind)
+        else:
+            self._faults.append((kind, self.n_moves + after_moves))
+
+    def _apply(self, kind: str) -> None:
+        self.arm.halt(self.now())
+        if kind == "protective_stop":
+            self.safety_mode = SafetyMode.PROTECTIVE_STOP
+            self.program_running = False
+        elif kind == "connection_drop":
+            self.connected = False
+        elif kind == "frozen_stream":
+            self.frozen_at = self.now()
+        elif kind == "program_stop":
+            self.program_running = False
+
+    def release(self) -> None:
+        """Clear every fault (the technician released the stop, the network is back)."""
+        self.safety_mode = SafetyMode.NORMAL
+        self.program_running = True
+        self.connected = True
+        self.frozen_at = None
+
+    def _check_stream(self) -> float:
+        if not self.connected:
+            raise ConnectionLost("lost the RTDE connection to the fake robot; rerun with --resume")
+        if self.frozen_at is not None:
+            raise StreamFrozen(
+                "the controller's RTDE stream froze: restart the controller, then rerun with --resume"
+            )
+        return self.now()
+
+    def joints(self) -> F:
+        return self.arm.actual(self._check_stream())
+
+    def sample(self) -> JointSample:
+        t = self._check_stream()
+        return JointSample(t, self.arm.actual(t))
+
+    def tcp_pose(self) -> F:
+        return self.model.fk(self.joints())
+
+    def status(self) -> RobotStatus:
+        return RobotStatus(
+            self.robot_mode, self.safety_mode, self.program_running, connected=self.connected
+        )
+
+    def reader(self) -> RobotReader:
+        return ReadOnly(self)
+
+    def move(
+        self, q: ArrayLike, leg: Leg = Leg.JOINT, *, speed: float = 1.0, accel: float = 1.4
+    ) -> None:
+        q, leg, speed, accel = check_move(self.model, q, leg, speed, accel)
+        self._check_stream()
+        self.n_moves += 1
+        for kind, at in list(self._faults):
+            if at <= self.n_moves:
+                self._faults.remove((kind, at))
+                self._apply(kind)
+        self._raise_unless_ready()
+        self.moves.append((q, leg))
+        if leg is Leg.JOINT:
+            m = self.arm.move_joint(q, speed, accel, self.now())
+        else:
+            m = self.arm.move_joint(q, speed * 3.0, accel * 3.0, self.now())  # ≈ tool speed
+        time.sleep(max(m.duration / self.time_scale, 0.0))
+        self.arm.target(self.now())
+
+    def _raise_unless_ready(self) -> None:
+        self._check_stream()
+        if self.safety_mode is not SafetyMode.NORMAL:
+            raise ProtectiveStop(f"the move did not finish: protective stop; {RECOVERY_HINT}")
+        if not self.program_running:
+            raise ProgramStopped(
+                "the move did not finish: the control program stopped; rerun with --resume"
+            )
+
+    def stop(self) -> None:
+        self.arm.halt(self.now())
+
+    def close(self) -> None:
+        self.stop()
+
+    def __enter__(self) -> FakeRobot:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
