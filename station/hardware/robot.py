@@ -2,12 +2,14 @@
 
 - :class:`RobotReader` — joints, TCP pose, controller time, robot mode and safety status.
 - :class:`Robot` — a reader that also moves (joint or linear leg to a joint target) and stops.
-- :class:`UrRobot` — the adapter on ur-rtde (``rtde_receive`` + ``rtde_control``), imported
-  lazily.  Moves are sent asynchronously and watched here, so a protective stop, a lost
-  connection or a frozen RTDE stream ends the move within a fraction of a second with a
-  :class:`~quickhealth.identify.errors.HardwareError` that says what to do, never a hang.
-- :class:`FakeRobot` — pure Python, same timing model as the controller simulator, with the
-  same faults; for fast unit tests.
+- :class:`UrRobot` — the adapter on ur-rtde (``rtde_receive`` + ``rtde_control``), run in a
+  child process (:mod:`.ur_client`) that alone calls into the C++ client.  Moves are sent
+  asynchronously and watched there, so a protective stop, a lost connection or a frozen RTDE
+  stream ends the move within a fraction of a second with a
+  :class:`~quickhealth.identify.errors.HardwareError` that says what to do, never a hang; a
+  stop jumps the queue and ends a move within one 4 ms watch cycle.
+- ``quickhealth.station.sim.fake_robot.FakeRobot`` — pure Python, same timing model as the
+  controller simulator, with the same faults; for fast unit tests.
 
 Every move is checked before it is sent: six finite joint angles inside the robot's limits,
 speeds and accelerations positive and bounded.  Only these numbers reach the controller.
@@ -15,9 +17,9 @@ speeds and accelerations positive and bounded.  Only these numbers reach the con
 
 from __future__ import annotations
 
+import json
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol, runtime_checkable
@@ -213,8 +215,135 @@ def _pose_to_T(p: ArrayLike) -> F:
 RECOVERY_HINT = "clear the cause, release the stop on the teach pendant, then rerun with --resume"
 
 
+class MoveStopped(HardwareError):
+    """The move was stopped on request (abort) or cancelled because the arm had been stopped."""
+
+
+_ERRORS: dict[str, type[HardwareError]] = {
+    c.__name__: c
+    for c in (
+        HardwareError,
+        ProtectiveStop,
+        ConnectionLost,
+        StreamFrozen,
+        ProgramStopped,
+        MoveStopped,
+    )
+}
+
+
+class _Child:
+    """One ur-rtde client process (:mod:`.ur_client`) and the replies it owes us."""
+
+    def __init__(self, argv: list[str], connect_timeout: float) -> None:
+        import subprocess
+        import sys
+        import threading
+
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "quickhealth.station.hardware.ur_client", *argv],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+            bufsize=1,
+        )
+        self._lock = threading.Lock()
+        self._ids = iter(range(1, 1 << 62))
+        self._waiting: dict[int, tuple[threading.Event, list[dict]]] = {0: (threading.Event(), [])}
+        self.dead: str | None = None
+        threading.Thread(target=self._read, name="ur-client-replies", daemon=True).start()
+        hello = self.wait(0, connect_timeout)
+        if hello is None:
+            self.kill()
+            raise ConnectionLost(
+                f"the robot controller did not accept a connection within {connect_timeout:.0f} s"
+            )
+        if not hello.get("ok"):
+            self.kill()
+            raise ConnectionLost(str(hello.get("message", "cannot connect")))
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            try:
+                msg = json.loads(line)
+                ev, box = self._waiting[int(msg["id"])]
+            except (ValueError, KeyError, TypeError):
+                continue
+            box.append(msg)
+            ev.set()
+        self.proc.wait()
+        with self._lock:
+            self.dead = f"the ur-rtde client process ended (status {self.proc.returncode})"
+            for ev, _ in self._waiting.values():
+                ev.set()
+
+    def send(self, op: str, **args: object) -> int:
+        """Queue a request; returns its id (wait for the answer with :meth:`wait`)."""
+        import threading
+
+        with self._lock:
+            if self.dead is not None:
+                raise ConnectionLost(f"{self.dead}; reconnect, then rerun with --resume")
+            rid = next(self._ids)
+            self._waiting[rid] = (threading.Event(), [])
+            try:
+                assert self.proc.stdin is not None
+                self.proc.stdin.write(json.dumps({"id": rid, "op": op, **args}) + "\n")
+                self.proc.stdin.flush()
+            except (OSError, ValueError):
+                self.dead = "the ur-rtde client process is gone"
+                raise ConnectionLost(f"{self.dead}; reconnect, then rerun with --resume") from None
+        return rid
+
+    def wait(self, rid: int, timeout: float) -> dict | None:
+        """The answer to request ``rid``, or None when none came within ``timeout`` s."""
+        ev, box = self._waiting[rid]
+        ev.wait(timeout)
+        if box:
+            with self._lock:
+                self._waiting.pop(rid, None)
+            return box[0]
+        if self.dead is not None:
+            raise ConnectionLost(f"{self.dead}; reconnect, then rerun with --resume")
+        return None
+
+    def forget(self, rid: int) -> None:
+        with self._lock:
+            self._waiting.pop(rid, None)
+
+    def kill(self) -> None:
+        """End the process now (a stuck C++ call is never disconnected from another thread)."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        for f in (self.proc.stdin, self.proc.stdout):
+            try:
+                f.close()  # type: ignore[union-attr]
+            except (OSError, ValueError):
+                pass
+
+    def close(self, timeout: float) -> None:
+        """Ask the client to stop the script and disconnect; kill it if it does not end."""
+        try:
+            rid = self.send("close")
+            self.wait(rid, timeout)
+            self.proc.wait(timeout)
+        except Exception:  # noqa: BLE001 - whatever went wrong, the process must end
+            pass
+        self.kill()
+
+
 class UrRobot:
-    """A UR robot over ur-rtde (CB3 or e-Series).
+    """A UR robot over ur-rtde (CB3 or e-Series), the client in a child process.
+
+    The two ur-rtde objects live in their own process (:mod:`.ur_client`), each owned by one
+    thread there; this object only sends requests down a pipe and waits for replies, so any
+    number of threads here (the run, an abort, the TUI's status polls) may call it and never
+    two threads are inside a ur-rtde object.  A client stuck inside a C++ call (a controller
+    that stopped answering) is killed and replaced by :meth:`reconnect`; it can never take
+    this interpreter down.
 
     Parameters
     ----------
@@ -228,6 +357,10 @@ class UrRobot:
         s a single move may take before the run is stopped.
     """
 
+    COMMAND_TIMEOUT = 5.0  # s one call into the controller may take before the client is killed
+    STOP_WAIT = 1.0  # s a stop may take to be confirmed
+    CONNECT_TIMEOUT = 20.0  # s to connect both interfaces (the script upload included)
+
     def __init__(
         self,
         host: str,
@@ -237,72 +370,108 @@ class UrRobot:
         move_timeout: float = 120.0,
         model: RobotModel | None = None,
     ) -> None:
-        try:
-            import rtde_control
-            import rtde_receive
-        except ImportError as exc:  # pragma: no cover - ur-rtde is a dependency
-            raise HardwareError(f"ur-rtde is not installed ({exc})") from None
+        import threading
+
         self.model = model or ur5()
         self.host = host
-        self.stale_after = stale_after
-        self.move_timeout = move_timeout
-        self.command_timeout = 5.0  # s for a command to be acknowledged
-        self._stuck = False
-        self._rc = None
-        try:
-            self._rr = rtde_receive.RTDEReceiveInterface(host, frequency)
-        except RuntimeError as exc:
-            raise ConnectionLost(
-                f"cannot connect to the robot controller at {host}: {exc}"
-            ) from None
-        try:
-            self._rc = rtde_control.RTDEControlInterface(host, frequency)
-        except RuntimeError as exc:
-            self._rr.disconnect()
-            raise ConnectionLost(
-                f"cannot start the control interface at {host}: {exc} "
-                "(is the robot in remote control and the dashboard server reachable?)"
-            ) from None
-        self._last_ts = (-1.0, time.monotonic())
+        self.frequency = float(frequency)
+        self.stale_after = float(stale_after)
+        self.move_timeout = float(move_timeout)
+        self.sample_period = 1.0 / self.frequency
+        self._gate = threading.Lock()  # orders moves against stops and reconnects
+        self._halted = False
+        self._child: _Child | None = None
+        self._connect()
 
-    # -- reading ---------------------------------------------------------------------------
-    def _check_stream(self) -> float:
-        if not self._rr.isConnected():
+    # -- the client process ---------------------------------------------------------------
+    def _connect(self) -> None:
+        argv = [
+            self.host,
+            f"--frequency={self.frequency}",
+            f"--stale-after={self.stale_after}",
+            f"--move-timeout={self.move_timeout}",
+        ]
+        self._child = _Child(argv, self.CONNECT_TIMEOUT)
+
+    def reconnect(self) -> None:
+        """Replace the client process: after a link drop, a frozen stream or a controller
+        restart.  Raises :class:`ConnectionLost` while the controller is still away."""
+        with self._gate:
+            old, self._child = self._child, None
+            if old is not None:
+                old.close(1.0)
+            self._halted = False
+            self._connect()
+
+    def _live(self) -> _Child:
+        child = self._child
+        if child is None or child.dead is not None:
+            raise ConnectionLost(
+                f"not connected to the robot controller at {self.host}: reconnect, "
+                "then rerun with --resume"
+            )
+        return child
+
+    def _discard(self, child: _Child) -> None:
+        """Kill a client that cannot be trusted any more (stuck, frozen stream, link lost)."""
+        with self._gate:
+            if self._child is child:
+                self._child = None
+        child.kill()
+
+    def _state(self, child: _Child | None = None) -> dict:
+        child = child or self._live()
+        rid = child.send("state")
+        msg = child.wait(rid, 2.0)
+        if msg is None:
+            child.forget(rid)
+            self._discard(child)
+            raise ConnectionLost(
+                "the ur-rtde client process stopped answering (killed); reconnect, "
+                "then rerun with --resume"
+            )
+        snap = msg["value"]
+        if time.monotonic() - float(snap["polled"]) > 2.0:  # its receiver thread is stuck
+            self._discard(child)
+            raise ConnectionLost("the ur-rtde receive connection stopped polling (client killed)")
+        return snap
+
+    def _fresh(self, child: _Child | None = None) -> dict:
+        s = self._state(child)
+        if not s["connected"]:
             raise ConnectionLost(
                 f"lost the RTDE connection to {self.host}: check the network cable and the "
-                f"controller, then rerun with --resume"
+                "controller, then rerun with --resume"
             )
-        ts = float(self._rr.getTimestamp())
-        last, since = self._last_ts
-        now = time.monotonic()
-        if ts != last:
-            self._last_ts = (ts, now)
-        elif now - since > self.stale_after:
+        if s["still_for"] > self.stale_after:
             raise StreamFrozen(
-                f"the controller's RTDE stream froze (timestamp {ts:.3f} s unchanged for "
-                f"{now - since:.1f} s): restart the controller, then rerun with --resume"
+                f"the controller's RTDE stream froze (timestamp {s['timestamp']:.3f} s unchanged "
+                f"for {s['still_for']:.1f} s): restart the controller, then rerun with --resume"
             )
-        return ts
+        return s
 
+    # -- reading ---------------------------------------------------------------------------
     def joints(self) -> F:
-        self._check_stream()
-        return np.asarray(self._rr.getActualQ(), dtype=float)
+        return np.asarray(self._fresh()["q"], dtype=float)
 
     def sample(self) -> JointSample:
-        ts = self._check_stream()
-        return JointSample(ts, np.asarray(self._rr.getActualQ(), dtype=float))
+        s = self._fresh()
+        return JointSample(float(s["timestamp"]), np.asarray(s["q"], dtype=float))
 
     def tcp_pose(self) -> F:
-        self._check_stream()
-        return _pose_to_T(self._rr.getActualTCPPose())
+        return _pose_to_T(self._fresh()["tcp_pose"])
 
     def status(self) -> RobotStatus:
-        if not self._rr.isConnected():
+        try:
+            s = self._state()
+        except ConnectionLost:
+            s = {"connected": False}
+        if not s["connected"]:
             return RobotStatus(RobotMode.UNKNOWN, SafetyMode.UNKNOWN, False, connected=False)
         return RobotStatus(
-            _enum(RobotMode, self._rr.getRobotMode()),  # type: ignore[arg-type]
-            _enum(SafetyMode, self._rr.getSafetyMode()),  # type: ignore[arg-type]
-            int(self._rr.getRuntimeState()) == 2,
+            _enum(RobotMode, s["robot_mode"]),  # type: ignore[arg-type]
+            _enum(SafetyMode, s["safety_mode"]),  # type: ignore[arg-type]
+            int(s["runtime_state"]) == 2,
         )
 
     def reader(self) -> RobotReader:
@@ -313,159 +482,73 @@ class UrRobot:
         self, q: ArrayLike, leg: Leg = Leg.JOINT, *, speed: float = 1.0, accel: float = 1.4
     ) -> None:
         q, leg, speed, accel = check_move(self.model, q, leg, speed, accel)
-        self._check_ready()
-        qs = [float(v) for v in q]
-        fn = self._rc.moveJ if leg is Leg.JOINT else self._rc.moveL_FK
-        ok = self._call("the move", fn, qs, speed, accel, True)
-        if not ok:
-            self._raise_for_state("the controller refused the move")
-        self._wait_move(q)
-
-    def _wait_move(self, q: F) -> None:
-        t0 = time.monotonic()
-        idle_since: float | None = None
-        time.sleep(0.01)
-        while True:
-            self._check_stream()
-            st = self.status()
-            if not st.ready or not st.program_running:
-                self._raise_for_state("the move did not finish")
-            progress = self._rc.getAsyncOperationProgress()
-            if progress < 0:
-                qa = np.asarray(self._rr.getTargetQ(), dtype=float)
-                if np.max(np.abs(qa - q)) < 1e-4:
-                    return
-                # Not there yet: the two RTDE connections may lag each other by a packet, or
-                # the progress register still shows the previous move.  Persisting = stopped.
-                if idle_since is None:
-                    idle_since = time.monotonic()
-                elif time.monotonic() - idle_since > 0.25:
-                    self._raise_for_state("the move ended away from its target")
-            else:
-                idle_since = None
-            if time.monotonic() - t0 > self.move_timeout:
-                self.stop()
-                raise HardwareError(
-                    f"a move took longer than {self.move_timeout:.0f} s: check the robot"
+        with self._gate:
+            if self._halted:
+                raise MoveStopped(
+                    "the arm was stopped (abort): the move was not sent; start the run again"
                 )
-            time.sleep(0.004)
-
-    def _check_ready(self) -> None:
-        self._check_stream()
-        st = self.status()
-        if not st.ready:
-            self._raise_for_state("the robot is not ready")
-        if not st.program_running:
-            # The control script stopped (e.g. after a released protective stop): restart it.
-            self._call("restart the control program", self._rc.reuploadScript)
-            deadline = time.monotonic() + 5.0
-            while not self._rc.isProgramRunning():
-                if time.monotonic() > deadline:
-                    raise ProgramStopped("the control program on the robot does not start")
-                time.sleep(0.01)
-
-    def _call(self, what: str, fn: Callable[..., object], *args: object) -> object:
-        """Call a ur-rtde command that may block (it waits for the controller's answer) in a
-        helper thread, and watch the stream meanwhile: a frozen or lost stream ends the wait
-        with the right error instead of the client's 300 s timeout."""
-        import threading
-
-        box: dict[str, object] = {}
-
-        def run() -> None:
-            try:
-                box["value"] = fn(*args)
-            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller
-                box["error"] = exc
-
-        th = threading.Thread(target=run, daemon=True, name="ur-rtde-call")
-        th.start()
-        deadline = time.monotonic() + self.command_timeout
+            child = self._live()
+            rid = child.send(
+                "move", q=[float(v) for v in q], leg=leg.value, speed=speed, accel=accel
+            )
+        deadline = time.monotonic() + self.move_timeout + self.COMMAND_TIMEOUT
         while True:
-            th.join(0.02)
-            if not th.is_alive():
+            msg = child.wait(rid, 0.05)
+            if msg is not None:
                 break
+            # Still moving: watch the client from outside too, in case it is stuck in a call.
             try:
-                self._check_stream()
+                s = self._fresh(child)
             except HardwareError:
-                self._stuck = True  # the client thread may never return: close gently
+                child.forget(rid)
+                self._discard(child)
                 raise
-            if time.monotonic() > deadline:
-                self._stuck = True
+            if s["busy"] and s["busy_for"] > self.COMMAND_TIMEOUT or time.monotonic() > deadline:
+                child.forget(rid)
+                self._discard(child)
                 raise HardwareError(
-                    f"{what}: the controller did not answer within {self.command_timeout:.0f} s; "
-                    "restart it, then rerun with --resume"
+                    f"the move: the controller did not answer within {self.COMMAND_TIMEOUT:.0f} s "
+                    "(client killed); restart it, then rerun with --resume"
                 )
-        if "error" in box:
-            err = box["error"]
-            raise ConnectionLost(f"{what}: ur-rtde failed ({err}); rerun with --resume")
-        return box.get("value")
-
-    def _raise_for_state(self, what: str) -> None:
-        # The receive connection may lag the control connection by a packet or two: give the
-        # cause a moment to show before settling for a generic message.
-        deadline = time.monotonic() + 0.2
-        while True:
-            self._check_stream()
-            st = self.status()
-            if not st.ready or not st.program_running or time.monotonic() > deadline:
-                break
-            time.sleep(0.008)
-        st = self.status()
-        if not st.connected or not self._rc.isConnected():
-            raise ConnectionLost(f"{what}: lost the connection to {self.host}; rerun with --resume")
-        if st.safety_mode in (SafetyMode.PROTECTIVE_STOP, SafetyMode.SAFEGUARD_STOP):
-            raise ProtectiveStop(
-                f"{what}: {st.safety_mode.name.lower().replace('_', ' ')}; {RECOVERY_HINT}"
-            )
-        if st.safety_mode not in (SafetyMode.NORMAL, SafetyMode.REDUCED):
-            raise ProtectiveStop(f"{what}: safety mode {st.safety_mode.name}; {RECOVERY_HINT}")
-        if st.robot_mode is not RobotMode.RUNNING:
-            raise HardwareError(
-                f"{what}: robot mode {st.robot_mode.name}; power on and release the brakes"
-            )
-        if not st.program_running:
-            raise ProgramStopped(
-                f"{what}: the control program stopped (stop pressed on the pendant?); "
-                "rerun with --resume"
-            )
-        raise HardwareError(f"{what}: {st.describe()}")
+        if not msg["ok"]:
+            err = _ERRORS.get(str(msg.get("error")), HardwareError)
+            if err in (ConnectionLost, StreamFrozen):
+                self._discard(child)
+            raise err(str(msg.get("message", "the move failed")))
 
     def stop(self) -> None:
-        if self._rc is not None and not self._stuck and self._rc.isConnected():
+        """Stop the arm now (ahead of anything queued) and refuse moves until :meth:`clear_stop`.
+
+        Returns once the controller confirmed the stop, or after :attr:`STOP_WAIT` s: then the
+        client is killed, which drops its connections (the controller stops the program).
+        """
+        with self._gate:
+            self._halted = True
+            child = self._child
+            if child is None or child.dead is not None:
+                return
             try:
-                self._call("stop", self._rc.stopJ, 2.0, False)
-            except (RuntimeError, HardwareError):
-                pass
+                rid = child.send("stop")
+            except ConnectionLost:
+                return
+        try:
+            msg = child.wait(rid, self.STOP_WAIT)
+        except ConnectionLost:
+            return
+        if msg is None:
+            child.forget(rid)
+            self._discard(child)
+
+    def clear_stop(self) -> None:
+        """Allow moves again after :meth:`stop` (the start of a run)."""
+        with self._gate:
+            self._halted = False
 
     def close(self) -> None:
-        rc, self._rc = self._rc, None
-        if rc is not None:
-            if not self._stuck:
-                try:
-                    if rc.isConnected() and self._rr.isConnected():
-                        self._call("stop script", rc.stopScript)
-                except (RuntimeError, HardwareError):
-                    pass
-            self._safe_disconnect(rc)
-        self._safe_disconnect(self._rr)
-
-    def _safe_disconnect(self, iface: object) -> None:
-        """Disconnect; after a stuck call, in a helper thread that may be abandoned."""
-        import threading
-
-        def run() -> None:
-            try:
-                iface.disconnect()  # type: ignore[attr-defined]
-            except RuntimeError:
-                pass
-
-        if not self._stuck:
-            run()
-            return
-        th = threading.Thread(target=run, daemon=True, name="ur-rtde-disconnect")
-        th.start()
-        th.join(3.0)
+        with self._gate:
+            child, self._child = self._child, None
+        if child is not None:
+            child.close(3.0)
 
     def __enter__(self) -> UrRobot:
         return self

@@ -1,0 +1,411 @@
+"""The ur-rtde client pair in its own process: the only place that ever calls into ur_rtde.
+
+:class:`~quickhealth.station.hardware.robot.UrRobot` starts this module as a child process
+(``python -m quickhealth.station.hardware.ur_client HOST``) and talks to it over its standard
+input and output, one JSON object a line.  Inside, each C++ object has exactly one owner
+thread, and nothing else ever calls into it:
+
+- the **receiver** thread constructs ``RTDEReceiveInterface`` and polls it every 4 ms into an
+  immutable :class:`Snapshot` (joints, modes, the controller's timestamp and how long it has
+  stood still);
+- the **commander** thread constructs ``RTDEControlInterface`` and executes commands from a
+  priority queue, one at a time: ``move`` (sent asynchronously, then watched from the
+  snapshots until the controller says it ended), ``stop`` and ``close``;
+- the **main** thread reads requests.  ``state`` is answered at once from the latest
+  snapshot; ``stop`` is queued ahead of everything else and also flags the move being
+  watched, which stops the arm within one 4 ms watch cycle.  A stop cancels every move
+  received before it (a move already on the way when the operator aborted never starts).
+
+Replies: ``{"id": n, "ok": true, "value": ...}`` or ``{"id": n, "ok": false, "error":
+CLASS, "message": TEXT}`` where CLASS names one of the driver's exception classes.  The
+child never needs to be disconnected from another thread: when a C++ call hangs (a controller
+that stopped answering) the parent kills the whole process, and the operating system closes
+its sockets.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import os
+import queue
+import sys
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from .urtypes import RobotMode, RuntimeState, SafetyMode
+
+POLL_S = 0.004  # receiver and move-watch period, s
+RECOVERY_HINT = "clear the cause, release the stop on the teach pendant, then rerun with --resume"
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What the receive connection said at its last poll (SI units, UR's mode numbers)."""
+
+    polled: float  # monotonic time of the poll, s (this process's clock)
+    connected: bool
+    timestamp: float = -1.0  # controller time, s
+    still_for: float = 0.0  # s the controller timestamp has not advanced, as of ``polled``
+    q: tuple[float, ...] = ()
+    target_q: tuple[float, ...] = ()
+    tcp_pose: tuple[float, ...] = ()
+    robot_mode: int = -1
+    safety_mode: int = -1
+    runtime_state: int = -1
+    busy: str = ""  # the C++ call the commander is inside, "" when none
+    busy_for: float = 0.0  # s it has been inside it
+
+    @property
+    def ready(self) -> bool:
+        return (
+            self.connected
+            and self.robot_mode == RobotMode.RUNNING
+            and self.safety_mode in (SafetyMode.NORMAL, SafetyMode.REDUCED)
+        )
+
+    @property
+    def program_running(self) -> bool:
+        return self.runtime_state == RuntimeState.PLAYING
+
+
+class Refused(Exception):
+    """A command ended without success; ``kind`` names the driver's exception class."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+@dataclass(order=True)
+class _Job:
+    priority: int
+    seq: int
+    req: dict[str, Any] = field(compare=False)
+
+
+class Client:
+    """The owner of one controller's ur-rtde objects (see the module docstring)."""
+
+    def __init__(self, host: str, frequency: float, stale_after: float, move_timeout: float):
+        self.host = host
+        self.frequency = frequency
+        self.stale_after = stale_after
+        self.move_timeout = move_timeout
+        self.out_lock = threading.Lock()
+        self.jobs: queue.PriorityQueue[_Job] = queue.PriorityQueue()
+        self.snap = Snapshot(time.monotonic(), False)
+        self.closing = threading.Event()
+        self.rr_ready = threading.Event()
+        self.rr_error: str | None = None
+        self.stop_seq = -1  # sequence number of the last stop request
+        self.moving_seq = -1  # sequence number of the move being watched
+        self._busy: tuple[str, float] = ("", 0.0)
+        self.rc: Any = None
+
+    # -- output -------------------------------------------------------------------------
+    def reply(self, rid: int, value: Any = None, *, error: Refused | None = None) -> None:
+        msg: dict[str, Any] = {"id": rid, "ok": error is None}
+        if error is None:
+            msg["value"] = value
+        else:
+            msg.update(error=error.kind, message=str(error))
+        line = json.dumps(msg, allow_nan=False) + "\n"
+        with self.out_lock:
+            sys.stdout.write(line)
+            sys.stdout.flush()
+
+    # -- receiver thread: the only caller of RTDEReceiveInterface --------------------------
+    def receiver(self) -> None:
+        import rtde_receive
+
+        try:
+            rr = rtde_receive.RTDEReceiveInterface(self.host, self.frequency)
+        except RuntimeError as exc:
+            self.rr_error = f"cannot connect to the robot controller at {self.host}: {exc}"
+            self.rr_ready.set()
+            return
+        self.rr_ready.set()
+        last_ts, changed = -1.0, time.monotonic()
+        while not self.closing.is_set():
+            now = time.monotonic()
+            busy, since = self._busy
+            if rr.isConnected():
+                ts = float(rr.getTimestamp())
+                if ts != last_ts:
+                    last_ts, changed = ts, now
+                self.snap = Snapshot(
+                    polled=now,
+                    connected=True,
+                    timestamp=ts,
+                    still_for=now - changed,
+                    q=tuple(rr.getActualQ()),
+                    target_q=tuple(rr.getTargetQ()),
+                    tcp_pose=tuple(rr.getActualTCPPose()),
+                    robot_mode=int(rr.getRobotMode()),
+                    safety_mode=int(rr.getSafetyMode()),
+                    runtime_state=int(rr.getRuntimeState()),
+                    busy=busy,
+                    busy_for=now - since if busy else 0.0,
+                )
+            else:
+                self.snap = Snapshot(now, False, busy=busy, busy_for=now - since if busy else 0.0)
+            time.sleep(POLL_S)
+        try:
+            rr.disconnect()
+        except RuntimeError:
+            pass
+
+    # -- commander thread: the only caller of RTDEControlInterface -------------------------
+    def _cxx(self, what: str, fn: Any, *args: Any) -> Any:
+        """Call into the control interface, recording which call we are in (for the parent)."""
+        self._busy = (what, time.monotonic())
+        try:
+            return fn(*args)
+        except RuntimeError as exc:
+            raise Refused(
+                "ConnectionLost", f"{what}: ur-rtde failed ({exc}); rerun with --resume"
+            ) from None
+        finally:
+            self._busy = ("", 0.0)
+
+    def commander(self, started: threading.Event) -> None:
+        import rtde_control
+
+        try:
+            self.rc = rtde_control.RTDEControlInterface(self.host, self.frequency)
+        except RuntimeError as exc:
+            self.rr_error = (
+                f"cannot start the control interface at {self.host}: {exc} "
+                "(is the robot in remote control and the dashboard server reachable?)"
+            )
+        started.set()
+        if self.rc is None:
+            return
+        while True:
+            job = self.jobs.get()
+            op, rid = job.req["op"], int(job.req["id"])
+            try:
+                if op == "move":
+                    if job.seq < self.stop_seq:
+                        raise Refused(
+                            "MoveStopped", "the move was cancelled: the arm was stopped before it"
+                        )
+                    self.moving_seq = job.seq
+                    try:
+                        self.move(job.req)
+                    finally:
+                        self.moving_seq = -1
+                    self.reply(rid, True)
+                elif op == "stop":
+                    self.stop()
+                    self.reply(rid, True)
+                elif op == "close":
+                    self.close_control()
+                    self.reply(rid, True)
+                    return
+                else:
+                    raise Refused("HardwareError", f"unknown command {op!r}")
+            except Refused as exc:
+                self.reply(rid, error=exc)
+
+    def _stop_requested(self) -> bool:
+        return self.stop_seq > self.moving_seq >= 0
+
+    def check_stream(self) -> Snapshot:
+        s = self.snap
+        if not s.connected:
+            raise Refused(
+                "ConnectionLost",
+                f"lost the RTDE connection to {self.host}: check the network cable and the "
+                "controller, then rerun with --resume",
+            )
+        if s.still_for > self.stale_after:
+            raise Refused(
+                "StreamFrozen",
+                f"the controller's RTDE stream froze (timestamp {s.timestamp:.3f} s unchanged for "
+                f"{s.still_for:.1f} s): restart the controller, then rerun with --resume",
+            )
+        return s
+
+    def move(self, req: dict[str, Any]) -> None:
+        q = [float(v) for v in req["q"]]
+        speed, accel = float(req["speed"]), float(req["accel"])
+        self.check_ready()
+        fn = self.rc.moveJ if req["leg"] == "joint" else self.rc.moveL_FK
+        if not self._cxx("the move", fn, q, speed, accel, True):
+            self.raise_for_state("the controller refused the move")
+        t0 = time.monotonic()
+        idle_since: float | None = None
+        time.sleep(0.01)
+        while True:
+            if self._stop_requested():
+                self.stop()
+                raise Refused("MoveStopped", "the move was stopped by the operator")
+            s = self.check_stream()
+            if not s.ready or not s.program_running:
+                self.raise_for_state("the move did not finish")
+            progress = self._cxx("progress", self.rc.getAsyncOperationProgress)
+            if progress < 0:
+                if (
+                    s.target_q
+                    and max(abs(a - b) for a, b in zip(s.target_q, q, strict=True)) < 1e-4
+                ):
+                    return
+                # Not there yet: the two RTDE connections may lag each other by a packet, or
+                # the progress register still shows the previous move.  Persisting = stopped.
+                if idle_since is None:
+                    idle_since = time.monotonic()
+                elif time.monotonic() - idle_since > 0.25:
+                    self.raise_for_state("the move ended away from its target")
+            else:
+                idle_since = None
+            if time.monotonic() - t0 > self.move_timeout:
+                self.stop()
+                raise Refused(
+                    "HardwareError",
+                    f"a move took longer than {self.move_timeout:.0f} s: check the robot",
+                )
+            time.sleep(POLL_S)
+
+    def check_ready(self) -> None:
+        s = self.check_stream()
+        if not s.ready:
+            self.raise_for_state("the robot is not ready")
+        if not s.program_running:
+            # The control script stopped (e.g. after a released protective stop): restart it.
+            self._cxx("restart the control program", self.rc.reuploadScript)
+            deadline = time.monotonic() + 5.0
+            while not self._cxx("program state", self.rc.isProgramRunning):
+                if time.monotonic() > deadline:
+                    raise Refused(
+                        "ProgramStopped", "the control program on the robot does not start"
+                    )
+                time.sleep(0.01)
+
+    def raise_for_state(self, what: str) -> None:
+        # The receive connection may lag the control connection by a packet or two: give the
+        # cause a moment to show before settling for a generic message.
+        deadline = time.monotonic() + 0.2
+        while True:
+            s = self.check_stream()
+            if not s.ready or not s.program_running or time.monotonic() > deadline:
+                break
+            time.sleep(POLL_S)
+        s = self.snap
+        if not s.connected or not self._cxx("connection state", self.rc.isConnected):
+            raise Refused(
+                "ConnectionLost", f"{what}: lost the connection to {self.host}; rerun with --resume"
+            )
+        safety = _name(SafetyMode, s.safety_mode)
+        if s.safety_mode in (SafetyMode.PROTECTIVE_STOP, SafetyMode.SAFEGUARD_STOP):
+            raise Refused(
+                "ProtectiveStop", f"{what}: {safety.lower().replace('_', ' ')}; {RECOVERY_HINT}"
+            )
+        if s.safety_mode not in (SafetyMode.NORMAL, SafetyMode.REDUCED):
+            raise Refused("ProtectiveStop", f"{what}: safety mode {safety}; {RECOVERY_HINT}")
+        if s.robot_mode != RobotMode.RUNNING:
+            raise Refused(
+                "HardwareError",
+                f"{what}: robot mode {_name(RobotMode, s.robot_mode)}; "
+                "power on and release the brakes",
+            )
+        if not s.program_running:
+            raise Refused(
+                "ProgramStopped",
+                f"{what}: the control program stopped (stop pressed on the pendant?); "
+                "rerun with --resume",
+            )
+        raise Refused("HardwareError", f"{what}: the controller reports no cause")
+
+    def stop(self) -> None:
+        if self.snap.connected and self._cxx("connection state", self.rc.isConnected):
+            self._cxx("stop", self.rc.stopJ, 4.0, False)
+
+    def close_control(self) -> None:
+        try:
+            if self.snap.connected and self.rc.isConnected() and self.snap.program_running:
+                self._cxx("stop script", self.rc.stopScript)
+        except Refused:
+            pass
+        try:
+            self.rc.disconnect()
+        except RuntimeError:
+            pass
+
+    # -- main thread: requests -----------------------------------------------------------
+    def serve(self, stdin: Any) -> int:
+        seq = itertools.count()
+        for line in stdin:
+            try:
+                req = json.loads(line)
+                rid, op = int(req["id"]), str(req["op"])
+            except (ValueError, KeyError, TypeError):
+                continue  # only the parent writes here; a garbled line is ignored
+            n = next(seq)
+            if op == "state":
+                self.reply(rid, asdict(self.snap))
+            elif op == "stop":
+                self.stop_seq = n
+                self.jobs.put(_Job(0, n, req))
+            elif op == "close":
+                self.jobs.put(_Job(2, n, req))
+                return 0
+            else:
+                self.jobs.put(_Job(1, n, req))
+        self.jobs.put(_Job(2, next(seq), {"op": "close", "id": -1}))  # the parent is gone
+        return 0
+
+
+def _name(cls: Any, v: int) -> str:
+    try:
+        return str(cls(int(v)).name)
+    except ValueError:
+        return f"UNKNOWN ({v})"
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m quickhealth.station.hardware.ur_client")
+    p.add_argument("host")
+    p.add_argument("--frequency", type=float, default=125.0)
+    p.add_argument("--stale-after", type=float, default=0.5)
+    p.add_argument("--move-timeout", type=float, default=120.0)
+    a = p.parse_args(argv)
+    if not (math.isfinite(a.frequency) and 1.0 <= a.frequency <= 500.0):
+        sys.stderr.write("ur_client: --frequency must be in 1..500 Hz\n")
+        return 2
+    c = Client(a.host, a.frequency, a.stale_after, a.move_timeout)
+    # The pybind11 constructors hold the GIL: build one after the other, each in its owner.
+    rx = threading.Thread(target=c.receiver, name="ur-rtde-receive", daemon=True)
+    rx.start()
+    c.rr_ready.wait()
+    started = threading.Event()
+    cx = threading.Thread(target=c.commander, args=(started,), name="ur-rtde-control", daemon=True)
+    if c.rr_error is None:
+        cx.start()
+        started.wait()
+    if c.rr_error is not None:
+        c.reply(0, error=Refused("ConnectionLost", c.rr_error))
+        c.closing.set()
+        rx.join(2.0)
+        return 3
+    c.reply(0, {"pid": _pid()})
+    c.serve(sys.stdin)
+    cx.join(5.0)  # a commander stuck inside the client is not waited for: the process ends
+    c.closing.set()
+    rx.join(2.0)
+    sys.stdout.flush()
+    os._exit(0)
+
+
+def _pid() -> int:
+    return os.getpid()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
