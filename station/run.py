@@ -53,6 +53,7 @@ from quickhealth.vision.pose7d import PoseMeasurement, Rejection, measure_stereo
 
 from .hardware.cameras import StereoCamera, StereoFrame
 from .hardware.motor import PanMotor
+from .hardware.owner import DeviceOwner, owned
 from .hardware.robot import Leg, Robot, RobotReader
 from .hardware.target import T_target_plate, target0_from_plate
 from .journal import JOURNAL, SCHEMA, Journal, JournalState, read_journal, write_bytes_atomic
@@ -170,6 +171,12 @@ class Station:
             closers=list(closers or []),
         )
 
+    def __post_init__(self) -> None:
+        # One owner per device: the run, the pre-flight and the TUI's polls all go through a
+        # worker thread and its queue (the robot's owner is its client process).
+        self.motor = owned(self.motor, "pan-motor")
+        self.camera = owned(self.camera, "stereo-camera")
+
     def predicted_plate(self, q: F, pan: float) -> F:
         """Nominal ``T_instr_plate`` at joints ``q`` and pan angle ``pan``."""
         return (
@@ -178,6 +185,9 @@ class Station:
 
     def close(self) -> None:
         """Release all hardware (robot last: it stops the arm)."""
+        for dev in (self.motor, self.camera):
+            if isinstance(dev, DeviceOwner):
+                dev.shutdown()
         for f in reversed(self.closers):
             try:
                 f()
@@ -722,6 +732,7 @@ def run_plan(
     for ln in lines:
         r.emit("preflight", status="ok", message=ln)
     r.journal.open(truncate_to=state.valid_bytes if state.truncated_tail else None)
+    station.robot.clear_stop()  # starting (or resuming) is the operator's go: moves allowed
     stopped: str | None = None
     try:
         if resume:

@@ -145,7 +145,11 @@ class Robot(RobotReader, Protocol):
         ...
 
     def stop(self) -> None:
-        """Decelerate the arm to rest now."""
+        """Decelerate the arm to rest now; refuse further moves until :meth:`clear_stop`."""
+        ...
+
+    def clear_stop(self) -> None:
+        """Allow moves again after :meth:`stop` (the start of a run)."""
         ...
 
     def reader(self) -> RobotReader:

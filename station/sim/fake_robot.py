@@ -8,6 +8,7 @@ the hardware boundary: the driver never imports it.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 
@@ -20,6 +21,7 @@ from quickhealth.station.hardware.robot import (
     ConnectionLost,
     JointSample,
     Leg,
+    MoveStopped,
     ProgramStopped,
     ProtectiveStop,
     ReadOnly,
@@ -74,7 +76,8 @@ class FakeRobot:
         self.n_moves = 0
         self._faults: list[tuple[str, int]] = []
         self.moves: list[tuple[F, Leg]] = []
-        self.sample_period = 0.008 / self.time_scale  # a 125 Hz stream in simulated time
+        self.sample_period = 0.008 / self.time_scale
+        self._halted = threading.Event()  # a 125 Hz stream in simulated time
 
     def now(self) -> float:
         """Simulated controller time, s."""
@@ -146,12 +149,15 @@ class FakeRobot:
                 self._faults.remove((kind, at))
                 self._apply(kind)
         self._raise_unless_ready()
+        if self._halted.is_set():
+            raise MoveStopped("the arm was stopped (abort): the move was not sent")
         self.moves.append((q, leg))
         if leg is Leg.JOINT:
             m = self.arm.move_joint(q, speed, accel, self.now())
         else:
             m = self.arm.move_joint(q, speed * 3.0, accel * 3.0, self.now())  # ≈ tool speed
-        time.sleep(max(m.duration / self.time_scale, 0.0))
+        if self._halted.wait(max(m.duration / self.time_scale, 0.0)):
+            raise MoveStopped("the move was stopped by the operator")
         self.arm.target(self.now())
 
     def _raise_unless_ready(self) -> None:
@@ -164,7 +170,13 @@ class FakeRobot:
             )
 
     def stop(self) -> None:
+        """Halt the arm where it is and refuse moves until :meth:`clear_stop` (as UrRobot)."""
+        self._halted.set()
         self.arm.halt(self.now())
+
+    def clear_stop(self) -> None:
+        """Allow moves again after :meth:`stop`."""
+        self._halted.clear()
 
     def close(self) -> None:
         self.stop()

@@ -345,7 +345,10 @@ class CellControl:
                 self._wake.set()
 
     def abort(self) -> None:
-        """Stop the robot now, then end the run after the current pose."""
+        """Stop the robot now, then end the run (blocks up to a second: call from a worker).
+
+        The robot's stop jumps its owner's queue, ends the move under way and refuses any
+        move sent after it until the run is started again; the run then ends at once."""
         try:
             self.station.robot.stop()
         finally:

@@ -150,8 +150,20 @@ class RunScreen(Screen[None]):
         station = self.app.station  # type: ignore[attr-defined]
         if not station.running:
             return
-        station.abort()
-        self.notify("Abort: robot stopped.", severity="warning")
+        self.query_one("#run-state", Static).update("[red]Aborting[/]: stopping the robot…")
+        self._abort()
+
+    @work(thread=True, exclusive=True, group="run-abort")
+    def _abort(self) -> None:
+        """The stop waits for the controller's answer (up to a second): never on the UI loop."""
+        try:
+            self.app.station.abort()  # type: ignore[attr-defined]
+        except Exception as exc:  # noqa: BLE001 - shown to the technician
+            self.app.call_from_thread(
+                self.notify, f"Abort: could not confirm the stop: {exc}", severity="error"
+            )
+            return
+        self.app.call_from_thread(self.notify, "Abort: robot stopped.", severity="warning")
 
     def action_reconnect(self) -> None:
         p = self.progress

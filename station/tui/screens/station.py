@@ -48,13 +48,23 @@ class StationScreen(Screen[None]):
         if not self.app.station.running:  # type: ignore[attr-defined]
             self.action_preflight()
 
+    def _refuse_during_run(self, what: str) -> bool:
+        if self.app.station.running:  # type: ignore[attr-defined]
+            self.notify(f"{what} waits until the run is stopped (Run screen: p or a).")
+            return True
+        return False
+
     def action_connect(self) -> None:
         """Connect (or reconnect) every device, then show their state."""
+        if self._refuse_during_run("Reconnecting"):
+            return
         self.query_one("#verdict", Static).update("Connecting…")
         self._connect()
 
     def action_preflight(self) -> None:
         """Run the pre-flight checks in the background."""
+        if self._refuse_during_run("The pre-flight"):
+            return
         self.query_one("#verdict", Static).update("Pre-flight running…")
         self._preflight()
 
