@@ -397,6 +397,12 @@ class UrRobot:
         ]
         self._child = _Child(argv, self.CONNECT_TIMEOUT)
 
+    def connect(self) -> None:
+        """Connect when not connected (a lost link, a killed client); otherwise nothing."""
+        child = self._child
+        if child is None or child.dead is not None:
+            self.reconnect()
+
     def reconnect(self) -> None:
         """Replace the client process: after a link drop, a frozen stream or a controller
         restart.  Raises :class:`ConnectionLost` while the controller is still away."""
@@ -441,7 +447,10 @@ class UrRobot:
         return snap
 
     def _fresh(self, child: _Child | None = None) -> dict:
+        child = child or self._live()
         s = self._state(child)
+        if not s["connected"] or s["still_for"] > self.stale_after:
+            self._discard(child)  # a lost or frozen link needs a new client: reconnect
         if not s["connected"]:
             raise ConnectionLost(
                 f"lost the RTDE connection to {self.host}: check the network cable and the "
@@ -471,6 +480,8 @@ class UrRobot:
         except ConnectionLost:
             s = {"connected": False}
         if not s["connected"]:
+            if self._child is not None:
+                self._discard(self._child)
             return RobotStatus(RobotMode.UNKNOWN, SafetyMode.UNKNOWN, False, connected=False)
         return RobotStatus(
             _enum(RobotMode, s["robot_mode"]),  # type: ignore[arg-type]

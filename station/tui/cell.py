@@ -105,10 +105,10 @@ class CellControl:
 
     # ----- devices ---------------------------------------------------------------------------
     def connect(self) -> None:
-        """Reconnect what can reconnect (a real robot's RTDE link); idempotent."""
-        re = getattr(self.station.robot, "reconnect", None)
-        if callable(re):
-            re()
+        """Reconnect what lost its link (the robot's ur-rtde client); idempotent."""
+        connect = getattr(self.station.robot, "connect", None)
+        if callable(connect):
+            connect()
 
     def connections(self) -> tuple[Connection, ...]:
         """Robot mode and safety, camera and pan motor, each tried now."""

@@ -299,6 +299,7 @@ class Station:
         self.plan = plan
         self.plan_path = plan_path
         self.cell: CellControl | None = None
+        self.simcell: Any = None  # the simulated cell (controller simulator handle…) under --sim
         if hardware is not None and plan is not None:
             self.cell = CellControl(
                 hardware, plan, self.run_dir, settings=run_settings, on_finished=self._measured
@@ -325,6 +326,8 @@ class Station:
         threshold_mm: float = 2.0,
         run_id: str | None = None,
         say: Callable[[str], None] | None = None,
+        speed_factor: float = 1.0,
+        image_scale: float = 0.3,
     ) -> Station:
         """The station for ``quickhealth tui``: the simulated cell (controller simulator
         subprocess, emulated pan motor, rendered cameras) or the real one.
@@ -342,7 +345,9 @@ class Station:
         the_plan = load_plan(plan) if plan is not None else make_plan(c, n_poses, 0)
         if sim:
             tell("starting the simulated cell (UR controller simulator, pan motor, cameras)…")
-            hw, _ = station_run.sim_station(cell, image_scale=0.3)
+            hw, simcell = station_run.sim_station(
+                cell, image_scale=image_scale, speed_factor=speed_factor
+            )
         else:
             tell(f"connecting to the robot at {robot_ip}…")
             if not (robot_ip and motor_port and cameras and calibration):
@@ -352,8 +357,9 @@ class Station:
             hw = station_run.ur_station(
                 cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
             )
+            simcell = None
         rid = run_id or datetime.now(UTC).strftime("%Y-%m-%d-%H%M%S")
-        return cls(
+        station = cls(
             robot=c.robot,
             robot_name=robot_name,
             archive_root=Path(archive),
@@ -365,6 +371,8 @@ class Station:
             plan=the_plan,
             plan_path=plan,
         )
+        station.simcell = simcell  # the simulated cell's handles (controller, emulator) or None
+        return station
 
     @classmethod
     def simulated(
