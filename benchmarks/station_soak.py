@@ -1,0 +1,271 @@
+"""Station soak: random faults across runs of the reference plan on the simulated cell.
+
+Every run of the reference plan goes through the real station path: the ur-rtde client in its
+own process against the UR controller simulator (another process), the serial driver against
+the pan-motor emulator, rendered cameras, ``station.run.run_plan`` with its journal.  While a
+run goes, faults are injected at random moments, each followed by what a technician would do:
+
+==================  ========================================================================
+fault               recovery
+==================  ========================================================================
+protective_stop     release the stop (dashboard), resume the run
+drop_connection     the link comes back after 0.3 s; reconnect, resume
+freeze_stream       restart the controller's stream; reconnect, resume
+restart             the controller reboots (away ~1 s); reconnect until it answers, resume
+serial_garbage      line noise before the pan motor's next replies; the run goes on (or resumes)
+abort               the operator aborts during a move; resume
+kill9               ``kill -9`` of the run's process; ``--resume`` in a new process
+==================  ========================================================================
+
+The runs execute in worker processes (this script with ``--worker``), so a crash of the
+interpreter is seen and counted, and ``kill -9`` is real.  At the end of every run its
+journal is read: a pose of the plan without a record is *lost*, a pose captured twice is
+*measured twice*.  Prints: faults injected and survived, poses lost, poses measured twice,
+interpreter crashes (target: all survived, 0, 0, 0).
+
+    .venv/bin/python benchmarks/station_soak.py [--faults 200] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+
+IN_RUN = (
+    "protective_stop",
+    "drop_connection",
+    "freeze_stream",
+    "restart",
+    "serial_garbage",
+    "abort",
+)
+KINDS = (*IN_RUN, "kill9")
+SPEED = 5.0  # the simulated arm moves this many times faster than life
+IMAGE_SCALE = 0.25
+
+
+def _plan_path(work: Path) -> Path:
+    """The reference plan (150 candidates, seed 0), planned once through the command line."""
+    out = work / "plan"
+    if not (out / "plan.json").is_file():
+        subprocess.run(
+            [sys.executable, "-m", "quickhealth.station.cli", "plan", "--cell", "reference",
+             "--n", "150", "--seed", "0", "--out", str(out)],
+            check=True, stdout=subprocess.DEVNULL,
+        )  # fmt: skip
+    return out / "plan.json"
+
+
+# ---------------------------------------------------------------------------------------
+# Worker: one run folder until its run is complete, faults injected in between
+# ---------------------------------------------------------------------------------------
+
+
+def _inject(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
+    sim = cell.controller
+    if kind == "serial_garbage":
+        cell.emulator.inject("garbage", count=3)
+    elif kind == "abort":
+        deadline = time.monotonic() + 5.0
+        while not sim.state()["moving"] and time.monotonic() < deadline:
+            time.sleep(0.005)
+        station.robot.stop()
+    elif kind == "restart":
+        try:
+            sim.fault("restart", down_s=1.0)
+        except ValueError:  # a simulator without restarts: a long link drop is the same to us
+            sim.fault("drop_connection")
+            threading.Timer(1.0, sim.fault, args=("clear",)).start()
+    else:
+        sim.fault(kind)
+
+
+def _recover(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
+    sim = cell.controller
+    if kind == "serial_garbage":
+        cell.emulator.clear()
+        return
+    if kind in ("protective_stop", "freeze_stream"):
+        sim.fault("clear")
+    elif kind == "drop_connection":
+        time.sleep(0.3)
+        sim.fault("clear")
+    deadline = time.monotonic() + 30.0
+    while True:  # reconnect until the controller answers (a restart takes a moment)
+        try:
+            station.robot.connect()
+            if station.robot.status().ready:
+                return
+            sim.fault("clear")
+        except Exception:  # noqa: BLE001 - the controller is still away: try again
+            if time.monotonic() > deadline:
+                raise
+        time.sleep(0.3)
+
+
+def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
+    from quickhealth.identify.errors import HardwareError
+    from quickhealth.station.journal import JOURNAL
+    from quickhealth.station.planning import load_plan
+    from quickhealth.station.run import run_plan, sim_station
+
+    rng = random.Random(seed)
+    plan = load_plan(plan_path)
+    station, cell = sim_station("reference", image_scale=IMAGE_SCALE, speed_factor=SPEED)
+    faults: list[dict] = []
+    try:
+        while True:
+            kind = rng.choice(IN_RUN) if len(faults) < n_faults else None
+            timer = None
+            fired = threading.Event()
+            if kind is not None:
+
+                def fire(kind: str = kind, fired: threading.Event = fired) -> None:
+                    fired.set()
+                    _inject(kind, cell, station)
+
+                timer = threading.Timer(rng.uniform(0.3, 4.0), fire)
+                timer.start()
+            resume = (run_dir / JOURNAL).is_file()
+            try:
+                stopped = run_plan(station, plan, run_dir, resume=resume).stopped
+            except HardwareError as exc:  # the fault came during the pre-flight: nothing moved
+                stopped = str(exc)
+            if timer is not None:
+                timer.cancel()
+                timer.join()
+            if fired.is_set():
+                _recover(str(kind), cell, station)
+                faults.append({"kind": kind, "stopped": stopped})
+            elif stopped is not None:  # a stop nobody injected: not survived
+                raise HardwareError(f"the run stopped by itself: {stopped}")
+            if stopped is None:  # the run is complete
+                break
+    finally:
+        station.close()
+    print(json.dumps({"faults": faults}), flush=True)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------
+# Driver
+# ---------------------------------------------------------------------------------------
+
+
+def journal_check(run_dir: Path, n_poses: int) -> tuple[int, int, bool]:
+    """(poses lost, poses measured twice, run ended) from a run's journal and its CSV.
+
+    A capture whose images were not on disk when the process died is captured again on
+    resume (by design); what must never repeat is a measurement: a pose measured twice in
+    the journal or listed twice in measurements.csv.
+    """
+    from quickhealth.station.journal import JOURNAL, iter_records, read_journal
+
+    recs = [rec for _, rec, _ in iter_records(run_dir / JOURNAL)]
+    done = {rec["index"] for rec in recs if rec.get("type") in ("measured", "failed")}
+    measured = Counter(rec["index"] for rec in recs if rec.get("type") == "measured")
+    st = read_journal(run_dir / JOURNAL)
+    lost = sum(1 for i in range(1, n_poses + 1) if i not in done)
+    twice = sum(c - 1 for c in measured.values() if c > 1)
+    csv = run_dir / "measurements.csv"
+    if csv.is_file():
+        lines = [ln for ln in csv.read_text().splitlines() if ln and not ln.startswith("#")]
+        col = lines[0].split(",").index("pose_id")
+        ids = Counter(ln.split(",")[col] for ln in lines[1:])
+        twice = max(twice, sum(c - 1 for c in ids.values() if c > 1))
+    return lost, twice, bool(st.ended)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--faults", type=int, default=200, help="faults to inject in all (default 200)")
+    ap.add_argument("--per-run", type=int, default=12, help="faults per run of the plan")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--worker", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--plan", type=Path, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.worker is not None:
+        return worker(args.worker, args.plan, args.per_run, args.seed)
+
+    from quickhealth.station.planning import load_plan
+
+    rng = random.Random(args.seed)
+    work = Path(tempfile.mkdtemp(prefix="qh-soak-"))
+    plan_path = _plan_path(work)
+    n_poses = len(load_plan(plan_path).poses)
+    print(f"reference plan: {n_poses} poses; {args.faults} faults, about {args.per_run} a run")
+    injected: Counter[str] = Counter()
+    survived: Counter[str] = Counter()
+    lost = twice = crashes = failures = runs = 0
+    t0 = time.monotonic()
+    while sum(injected.values()) < args.faults:
+        runs += 1
+        run_dir = work / f"run{runs:03d}"
+        budget = min(args.per_run, args.faults - sum(injected.values()))
+        kills = sum(1 for _ in range(budget) if rng.random() < 1 / len(KINDS))
+        in_run = budget - kills
+        pending: list[str] = []
+        for k in range(kills + 1):
+            cmd = [sys.executable, __file__, "--worker", str(run_dir), "--plan", str(plan_path),
+                   "--per-run", str(in_run if k == kills else 0), "--seed", str(rng.randrange(1 << 30))]  # fmt: skip
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            if k < kills:  # kill -9 mid-run, then --resume in a new process
+                time.sleep(rng.uniform(6.0, 14.0))
+                if proc.poll() is None:
+                    os.kill(proc.pid, signal.SIGKILL)
+                    injected["kill9"] += 1
+                    pending.append("kill9")
+                proc.communicate()
+                continue
+            out, err = proc.communicate()
+            if proc.returncode != 0:
+                crashes += int(proc.returncode < 0)  # killed by a signal we did not send
+                failures += 1
+                tail = (err.strip().splitlines() or ["?"])[-1]
+                print(f"  run {runs}: worker exit {proc.returncode}: {tail}", flush=True)
+                continue
+            done = json.loads(out.strip().splitlines()[-1])["faults"]
+            for f in done:
+                injected[f["kind"]] += 1
+                pending.append(f["kind"])
+        lo, tw, ended = journal_check(run_dir, n_poses)
+        lost += lo
+        twice += tw
+        ok = ended and lo == 0 and tw == 0
+        for k in pending:
+            survived[k] += int(ok)
+        print(
+            f"  run {runs}: {len(pending)} faults ({', '.join(sorted(set(pending))) or '-'}), "
+            f"{'complete' if ended else 'NOT complete'}, lost {lo}, twice {tw}  "
+            f"[{time.monotonic() - t0:.0f} s]",
+            flush=True,
+        )
+    n_inj, n_surv = sum(injected.values()), sum(survived.values())
+    print("\nfault              injected  survived")
+    for k in KINDS:
+        print(f"  {k:<17}{injected[k]:>8}{survived[k]:>10}")
+    print(f"faults survived      {n_surv} of {n_inj}")
+    print(f"poses lost           {lost}")
+    print(f"poses measured twice {twice}")
+    print(f"interpreter crashes  {crashes}")
+    print(f"workers that failed  {failures}")
+    print(f"runs {runs}, {time.monotonic() - t0:.0f} s; load average {os.getloadavg()[0]:.1f}")
+    good = n_surv == n_inj and lost == 0 and twice == 0 and crashes == 0 and failures == 0
+    print("PASS" if good else "FAIL", "(target: all survived, 0 lost, 0 twice, 0 crashes)")
+    return 0 if good else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
