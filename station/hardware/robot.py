@@ -432,7 +432,7 @@ class UrRobot:
     def _state(self, child: _Child | None = None) -> dict:
         child = child or self._live()
         rid = child.send("state")
-        msg = child.wait(rid, 2.0)
+        msg = child.wait(rid, self.COMMAND_TIMEOUT)
         if msg is None:
             child.forget(rid)
             self._discard(child)
@@ -441,7 +441,7 @@ class UrRobot:
                 "then rerun with --resume"
             )
         snap = msg["value"]
-        if time.monotonic() - float(snap["polled"]) > 2.0:  # its receiver thread is stuck
+        if time.monotonic() - float(snap["polled"]) > self.COMMAND_TIMEOUT:  # receiver stuck
             self._discard(child)
             raise ConnectionLost("the ur-rtde receive connection stopped polling (client killed)")
         return snap

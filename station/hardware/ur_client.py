@@ -90,6 +90,8 @@ class _Job:
 class Client:
     """The owner of one controller's ur-rtde objects (see the module docstring)."""
 
+    OVERSLEEP_S = 0.05  # a poll this much later than planned means we were not running
+
     def __init__(self, host: str, frequency: float, stale_after: float, move_timeout: float):
         self.host = host
         self.frequency = frequency
@@ -130,8 +132,15 @@ class Client:
             return
         self.rr_ready.set()
         last_ts, changed = -1.0, time.monotonic()
+        last_poll = changed
         while not self.closing.is_set():
             now = time.monotonic()
+            # Time this thread did not run (a loaded machine descheduled the process) is no
+            # evidence against the controller: only time we watched counts towards a freeze.
+            missed = now - last_poll - self.OVERSLEEP_S
+            if missed > 0:
+                changed += missed
+            last_poll = now
             busy, since = self._busy
             if rr.isConnected():
                 ts = float(rr.getTimestamp())
