@@ -50,6 +50,7 @@ IN_RUN = (
     "abort",
 )
 KINDS = (*IN_RUN, "kill9")
+ABORTS: list[dict[str, float]] = []  # per abort: stop() returned, arm still (s after the call)
 SPEED = 5.0  # the simulated arm moves this many times faster than life
 IMAGE_SCALE = 0.25
 
@@ -79,7 +80,12 @@ def _inject(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
         deadline = time.monotonic() + 5.0
         while not sim.state()["moving"] and time.monotonic() < deadline:
             time.sleep(0.005)
+        t0 = time.monotonic()
         station.robot.stop()
+        returned = time.monotonic() - t0
+        while sim.state()["moving"] and time.monotonic() - t0 < 5.0:
+            time.sleep(0.002)
+        ABORTS.append({"stop_returned_s": returned, "still_s": time.monotonic() - t0})
     elif kind == "restart":
         try:
             sim.fault("restart", down_s=1.0)
@@ -153,7 +159,7 @@ def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
                 break
     finally:
         station.close()
-    print(json.dumps({"faults": faults}), flush=True)
+    print(json.dumps({"faults": faults, "aborts": ABORTS}), flush=True)
     return 0
 
 
@@ -209,6 +215,7 @@ def main() -> int:
     injected: Counter[str] = Counter()
     survived: Counter[str] = Counter()
     lost = twice = crashes = failures = runs = 0
+    aborts: list[dict[str, float]] = []
     t0 = time.monotonic()
     while sum(injected.values()) < args.faults:
         runs += 1
@@ -236,7 +243,9 @@ def main() -> int:
                 tail = (err.strip().splitlines() or ["?"])[-1]
                 print(f"  run {runs}: worker exit {proc.returncode}: {tail}", flush=True)
                 continue
-            done = json.loads(out.strip().splitlines()[-1])["faults"]
+            report = json.loads(out.strip().splitlines()[-1])
+            aborts += report["aborts"]
+            done = report["faults"]
             for f in done:
                 injected[f["kind"]] += 1
                 pending.append(f["kind"])
@@ -261,6 +270,12 @@ def main() -> int:
     print(f"poses measured twice {twice}")
     print(f"interpreter crashes  {crashes}")
     print(f"workers that failed  {failures}")
+    if aborts:
+        still = sorted(a["still_s"] for a in aborts)
+        print(
+            f"abort to standstill  median {1e3 * still[len(still) // 2]:.0f} ms, "
+            f"max {1e3 * still[-1]:.0f} ms over {len(still)} aborts (target: < 1 s)"
+        )
     print(f"runs {runs}, {time.monotonic() - t0:.0f} s; load average {os.getloadavg()[0]:.1f}")
     good = n_surv == n_inj and lost == 0 and twice == 0 and crashes == 0 and failures == 0
     print("PASS" if good else "FAIL", "(target: all survived, 0 lost, 0 twice, 0 crashes)")
