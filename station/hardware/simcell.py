@@ -19,11 +19,13 @@ from typing import Any
 
 import numpy as np
 
+from quickhealth.station.sim.process import SimControllerHandle, start_sim_controller
+from quickhealth.station.sim.wire import CONTROL_PORT
+
 from .cameras import SimStereoCamera, scaled_rig
 from .motor import SerialPanMotor
 from .motor_emulator import MotorEmulator
 from .robot import UrRobot
-from .simcontroller import CONTROL_PORT, SimControllerHandle, start_sim_controller
 from .target import T_target_plate
 from .world import SimWorld, build_world
 

@@ -1,5 +1,32 @@
 """The simulated cell's hardware: a UR controller simulator and a pure-Python fake robot.
 
+The unmodified ur-rtde client (``rtde_receive``, ``rtde_control``) connects to the
+controller simulator exactly as to a real controller (``notes/ur-rtde.md``).  Modules, one
+job each:
+
+- ``wire``: RTDE packet format, field types, recipes, ports, controller versions
+- ``arm``: the motion model (trapezoids, timed motions, straight-line path planning with
+  the analytic UR IK, ringing after stops, encoder noise)
+- ``controller``: modes, the emulated ``rtde_control`` register protocol, the planner
+  thread, fault injection
+- ``servers``: RTDE (30004), dashboard (29999), script (30003) and the JSON control port
+  (default 30090), all on 127.0.0.1 only
+- ``process``: :func:`~.process.start_sim_controller`, :class:`~.process.SimControllerHandle`,
+  the host-wide port lock and the command line
+- ``fake_robot``: :class:`~.fake_robot.FakeRobot`, the arm behind the driver's interface
+  in this process (unit tests, the TUI's in-process cell)
+
+The RTDE stream never waits on path planning: each stream thread holds the controller lock
+only to copy state, on absolute deadlines at the requested rate (125 Hz for a CB3 version,
+500 Hz for an e-Series one: ``--controller-version 5.11.1``).
+
+Faults (control port ``{"cmd": "fault", "kind": ...}``, now, ``after_s`` or
+``after_moves``): ``protective_stop``, ``emergency_stop``, ``program_stop``,
+``freeze_stream``, ``drop_connection``, ``restart`` (every link dropped, connections
+refused for ``down_s`` s, program stopped, registers reset) and ``clear``.
+
 Nothing here is imported by the drivers in :mod:`quickhealth.station.hardware`; the drivers
 talk to the simulator over the same sockets as to a real controller.
+
+Run ``python -m quickhealth.station.sim --help``.
 """

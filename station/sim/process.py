@@ -1,0 +1,379 @@
+"""The simulator as a process: start it, drive it over its control port, its command line.
+
+The ur-rtde constructors hold the GIL, so the simulator never runs as a thread of the
+process that uses the client (``notes/ur-rtde.md``): :func:`start_sim_controller` starts
+``python -m quickhealth.station.sim`` and returns a :class:`SimControllerHandle`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import socket
+import sys
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from .arm import HOME_Q_DEG, Arm
+from .controller import Controller, close_socket
+from .servers import serve, shutdown
+from .wire import (
+    CB3_VERSION,
+    CONTROL_PORT,
+    DASHBOARD_PORT,
+    HOST,
+    RTDE_PORT,
+    SCRIPT_PORT,
+    max_stream_hz,
+    parse_version,
+)
+
+PORT_LOCK = "/tmp/quickhealth-ur-ports.lock"
+
+
+class SimControllerHandle:
+    """A running simulator process, driven over its loopback control port.
+
+    Examples
+    --------
+    >>> sim = start_sim_controller()                       # doctest: +SKIP
+    >>> sim.fault("protective_stop", after_moves=3)        # doctest: +SKIP
+    >>> sim.fault("restart", down_s=2.0)                   # doctest: +SKIP
+    >>> sim.stop()                                         # doctest: +SKIP
+    """
+
+    def __init__(self, proc: Any, control_port: int, port_lock: int = -1) -> None:
+        self.proc = proc
+        self.control_port = control_port
+        self._port_lock = port_lock
+        self._sock: socket.socket | None = None
+        self._file: Any = None
+        self._lock = threading.Lock()
+
+    def request(self, cmd: str, **kw: Any) -> dict[str, Any]:
+        """Send one control request and return the decoded answer (raises on error)."""
+        with self._lock:
+            if self._sock is None:
+                self._sock = socket.create_connection((HOST, self.control_port), timeout=5.0)
+                self._file = self._sock.makefile("rwb", buffering=0)
+            self._file.write((json.dumps({"cmd": cmd, **kw}) + "\n").encode())
+            line = self._file.readline()
+        if not line:
+            raise ConnectionError("simulator control channel closed")
+        out: dict[str, Any] = json.loads(line)
+        if not out.get("ok"):
+            raise ValueError(out.get("error", "simulator refused the request"))
+        return out
+
+    def fault(self, kind: str, **when: Any) -> None:
+        """Inject a fault now, ``after_s=`` seconds or ``after_moves=`` motion commands.
+
+        Kinds: ``protective_stop``, ``emergency_stop``, ``program_stop``, ``freeze_stream``,
+        ``drop_connection`` (``refuse=False`` to accept reconnections at once), ``restart``
+        (``down_s=``, default 2 s) and ``clear``.
+        """
+        self.request("fault", kind=kind, **when)
+
+    def truth(self) -> tuple[np.ndarray, np.ndarray]:
+        """Actual joints (rad) and the true target frame at pan 0, ``T_instr_target0``, now."""
+        out = self.request("truth")
+        return np.asarray(out["q"]), np.asarray(out["T_instr_target0"])
+
+    def twin_truth(self) -> dict[str, Any]:
+        """The digital twin's truth document (``TwinTruth.to_dict``)."""
+        return self.request("twin")["truth"]
+
+    def state(self) -> dict[str, Any]:
+        """Modes, joints, whether the arm moves or a path is being planned."""
+        return self.request("state")
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Shut the simulator down and reap the process."""
+        try:
+            self.request("shutdown")
+        except (OSError, ValueError):
+            pass
+        if self._sock is not None:
+            close_socket(self._sock)
+            self._sock = None
+        if self.proc is not None:
+            try:
+                self.proc.wait(timeout=timeout)
+            except Exception:  # noqa: BLE001 - last resort: the process did not exit in time
+                self.proc.kill()
+                self.proc.wait(timeout=timeout)
+            self.proc = None
+        if self._port_lock >= 0:
+            os.close(self._port_lock)  # releases the host-wide port lock
+            self._port_lock = -1
+
+    def __enter__(self) -> SimControllerHandle:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _take_port_lock(wait_s: float) -> int:
+    import fcntl
+
+    from quickhealth.identify.errors import HardwareError
+
+    fd = os.open(PORT_LOCK, os.O_RDWR | os.O_CREAT, 0o666)
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return fd
+        except BlockingIOError:
+            if time.monotonic() > deadline:
+                os.close(fd)
+                raise HardwareError(
+                    f"another controller simulator holds the UR ports (waited {wait_s:.0f} s)"
+                ) from None
+            time.sleep(0.1)
+
+
+def ports_free() -> bool:
+    """True when the fixed UR ports are free on 127.0.0.1."""
+    for port in (RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT):
+        s = socket.socket()
+        try:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind((HOST, port))
+        except OSError:
+            return False
+        finally:
+            s.close()
+    return True
+
+
+def start_sim_controller(
+    *,
+    control_port: int = CONTROL_PORT,
+    q0_deg: list[float] | None = None,
+    twin_seed: int = 1,
+    cell: str = "reference",
+    timeout: float = 15.0,
+    verbose: bool = False,
+    speed_factor: float = 1.0,
+    wait_s: float = 120.0,
+    degrade: dict[str, float] | None = None,
+    controller_version: str | None = None,
+) -> SimControllerHandle:
+    """Start the simulator as a separate process and wait until it answers.
+
+    The ur-rtde constructors hold the GIL, so the simulator must never run as a thread of
+    the process that uses the client.  The UR ports are fixed, so one simulator runs per
+    host: a host-wide lock (``/tmp/quickhealth-ur-ports.lock``) is taken first, waiting up to
+    ``wait_s`` seconds for another simulator started this way to stop (tests run serially).
+    ``controller_version`` (``"5.11.1"``) makes it report an e-Series controller, which
+    streams at 500 Hz; the default is a CB3 (3.15.7, 125 Hz).
+
+    Raises
+    ------
+    HardwareError
+        The ports are taken (another simulator or a controller on this host) or the process
+        did not come up within ``timeout`` seconds.
+    """
+    import subprocess
+
+    from quickhealth.identify.errors import HardwareError
+
+    if controller_version is not None:
+        parse_version(controller_version)  # ValueError before anything starts
+    lock = _take_port_lock(wait_s)
+    if not ports_free():
+        os.close(lock)
+        raise HardwareError(
+            "UR ports 30004/29999/30003 on 127.0.0.1 are in use: another simulator runs; stop it first"
+        )
+    cmd = [
+        sys.executable,
+        "-m",
+        "quickhealth.station.sim",
+        "--control-port",
+        str(control_port),
+        "--twin-seed",
+        str(twin_seed),
+        "--cell",
+        cell,
+        "--speed-factor",
+        str(speed_factor),
+        "--parent-pid",
+        str(os.getpid()),
+    ]
+    if q0_deg is not None:
+        cmd += ["--q0-deg", ",".join(f"{v:.9g}" for v in q0_deg)]
+    if degrade:
+        cmd += ["--degrade", ",".join(f"{k}={v:.12g}" for k, v in degrade.items())]
+    if controller_version is not None:
+        cmd += ["--controller-version", controller_version]
+    if verbose:
+        cmd.append("--verbose")
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
+    handle = SimControllerHandle(proc, control_port, lock)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            handle.stop()
+            raise HardwareError(f"controller simulator exited at start (status {proc.returncode})")
+        try:
+            handle.request("ping")
+            return handle
+        except OSError:
+            time.sleep(0.05)
+    handle.stop(timeout=1.0)
+    raise HardwareError(f"controller simulator did not answer within {timeout:.0f} s")
+
+
+def build_controller(
+    *,
+    control_port: int = CONTROL_PORT,
+    q0_deg: list[float] | None = None,
+    twin_seed: int = 1,
+    cell: str = "reference",
+    verbose: bool = False,
+    degrade: dict[str, float] | None = None,
+    version: tuple[int, int, int, int] = CB3_VERSION,
+) -> Controller:
+    """A controller whose arm is the digital twin of ``twin_seed`` placed in ``cell``.
+
+    The arm's kinematics are the twin's nominal robot (``world.twin.robot``: the cell's
+    UR5 with its planning limits), which is what the controller reports and plans with.
+    """
+    from quickhealth.station.hardware.world import build_world
+
+    world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
+    q0 = np.radians(q0_deg if q0_deg is not None else HOME_Q_DEG)
+    arm = Arm(world.twin.robot, q0, truth=world.T_instr_target0)
+    ctrl = Controller(arm, control_port=control_port, verbose=verbose, version=version)
+    ctrl.world = world
+    return ctrl
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line of the simulator process."""
+    from . import __doc__ as package_doc
+
+    p = argparse.ArgumentParser(
+        prog="quickhealth sim-controller",
+        description=package_doc,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_arguments(p)
+    args = p.parse_args(argv)
+    return run_from_args(args)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options shared by ``quickhealth sim-controller`` and ``python -m``."""
+    p.add_argument(
+        "--control-port",
+        type=int,
+        default=CONTROL_PORT,
+        help="loopback port of the JSON control channel (default %(default)s)",
+    )
+    p.add_argument("--q0-deg", default=None, help="start joints, comma-separated degrees")
+    p.add_argument(
+        "--twin-seed",
+        type=int,
+        default=1,
+        help="seed of the digital twin whose errors the arm has (default %(default)s)",
+    )
+    p.add_argument("--cell", default="reference", help="cell name or file (camera placement)")
+    p.add_argument(
+        "--degrade",
+        default=None,
+        help="change the twin's true errors, e.g. j2.ex.c0=5e-4 (m or rad; comma-separated)",
+    )
+    p.add_argument(
+        "--controller-version",
+        default=".".join(map(str, CB3_VERSION[:3])),
+        help="controller software version reported to clients; major 3 = CB3 (RTDE at "
+        "125 Hz), 5 = e-Series (500 Hz), e.g. 5.11.1 (default %(default)s)",
+    )
+    p.add_argument("--verbose", action="store_true", help="log controller events to stderr")
+    p.add_argument(
+        "--speed-factor",
+        type=float,
+        default=1.0,
+        help="run every motion this many times faster (tests; default %(default)s)",
+    )
+    p.add_argument(
+        "--parent-pid",
+        type=int,
+        default=0,
+        help="exit when this process is gone (set by start_sim_controller)",
+    )
+
+
+def _watch_parent(ctrl: Controller, pid: int) -> None:
+    """Shut down when the process that started the simulator dies (e.g. ``kill -9``)."""
+    while not ctrl.stop_event.wait(0.2):
+        if os.getppid() != pid:
+            ctrl.say("parent process gone: shutting down")
+            shutdown(ctrl)
+            return
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """Build and serve; returns the exit status."""
+    q0 = None
+    if args.q0_deg:
+        try:
+            q0 = [float(v) for v in args.q0_deg.split(",")]
+        except ValueError:
+            q0 = None
+        if q0 is None or len(q0) != 6 or not all(math.isfinite(v) for v in q0):
+            sys.stderr.write("quickhealth: error: --q0-deg needs 6 comma-separated numbers\n")
+            return 2
+    if not (0.1 <= args.speed_factor <= 100.0):
+        sys.stderr.write("quickhealth: error: --speed-factor must be in 0.1..100\n")
+        return 2
+    if not 1024 <= args.control_port <= 65535:
+        sys.stderr.write("quickhealth: error: --control-port must be in 1024..65535\n")
+        return 2
+    try:
+        version = parse_version(getattr(args, "controller_version", None) or "3.15.7")
+    except ValueError as exc:
+        sys.stderr.write(f"quickhealth: error: --controller-version: {exc}\n")
+        return 2
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station.hardware.world import parse_degradation
+
+    try:
+        degrade = parse_degradation(getattr(args, "degrade", None))
+        ctrl = build_controller(
+            control_port=args.control_port,
+            q0_deg=q0,
+            twin_seed=args.twin_seed,
+            cell=args.cell,
+            verbose=args.verbose,
+            degrade=degrade,
+            version=version,
+        )
+    except InputError as exc:
+        sys.stderr.write(f"quickhealth: error: {exc}\n")
+        return 2
+    ctrl.speed_factor = float(args.speed_factor)
+    # The stream threads wake every 2-8 ms; let them take the GIL from the planner quickly.
+    sys.setswitchinterval(0.0005)
+    ctrl.say(
+        f"controller version {'.'.join(map(str, version))}, RTDE up to {max_stream_hz(version):.0f} Hz"
+    )
+    if args.parent_pid:
+        threading.Thread(target=_watch_parent, args=(ctrl, args.parent_pid), daemon=True).start()
+    try:
+        serve(ctrl)
+    except OSError as exc:
+        sys.stderr.write(f"quickhealth: error: {exc}\n")
+        return 3
+    except KeyboardInterrupt:
+        return 0
+    return 0

@@ -1,0 +1,431 @@
+"""The simulated controller's socket servers, all on 127.0.0.1 only.
+
+- 30004 RTDE (:class:`RtdeSession`): protocol v2 handshake, output recipes streamed at the
+  requested rate (at most 125 Hz for a CB3 version, 500 Hz for e-Series), input recipes
+  merged into the controller's register bank.
+- 29999 dashboard: banner, ``PolyscopeVersion``, ``robotmode``, ``safetystatus``, ``stop``,
+  ``play``, ``unlock protective stop``, ``power on``, ``brake release`` …
+- 30003 script: accepts a URScript program (never interpreted: the register protocol of the
+  ``rtde_control`` script is emulated instead) and starts it.
+- the control port (default 30090): JSON lines for tests and the simulated cell (fault
+  injection, true target pose, state, shutdown); see :class:`~.process.SimControllerHandle`.
+
+The stream
+----------
+Each RTDE session streams from its own thread on absolute deadlines ``t0 + k/f`` (no
+drift; a late wake-up skips the missed slots instead of bursting).  Per packet it holds the
+controller lock only to copy the state (:meth:`Controller.snapshot`); forward kinematics,
+packing and sending happen outside it, and nothing it waits on ever plans a path.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from quickhealth.station.hardware.urtypes import RobotMode, RuntimeState, SafetyMode
+
+from .controller import Controller, close_socket
+from .wire import (
+    DASHBOARD_PORT,
+    HOST,
+    P_DATA,
+    P_GET_URCONTROL_VERSION,
+    P_PAUSE,
+    P_REQUEST_PROTOCOL_VERSION,
+    P_SETUP_INPUTS,
+    P_SETUP_OUTPUTS,
+    P_START,
+    P_TEXT_MESSAGE,
+    RTDE_PORT,
+    SCRIPT_PORT,
+    Recipe,
+    packet,
+    recv_exact,
+    rtde_type,
+)
+
+
+class RtdeSession:
+    """One RTDE client connection: its recipes, its requested rate and its stream thread."""
+
+    def __init__(self, ctrl: Controller, conn: socket.socket) -> None:
+        self.ctrl = ctrl
+        self.conn = conn
+        self.outputs: list[Recipe] = []
+        self.inputs: dict[int, Recipe] = {}
+        self.next_output_id = 1  # output and input recipes are numbered separately:
+        self.next_input_id = 1  # the client hard-codes input recipe ids 1, 2, 3 …
+        self.freq = 125.0
+        self.streaming = threading.Event()
+        self.send_lock = threading.Lock()
+        self.closed = False
+        self.packets = 0  # data packets streamed
+        self.late = 0  # stream slots missed (the thread woke after the next deadline)
+
+    def send(self, ptype: int, payload: bytes) -> None:
+        with self.send_lock:
+            self.conn.sendall(packet(ptype, payload))
+
+    def serve(self) -> None:
+        threading.Thread(target=self._stream, name="rtde-stream", daemon=True).start()
+        with self.ctrl.lock:
+            self.ctrl.sessions.append(self)
+        try:
+            while not self.ctrl.stop_event.is_set():
+                size, ptype = struct.unpack(">HB", recv_exact(self.conn, 3))
+                payload = recv_exact(self.conn, size - 3) if size > 3 else b""
+                self._handle(ptype, payload)
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            self.closed = True
+            self.streaming.set()
+            close_socket(self.conn)
+            with self.ctrl.lock:
+                if self in self.ctrl.sessions:
+                    self.ctrl.sessions.remove(self)
+
+    def _handle(self, ptype: int, payload: bytes) -> None:
+        if ptype == P_REQUEST_PROTOCOL_VERSION:
+            self.send(ptype, b"\x01")
+        elif ptype == P_GET_URCONTROL_VERSION:
+            self.send(ptype, struct.pack(">4I", *self.ctrl.version))
+        elif ptype == P_SETUP_OUTPUTS:
+            (self.freq,) = struct.unpack(">d", payload[:8])
+            names = [n for n in payload[8:].decode("ascii", "replace").split(",") if n]
+            types = [rtde_type(n) or "NOT_FOUND" for n in names]
+            rid = self.next_output_id
+            self.next_output_id += 1
+            if "NOT_FOUND" not in types:
+                self.outputs.append(Recipe(rid, names, types))
+            else:
+                unknown = [n for n, t in zip(names, types, strict=True) if t == "NOT_FOUND"]
+                self.ctrl.say(f"unknown output field(s): {unknown}")
+            self.send(ptype, bytes([rid]) + ",".join(types).encode())
+        elif ptype == P_SETUP_INPUTS:
+            names = [n for n in payload.decode("ascii", "replace").split(",") if n]
+            types = [rtde_type(n) or "NOT_FOUND" for n in names]
+            rid = self.next_input_id
+            self.next_input_id += 1
+            if "NOT_FOUND" not in types:
+                self.inputs[rid] = Recipe(rid, names, types)
+            self.send(ptype, bytes([rid]) + ",".join(types).encode())
+        elif ptype == P_START:
+            self.send(ptype, b"\x01")
+            self.streaming.set()
+        elif ptype == P_PAUSE:
+            self.streaming.clear()
+            self.send(ptype, b"\x01")
+        elif ptype == P_DATA and payload:
+            recipe = self.inputs.get(payload[0])
+            if recipe is not None and len(payload) >= recipe.struct.size:
+                self.ctrl.set_inputs(recipe.unpack(payload))
+        elif ptype == P_TEXT_MESSAGE:
+            pass
+
+    def period(self) -> float:
+        """Stream period: the requested rate, at most what the controller version streams."""
+        return 1.0 / max(min(self.freq, self.ctrl.stream_hz), 1.0)
+
+    def _stream(self) -> None:
+        self.streaming.wait()
+        period = self.period()
+        deadline = time.monotonic()
+        while not self.closed and not self.ctrl.stop_event.is_set():
+            if self.streaming.is_set() and self.outputs:
+                state = self.ctrl.snapshot()  # the lock only while copying
+                try:
+                    data = b"".join(packet(P_DATA, r.pack(state)) for r in self.outputs)
+                    with self.send_lock:
+                        self.conn.sendall(data)
+                except OSError:
+                    return
+                self.packets += 1
+            deadline += period
+            delay = deadline - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:  # late: skip the missed slots, keep the grid
+                missed = int(-delay / period)
+                self.late += missed
+                deadline += period * missed
+
+
+_MODES = {RobotMode.POWER_OFF: "POWER_OFF", RobotMode.IDLE: "IDLE", RobotMode.RUNNING: "RUNNING"}
+_SAFETY = {
+    SafetyMode.NORMAL: "NORMAL",
+    SafetyMode.PROTECTIVE_STOP: "PROTECTIVE_STOP",
+    SafetyMode.ROBOT_EMERGENCY_STOP: "ROBOT_EMERGENCY_STOP",
+}
+
+
+def dashboard(ctrl: Controller, conn: socket.socket) -> None:
+    """The dashboard server's session on one connection (line protocol)."""
+    f = conn.makefile("rwb", buffering=0)
+
+    def reply(text: str) -> None:
+        f.write((text + "\n").encode())
+
+    reply("Connected: Universal Robots Dashboard Server")
+    try:
+        for raw in f:
+            line = raw.decode("ascii", "replace").strip()
+            if len(line) > 1024:
+                reply("could not understand: command too long")
+                continue
+            cmd = line.lower()
+            playing = ctrl.runtime_state == RuntimeState.PLAYING
+            if cmd == "polyscopeversion":
+                v = ctrl.version
+                reply(f"URSoftware {v[0]}.{v[1]}.{v[2]}.{v[3]} (quickhealth simulator)")
+            elif cmd == "get serial number":
+                reply("20185500001")
+            elif cmd == "get robot model":
+                reply("UR5")
+            elif cmd == "is in remote control":
+                reply("true")
+            elif cmd == "robotmode":
+                reply(f"Robotmode: {_MODES.get(ctrl.robot_mode, 'RUNNING')}")
+            elif cmd in ("safetystatus", "safetymode"):
+                name = "Safetystatus" if cmd == "safetystatus" else "Safetymode"
+                reply(f"{name}: {_SAFETY.get(ctrl.safety_mode, 'FAULT')}")
+            elif cmd == "programstate":
+                reply(f"{'PLAYING' if playing else 'STOPPED'} rtde_control")
+            elif cmd == "running":
+                reply(f"Program running: {str(playing).lower()}")
+            elif cmd == "stop":
+                ctrl.stop_program()
+                reply("Stopped")
+            elif cmd == "pause":
+                ctrl.stop_program()
+                reply("Pausing program")
+            elif cmd == "play":
+                ctrl.start_program()
+                ok = ctrl.runtime_state == RuntimeState.PLAYING
+                reply("Starting program" if ok else "Failed to execute: play")
+            elif cmd == "unlock protective stop":
+                ok = ctrl.unlock_protective_stop()
+                reply(
+                    "Protective stop releasing"
+                    if ok
+                    else "Cannot unlock protective stop until 5s after occurrence"
+                )
+            elif cmd == "power on":
+                ctrl.set_robot_mode(RobotMode.IDLE)
+                reply("Powering on")
+            elif cmd == "power off":
+                ctrl.stop_program()
+                ctrl.set_robot_mode(RobotMode.POWER_OFF)
+                reply("Powering off")
+            elif cmd == "brake release":
+                ctrl.set_robot_mode(RobotMode.RUNNING)
+                reply("Brake releasing")
+            elif cmd == "close popup" or cmd == "close safety popup":
+                reply("closing popup")
+            elif cmd == "quit":
+                reply("Disconnected")
+                break
+            else:
+                reply(f"could not understand: '{line[:80]}'")
+    except OSError:
+        pass
+    finally:
+        close_socket(conn)
+
+
+def script(ctrl: Controller, conn: socket.socket) -> None:
+    """Receive URScript programs on one connection (the client reuses it for reuploads).
+
+    A program is complete at a trailing unindented ``end``, a 100 ms idle gap or the socket
+    closing; it is never interpreted: a ``def``/``sec`` program starts the emulated script.
+    """
+    conn.settimeout(0.1)
+    buf = b""
+    closed = False
+    while not closed and not ctrl.stop_event.is_set():
+        complete = False
+        try:
+            chunk = conn.recv(65536)
+            if not chunk:
+                closed = complete = True
+            else:
+                buf += chunk
+                tail = buf.rstrip()
+                complete = tail.endswith(b"\nend") or tail == b"end" or len(buf) > 1_000_000
+        except TimeoutError:
+            complete = bool(buf)
+        except OSError:
+            closed = complete = True
+        if complete and buf.strip():
+            text = buf.decode("utf-8", "replace")
+            first = text.strip().splitlines()[0][:60]
+            ctrl.say(f"script received: {len(buf)} bytes, {first!r}")
+            if text.lstrip().startswith(("def ", "sec ")):
+                ctrl.start_program()
+            buf = b""
+    close_socket(conn)
+
+
+def control(ctrl: Controller, conn: socket.socket) -> None:
+    """JSON-lines control channel for tests and the simulated cell (loopback only)."""
+    f = conn.makefile("rwb", buffering=0)
+    try:
+        for raw in f:
+            if len(raw) > 65536:
+                f.write(b'{"ok": false, "error": "request too long"}\n')
+                continue
+            req: Any = None
+            try:
+                req = json.loads(raw)
+                out = control_request(ctrl, req)
+                out["ok"] = True
+            except (ValueError, KeyError, TypeError) as exc:
+                out = {"ok": False, "error": str(exc)}
+            f.write((json.dumps(out) + "\n").encode())
+            if isinstance(req, dict) and req.get("cmd") == "shutdown":
+                break
+    except OSError:
+        pass
+    finally:
+        close_socket(conn)
+
+
+def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
+    """Answer one control-channel request (raises ValueError/KeyError/TypeError on bad ones)."""
+    cmd = req["cmd"]
+    if cmd == "ping":
+        return {"pid": os.getpid()}
+    if cmd == "fault":
+        ctrl.add_fault(req)
+        return {}
+    if cmd == "state":
+        with ctrl.lock:
+            t = ctrl.now()
+            q = ctrl.arm.actual(t)
+            return {
+                "t": t,
+                "q": list(map(float, q)),
+                "moving": ctrl.arm.moving(t),
+                "planning": ctrl.planning is not None,
+                "robot_mode": int(ctrl.robot_mode),
+                "safety_mode": int(ctrl.safety_mode),
+                "runtime_state": int(ctrl.runtime_state),
+                "n_moves": ctrl.n_moves,
+                "n_restarts": ctrl.n_restarts,
+                "frozen": ctrl.frozen is not None,
+                "accepting": ctrl.accepting(),
+                "version": list(ctrl.version),
+                "streams": [
+                    {"hz": 1.0 / r.period(), "packets": r.packets, "late": r.late}
+                    for r in ctrl.sessions
+                    if r.streaming.is_set() and r.outputs
+                ],
+            }
+    if cmd == "truth":
+        with ctrl.lock:
+            t = ctrl.now()
+            q = ctrl.arm.actual(t)
+            approach = ctrl.arm.approach.copy()
+            moving = ctrl.arm.moving(t)
+        truth = ctrl.arm.truth
+        T = truth(q, approach) if truth is not None else ctrl.arm.robot.fk(q)
+        return {
+            "t": t,
+            "q": list(map(float, q)),
+            "approach": list(map(float, approach)),
+            "moving": moving,
+            "T_instr_target0": np.asarray(T).tolist(),
+        }
+    if cmd == "twin":
+        if ctrl.world is None:
+            raise ValueError("this simulator has no digital twin")
+        return {"truth": ctrl.world.twin.truth.to_dict()}
+    if cmd == "set_q":
+        q = np.asarray(req["q"], dtype=float)
+        if q.shape != (6,) or not np.all(np.isfinite(q)):
+            raise ValueError("set_q needs 6 finite joint angles (rad)")
+        ctrl.set_q(q)
+        return {}
+    if cmd == "log":
+        return {"log": ctrl.log[-200:]}
+    if cmd == "shutdown":
+        shutdown(ctrl)
+        return {}
+    raise ValueError(f"unknown control command {cmd!r}")
+
+
+def shutdown(ctrl: Controller) -> None:
+    """Stop serving: listeners closed, :func:`serve` returns."""
+    ctrl.stop_event.set()
+    for s in ctrl.listeners:
+        close_socket(s)
+
+
+def _listen(port: int) -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind((HOST, port))  # loopback only, always
+    s.listen(8)
+    return s
+
+
+Handler = Callable[[Controller, socket.socket], None]
+
+
+def serve(ctrl: Controller, *, rtde_port: int = RTDE_PORT) -> None:
+    """Run all servers until a ``shutdown`` control request (blocks)."""
+    handlers: list[tuple[int, Handler, bool]] = [
+        (rtde_port, lambda c, s: RtdeSession(c, s).serve(), True),
+        (DASHBOARD_PORT, dashboard, True),
+        (SCRIPT_PORT, script, True),
+        (ctrl.control_port, control, False),  # the test harness: never faulted
+    ]
+    listeners = []
+    for port, _, _ in handlers:
+        try:
+            listeners.append(_listen(port))
+        except OSError as exc:
+            for s in listeners:
+                close_socket(s)
+            raise OSError(f"cannot listen on {HOST}:{port}: {exc.strerror}") from exc
+    ctrl.listeners = listeners
+
+    def run(handler: Handler, conn: socket.socket, faultable: bool) -> None:
+        try:
+            handler(ctrl, conn)
+        finally:
+            if faultable:
+                ctrl.untrack(conn)
+
+    def accept_loop(sock: socket.socket, handler: Handler, faultable: bool) -> None:
+        while not ctrl.stop_event.is_set():
+            try:
+                conn, _ = sock.accept()
+            except OSError:
+                return
+            if faultable and not ctrl.track(conn):
+                continue  # refused: dropped link or a restarting controller
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            threading.Thread(target=run, args=(handler, conn, faultable), daemon=True).start()
+
+    threads = [
+        threading.Thread(target=accept_loop, args=(s, h, f), daemon=True)
+        for s, (_, h, f) in zip(listeners, handlers, strict=True)
+    ]
+    for t in threads:
+        t.start()
+    ctrl.say("listening on 127.0.0.1")
+    ctrl.stop_event.wait()
+    ctrl.close()
+    for s in listeners:
+        close_socket(s)
+    ctrl.drop_connections()

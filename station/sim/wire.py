@@ -1,0 +1,229 @@
+"""RTDE wire format of a UR controller: ports, packets, field types, recipes, versions.
+
+Everything the simulator must pack exactly as the ur-rtde client unpacks it
+(``notes/ur-rtde.md``).  The client ignores the type string of a setup reply and unpacks
+with its own table (``robot_state.cpp``), so one wrongly sized field silently shifts every
+later one: :data:`FIXED_TYPES` and :func:`rtde_type` follow that table.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+from typing import Any
+
+HOST = "127.0.0.1"
+RTDE_PORT = 30004
+DASHBOARD_PORT = 29999
+SCRIPT_PORT = 30003
+CONTROL_PORT = 30090
+
+CB3_VERSION = (3, 15, 7, 106331)  # the default: the client streams at 125 Hz
+CONTROLLER_VERSION = CB3_VERSION
+
+# RTDE packet types.
+P_REQUEST_PROTOCOL_VERSION = ord("V")
+P_GET_URCONTROL_VERSION = ord("v")
+P_TEXT_MESSAGE = ord("M")
+P_DATA = ord("U")
+P_SETUP_OUTPUTS = ord("O")
+P_SETUP_INPUTS = ord("I")
+P_START = ord("S")
+P_PAUSE = ord("P")
+
+# RTDE field types as the client packs them (its own table, robot_state.cpp).
+TYPE_FMT = {
+    "DOUBLE": "d",
+    "VECTOR6D": "6d",
+    "VECTOR3D": "3d",
+    "UINT64": "Q",
+    "UINT32": "I",
+    "INT32": "i",
+    "VECTOR6INT32": "6i",
+    "VECTOR6UINT32": "6I",
+    "UINT8": "B",
+    "BOOL": "?",
+}
+FIXED_TYPES = {
+    "timestamp": "DOUBLE",
+    "actual_digital_input_bits": "UINT64",
+    "actual_digital_output_bits": "UINT64",
+    "actual_execution_time": "DOUBLE",
+    "robot_mode": "INT32",
+    "joint_mode": "VECTOR6INT32",
+    "safety_mode": "INT32",
+    "safety_status": "INT32",
+    "actual_tool_accelerometer": "VECTOR3D",
+    "speed_scaling": "DOUBLE",
+    "target_speed_fraction": "DOUBLE",
+    "actual_momentum": "DOUBLE",
+    "actual_main_voltage": "DOUBLE",
+    "actual_robot_voltage": "DOUBLE",
+    "actual_robot_current": "DOUBLE",
+    "runtime_state": "UINT32",
+    "elbow_position": "VECTOR3D",
+    "elbow_velocity": "VECTOR3D",
+    "robot_status_bits": "UINT32",
+    "safety_status_bits": "UINT32",
+    "analog_io_types": "UINT32",
+    "io_current": "DOUBLE",
+    "euromap67_input_bits": "UINT32",
+    "euromap67_output_bits": "UINT32",
+    "euromap67_24V_voltage": "DOUBLE",
+    "euromap67_24V_current": "DOUBLE",
+    "tool_mode": "UINT32",
+    "tool_analog_input_types": "UINT32",
+    "tool_output_voltage": "INT32",
+    "tool_output_current": "DOUBLE",
+    "tool_temperature": "DOUBLE",
+    "tool_force_scalar": "DOUBLE",
+    "output_bit_registers0_to_31": "UINT32",
+    "output_bit_registers32_to_63": "UINT32",
+    "input_bit_registers0_to_31": "UINT32",
+    "input_bit_registers32_to_63": "UINT32",
+    "payload": "DOUBLE",
+    "payload_cog": "VECTOR3D",
+    "payload_inertia": "VECTOR6D",
+    "speed_slider_mask": "UINT32",
+    "speed_slider_fraction": "DOUBLE",
+    "standard_digital_output_mask": "UINT8",
+    "standard_digital_output": "UINT8",
+    "configurable_digital_output_mask": "UINT8",
+    "configurable_digital_output": "UINT8",
+    "tool_digital_output_mask": "UINT8",
+    "tool_digital_output": "UINT8",
+    "standard_analog_output_mask": "UINT8",
+    "standard_analog_output_type": "UINT8",
+    "standard_analog_output_0": "DOUBLE",
+    "standard_analog_output_1": "DOUBLE",
+    "script_control_line": "UINT32",
+    "ft_raw_wrench": "VECTOR6D",
+}
+VECTOR6D_FIELDS = (
+    "target_q",
+    "target_qd",
+    "target_qdd",
+    "target_current",
+    "target_moment",
+    "actual_q",
+    "actual_qd",
+    "actual_qdd",
+    "actual_current",
+    "actual_moment",
+    "joint_control_output",
+    "actual_TCP_pose",
+    "actual_TCP_speed",
+    "actual_TCP_force",
+    "target_TCP_pose",
+    "target_TCP_speed",
+    "joint_temperatures",
+    "actual_joint_voltage",
+    "actual_current_as_torque",
+    "external_force_torque",
+)
+
+
+def rtde_type(name: str) -> str | None:
+    """RTDE type of a field name, or None when the controller does not know it."""
+    if name in FIXED_TYPES:
+        return FIXED_TYPES[name]
+    if name in VECTOR6D_FIELDS:
+        return "VECTOR6D"
+    for prefix, typ in (
+        ("output_int_register_", "INT32"),
+        ("input_int_register_", "INT32"),
+        ("output_double_register_", "DOUBLE"),
+        ("input_double_register_", "DOUBLE"),
+        ("output_bit_register_", "BOOL"),
+        ("input_bit_register_", "BOOL"),
+    ):
+        if name.startswith(prefix):
+            idx = name[len(prefix) :]
+            if idx.isdigit() and int(idx) < 48:
+                return typ
+            return None
+    if name.startswith(("standard_analog_input", "standard_analog_output", "tool_analog_input")):
+        return "DOUBLE"
+    return None
+
+
+def parse_version(text: str) -> tuple[int, int, int, int]:
+    """``"5.11.1"`` or ``"5.11.1.108318"`` → ``(major, minor, bugfix, build)``.
+
+    Raises
+    ------
+    ValueError
+        Not three or four non-negative integers, or a major version below 3.
+    """
+    parts = text.strip().split(".")
+    try:
+        nums = [int(p) for p in parts]
+    except ValueError:
+        nums = []
+    if len(nums) not in (3, 4) or any(n < 0 or n > 1_000_000 for n in nums) or nums[0] < 3:
+        raise ValueError(
+            f"controller version {text[:40]!r}: expected MAJOR.MINOR.BUGFIX[.BUILD], e.g. 5.11.1 "
+            "(major 3 = CB3, 5 = e-Series)"
+        )
+    if len(nums) == 3:
+        nums.append(CB3_VERSION[3] if tuple(nums) == CB3_VERSION[:3] else 0)
+    return nums[0], nums[1], nums[2], nums[3]
+
+
+def max_stream_hz(version: tuple[int, ...]) -> float:
+    """Highest RTDE output rate of a controller: 125 Hz on CB3, 500 Hz on e-Series (major > 3)."""
+    return 500.0 if version[0] > 3 else 125.0
+
+
+def packet(ptype: int, payload: bytes) -> bytes:
+    """One RTDE packet: ``>HB`` header (size including the header, type) and the payload."""
+    return struct.pack(">HB", len(payload) + 3, ptype) + payload
+
+
+def recv_exact(conn: socket.socket, n: int) -> bytes:
+    """Exactly ``n`` bytes from ``conn``; raises ConnectionError when the peer closes first."""
+    buf = b""
+    while len(buf) < n:
+        chunk = conn.recv(n - len(buf))
+        if not chunk:
+            raise ConnectionError("peer closed")
+        buf += chunk
+    return buf
+
+
+class Recipe:
+    """An output or input recipe: its id, field names and types, and the struct that packs them."""
+
+    def __init__(self, rid: int, names: list[str], types: list[str]) -> None:
+        self.id = rid
+        self.names = names
+        self.types = types
+        self.struct = struct.Struct(">B" + "".join(TYPE_FMT[t] for t in types))
+
+    def pack(self, state: dict[str, Any]) -> bytes:
+        """The ``U`` payload of this recipe from a state dict (missing fields pack as zeros)."""
+        vals: list[Any] = [self.id]
+        for n, t in zip(self.names, self.types, strict=True):
+            v = state.get(n)
+            if t.startswith("VECTOR"):
+                k = 3 if t == "VECTOR3D" else 6
+                vals.extend(list(v) if v is not None else [0] * k)
+            elif t == "DOUBLE":
+                vals.append(float(v) if v is not None else 0.0)
+            elif t == "BOOL":
+                vals.append(bool(v))
+            else:
+                vals.append(int(v) if v is not None else 0)
+        return self.struct.pack(*vals)
+
+    def unpack(self, payload: bytes) -> dict[str, Any]:
+        """Field values of a client's ``U`` payload of this recipe."""
+        vals = list(self.struct.unpack(payload[: self.struct.size]))[1:]
+        out: dict[str, Any] = {}
+        for n, t in zip(self.names, self.types, strict=True):
+            if t.startswith("VECTOR"):
+                k = 3 if t == "VECTOR3D" else 6
+                out[n], vals = vals[:k], vals[k:]
+            else:
+                out[n] = vals.pop(0)
+        return out
