@@ -106,10 +106,13 @@ def _recover(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
     elif kind == "drop_connection":
         time.sleep(0.3)
         sim.fault("clear")
+    link = kind in ("drop_connection", "freeze_stream", "restart")
     deadline = time.monotonic() + 30.0
     while True:  # reconnect until the controller answers (a restart takes a moment)
         try:
-            station.robot.connect()
+            # After a link fault the technician presses c: a new client, whatever the old
+            # one still believes (its socket may not have noticed the drop yet).
+            station.robot.reconnect() if link else station.robot.connect()
             if station.robot.status().ready:
                 return
             sim.fault("clear")
@@ -153,6 +156,7 @@ def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
             if fired.is_set():
                 _recover(str(kind), cell, station)
                 faults.append({"kind": kind, "stopped": stopped})
+                print(f"fault {kind}: {stopped}", file=sys.stderr, flush=True)
             elif stopped is not None:  # a stop nobody injected: not survived
                 raise HardwareError(f"the run stopped by itself: {stopped}")
             if stopped is None:  # the run is complete
@@ -241,7 +245,9 @@ def main() -> int:
                 crashes += int(proc.returncode < 0)  # killed by a signal we did not send
                 failures += 1
                 tail = (err.strip().splitlines() or ["?"])[-1]
+                (run_dir / "worker-stderr.txt").write_text(err)
                 print(f"  run {runs}: worker exit {proc.returncode}: {tail}", flush=True)
+                print(f"    (its output: {run_dir / 'worker-stderr.txt'})", flush=True)
                 continue
             report = json.loads(out.strip().splitlines()[-1])
             aborts += report["aborts"]

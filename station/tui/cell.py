@@ -358,8 +358,16 @@ class CellControl:
                 self._wake.set()
 
     def reconnect(self) -> None:
-        """After a fault: reconnect and check the robot is connected, powered and safe."""
-        self.connect()
+        """After a fault: reconnect and check the robot is connected, powered and safe.
+
+        After a link fault (lost connection, frozen stream) the robot's client is always
+        replaced, whatever the old one still believes; otherwise only a dead one is."""
+        link = self.fault is not None and self.fault.kind in ("connection-lost", "frozen-stream")
+        again = getattr(self.station.robot, "reconnect", None)
+        if link and callable(again):
+            again()
+        else:
+            self.connect()
         st = self.station.robot.status()
         if not st.ready:
             raise HardwareError(f"robot not ready: {st.describe()}")
