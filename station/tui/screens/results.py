@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -20,6 +21,16 @@ from ..widgets.nav import NavBar
 from ..widgets.textplot import spark
 
 MOTIONS = ("dx", "dy", "dz", "ex", "ey", "ez")
+
+
+def _ticks(lo: np.ndarray, hi: np.ndarray, n: int = 5) -> tuple[list[float], list[str]]:
+    """Five y ticks over the band with labels of our own: a value that rounds to zero is
+    "0.000", never "-0.000" (plotext prints the sign of a -1e-17 from the fit's arithmetic)."""
+    a, b = float(np.min(lo)), float(np.max(hi))
+    if not b > a:
+        a, b = a - 1.0, b + 1.0
+    ticks = np.linspace(a, b, n).tolist()
+    return ticks, [f"{v:.3f}" if abs(v) >= 5e-4 else "0.000" for v in ticks]
 
 
 class ResultsScreen(Screen[None]):
@@ -152,6 +163,7 @@ class ResultsScreen(Screen[None]):
         plt.plot(x, (curve.value + curve.band).tolist(), color="gray", marker="dot")
         plt.plot(x, (curve.value - curve.band).tolist(), color="gray", marker="dot")
         plt.plot(x, curve.value.tolist(), color="cyan", marker="braille")
+        plt.yticks(*_ticks(curve.value - curve.band, curve.value + curve.band))
         title.update(
             f"[b]{jn} {curve.words}[/b] ({curve.unit}), dots: 95 % band   [dim]j joint · m motion[/]"
         )
