@@ -245,9 +245,10 @@ def main() -> int:
                 crashes += int(proc.returncode < 0)  # killed by a signal we did not send
                 failures += 1
                 tail = (err.strip().splitlines() or ["?"])[-1]
-                (run_dir / "worker-stderr.txt").write_text(err)
+                log = work / f"worker-{runs:03d}-{k}.txt"
+                log.write_text(err)
                 print(f"  run {runs}: worker exit {proc.returncode}: {tail}", flush=True)
-                print(f"    (its output: {run_dir / 'worker-stderr.txt'})", flush=True)
+                print(f"    (its output: {log})", flush=True)
                 continue
             report = json.loads(out.strip().splitlines()[-1])
             aborts += report["aborts"]
