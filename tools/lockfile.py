@@ -116,7 +116,8 @@ def differences(path: Path = LOCK) -> list[str]:
         if want != got:
             out.append(
                 f"{name}: locked {want or 'absent'}, installed {got or 'absent'}"
-                + (" (run make test to sync)" if want else " (not in the lock)")
+                + ("" if want else " (not in the lock)")
+                + ": rm .venv/.installed and make test syncs .venv to the lock"
             )
     for text in project_requirements():
         req = Requirement(text)
