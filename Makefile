@@ -4,15 +4,40 @@
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
+UV     := $(VENV)/bin/uv
 STAMP  := $(VENV)/.installed
+LOCK   := requirements.lock
 
-.PHONY: demo test check lint format bench clean chromium
+.PHONY: demo test check lint format bench clean chromium lock upgrade lockcheck
 
-$(STAMP): pyproject.toml setup.py
+# The environment is exactly requirements.lock (every version pinned, every file checked by
+# sha256): pip bootstraps the locked uv, uv makes .venv equal to the lock (from its cache after
+# the first time), then quickhealth goes in editable with the locked setuptools.  docs/install.md
+$(STAMP): pyproject.toml $(LOCK)
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PYTHON) tools/lockfile.py bootstrap uv > $(VENV)/uv-requirement.txt
+	$(PY) -m pip install --quiet --require-hashes --no-deps -r $(VENV)/uv-requirement.txt
+	$(UV) pip sync --quiet --python $(PY) --require-hashes $(LOCK)
+	$(UV) pip install --quiet --python $(PY) --no-deps --no-build-isolation -e .
 	touch $(STAMP)
+
+# One resolution for every platform, preferring one version per package, from PyPI only.
+UV_COMPILE = $(UV) pip compile pyproject.toml --all-extras --universal --fork-strategy fewest \
+	--python-version 3.11 --generate-hashes --no-config --default-index https://pypi.org/simple \
+	--custom-compile-command 'make lock' --quiet -o $(LOCK)
+
+# After editing dependencies in pyproject.toml: a new lock keeping every pin it can.
+lock: $(STAMP)
+	$(UV_COMPILE)
+
+# Newest versions pyproject.toml allows, then every test on them (docs/install.md: when).
+upgrade: $(STAMP)
+	$(UV_COMPILE) --upgrade
+	$(MAKE) test
+
+# pip freeze compared with the lock: each difference on one line, exit 1 when there is one.
+lockcheck: $(STAMP)
+	$(PY) tools/lockfile.py check
 
 demo: $(STAMP)
 	$(VENV)/bin/quickhealth demo
@@ -40,4 +65,4 @@ bench: $(STAMP)
 	for f in benchmarks/*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build dist *.egg-info

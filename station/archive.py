@@ -531,9 +531,6 @@ class Archive:
 
 
 def _software_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
+    from .provenance import software_version
 
-    try:
-        return version("quickhealth")
-    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
-        return "unknown"
+    return software_version()

@@ -23,6 +23,7 @@ from collections.abc import Sequence  # noqa: E402
 from quickhealth.identify.errors import QuickhealthError  # noqa: E402
 
 from . import commands  # noqa: E402
+from .provenance import software_version  # noqa: E402
 
 
 class _Parser(argparse.ArgumentParser):
@@ -40,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"quickhealth {software_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         mod = importlib.import_module(f"{commands.__name__}.{info.name}")

@@ -636,8 +636,11 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
 
 
 def write_model(path: str | os.PathLike[str], fitted: Any) -> None:
-    """Write model.json (JSON only; never pickle)."""
-    write_text_atomic(path, json.dumps(model_to_json(fitted), indent=1) + "\n")
+    """Write model.json (JSON only; never pickle), with the writer's ``provenance``."""
+    from .provenance import provenance
+
+    doc = {**model_to_json(fitted), "provenance": provenance()}
+    write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
 
 
 def read_model(path: str | os.PathLike[str]) -> Any:
@@ -675,8 +678,10 @@ def _jsonable(x: Any) -> Any:
 
 
 def write_report(path: str | os.PathLike[str], report: dict[str, Any]) -> None:
-    """Write report.json (``schema`` added; NaN/inf become null)."""
-    doc = {"schema": REPORT_SCHEMA, **_jsonable(report)}
+    """Write report.json (``schema`` and this writer's ``provenance`` set; NaN/inf become null)."""
+    from .provenance import provenance
+
+    doc = {"schema": REPORT_SCHEMA, **_jsonable(report), "provenance": provenance()}
     write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
 
 

@@ -9,7 +9,8 @@ arm moves on; the ``measured`` record follows them.  A capture whose images are 
 
 Records (``type``):
 
-- ``start``   run id, plan hash, cell, number of poses, software version.
+- ``start``   run id, plan hash, cell, number of poses, software version; ``provenance``
+  (quickhealth, Python, numpy, scipy, OpenCV, pinocchio versions) added by :meth:`Journal.append`.
 - ``selfcheck`` instrument self-check on the reference board (``phase`` start/end).
 - ``captured`` a pose was reached and imaged: index, name, joints, time, pan, image files
   (the last record of an index wins: a pose revisited on resume).
@@ -17,7 +18,7 @@ Records (``type``):
   false with the reason when the vision library rejected the pair).
 - ``failed``  a pose that could not be captured (target not detected after retries …).
 - ``stop``    the run stopped cleanly on a fault (reason, what to do).
-- ``resume``  a later process continued the run.
+- ``resume``  a later process continued the run (with that process's ``provenance``).
 - ``end``     the run finished.
 
 Reading tolerates exactly one kind of damage, the one a crash or power cut can cause: a
@@ -204,7 +205,11 @@ class Journal:
         return self
 
     def append(self, rec: dict[str, Any]) -> None:
-        """Write one record and fsync it."""
+        """Write one record and fsync it (``start``/``resume`` gain ``provenance``)."""
+        if rec.get("type") in ("start", "resume") and "provenance" not in rec:
+            from .provenance import provenance
+
+            rec = {**rec, "provenance": provenance()}
         rec = _plain(rec)
         line = dict(rec)
         line["crc"] = _crc(rec)

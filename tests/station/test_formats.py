@@ -13,6 +13,7 @@ from quickhealth.identify.errors import InputError
 from quickhealth.identify.fit import fit_model
 from quickhealth.identify.robot import chain
 from quickhealth.station import formats
+from quickhealth.station.provenance import provenance
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "fixtures"
@@ -245,6 +246,7 @@ def test_model_json_roundtrip_predicts_the_same(tmp_path):
     formats.write_model(p, fm)
     text = p.read_text()
     assert json.loads(text)["schema"] == formats.MODEL_SCHEMA
+    assert json.loads(text)["provenance"] == provenance()  # the writer's software and libraries
     back = formats.read_model(p)
     q = S.random_q(10, 5)
     np.testing.assert_allclose(back.predict(q), fm.predict(q), atol=1e-15)
@@ -270,6 +272,9 @@ def test_report_json_roundtrip(tmp_path):
     formats.write_report(p, {"bic": np.float64(1.5), "x": np.arange(3), "bad": float("nan")})
     doc = formats.read_report(p)
     assert doc["bic"] == 1.5 and doc["x"] == [0, 1, 2] and doc["bad"] is None
+    assert doc["provenance"] == provenance()
+    formats.write_report(p, {**doc, "provenance": {"software": "quickhealth 0.0.1"}})
+    assert formats.read_report(p)["provenance"] == provenance()  # always the last writer's
 
 
 # ---------------------------------------------------------------- URScript, WAM

@@ -12,9 +12,11 @@ from quickhealth.station.journal import (
     JOURNAL,
     SCHEMA,
     Journal,
+    iter_records,
     read_journal,
     write_bytes_atomic,
 )
+from quickhealth.station.provenance import provenance
 
 
 def _start():
@@ -38,6 +40,12 @@ def test_round_trip(tmp_path):
     assert st.next_index(5) == 4 and st.next_index(3) is None
     assert not st.truncated_tail
     assert st.captured[2]["q_deg"] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    assert st.start["provenance"] == provenance()  # added by the journal, not by the caller
+    assert "provenance" not in st.captured[1]
+    with Journal(tmp_path).open() as j:
+        j.append({"type": "resume", "done": 3})
+    resumed = [r for _, r, _ in iter_records(path) if r["type"] == "resume"]
+    assert resumed[0]["provenance"]["software"] == provenance()["software"]
 
 
 def test_torn_last_line_is_ignored_then_cut_on_reopen(tmp_path):
