@@ -57,9 +57,9 @@ from .hardware.owner import DeviceOwner, owned
 from .hardware.robot import Leg, Robot, RobotReader
 from .hardware.target import T_target_plate, target0_from_plate
 from .journal import JOURNAL, SCHEMA, Journal, JournalState, read_journal, write_bytes_atomic
+from .provenance import software_version
 
 F = NDArray[np.float64]
-SOFTWARE = "quickhealth 0.1.0"
 
 
 @dataclass(frozen=True)
@@ -747,7 +747,7 @@ def run_plan(
                 "type": "start", "schema": SCHEMA, "run_id": run_dir.name, "plan_hash": plan.hash,
                 "plan_source": str(plan.source), "cell": station.cell_name, "cell_sha256": station.cell_sha256,
                 "robot": station.robot_name or station.robot.model.name, "n_poses": r.n,
-                "started_utc": _utc(), "epoch": r.t_epoch, "software": SOFTWARE,
+                "started_utc": _utc(), "epoch": r.t_epoch, "software": f"quickhealth {software_version()}",
                 "instrument": station.instrument,
             })  # fmt: skip
         r.selfcheck("start" if not resume else "resume")
