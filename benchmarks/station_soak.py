@@ -181,6 +181,8 @@ def journal_check(run_dir: Path, n_poses: int) -> tuple[int, int, bool]:
     """
     from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 
+    if not (run_dir / JOURNAL).is_file():
+        return n_poses, 0, False
     recs = [rec for _, rec, _ in iter_records(run_dir / JOURNAL)]
     done = {rec["index"] for rec in recs if rec.get("type") in ("measured", "failed")}
     measured = Counter(rec["index"] for rec in recs if rec.get("type") == "measured")
@@ -241,6 +243,14 @@ def main() -> int:
                 proc.communicate()
                 continue
             out, err = proc.communicate()
+            if proc.returncode != 0 and "holds the UR ports" in err:
+                # Another simulator on this host (a test run beside the soak): not a station
+                # fault.  Run the same worker again once the ports are free.
+                print(f"  run {runs}: the UR ports were busy; trying again", flush=True)
+                proc = subprocess.Popen(
+                    cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+                )
+                out, err = proc.communicate()
             if proc.returncode != 0:
                 crashes += int(proc.returncode < 0)  # killed by a signal we did not send
                 failures += 1
