@@ -40,7 +40,6 @@ import json
 import math
 import os
 import re
-import tempfile
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
@@ -52,6 +51,8 @@ from numpy.typing import NDArray
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.measurements import Measurements
 from quickhealth.identify.robot import RobotModel, from_dh, ur5
+
+from .fsio import write_atomic
 
 F = NDArray[np.float64]
 
@@ -293,17 +294,8 @@ def write_measurements(path: str | os.PathLike[str], meas: Measurements) -> None
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``text`` to ``path`` atomically, respecting the umask (:func:`..fsio.write_atomic`)."""
+    write_atomic(path, text)
 
 
 # --------------------------------------------------------------------------- robot descriptions

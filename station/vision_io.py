@@ -22,6 +22,8 @@ from quickhealth.vision.boards import TargetDescription, reference_target
 from quickhealth.vision.calibrate import CalibrationResult
 from quickhealth.vision.camera import CameraModel, StereoRig
 
+from .fsio import write_atomic
+
 U8 = NDArray[np.uint8]
 
 
@@ -76,17 +78,7 @@ def write_png(path: Path, img: U8) -> None:
 
 
 def _write_bytes(path: Path, data: bytes) -> None:
-    import tempfile
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, data)
 
 
 def write_json(path: Path, doc: dict[str, Any]) -> None:
