@@ -53,7 +53,24 @@ def build_parser() -> argparse.ArgumentParser:
         register = getattr(mod, "register", None)
         if register is not None:
             register(sub)
+    _finite_floats(parser)
     return parser
+
+
+def _finite_floats(parser: argparse.ArgumentParser) -> None:
+    """Every ``type=float`` option of every command accepts finite numbers only.
+
+    ``--margin nan`` or ``--threshold-mm inf`` would otherwise pass argparse and silently
+    change what a comparison means; they are usage errors (exit 2, one line).
+    """
+    from .formats import finite_float
+
+    for action in parser._actions:
+        if action.type is float:
+            action.type = finite_float
+        if isinstance(action, argparse._SubParsersAction):
+            for sp in action.choices.values():
+                _finite_floats(sp)
 
 
 def _one_line(text: str, limit: int = 400) -> str:
@@ -91,7 +108,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except QuickhealthError as exc:
         if debug:
             traceback.print_exc()
-        sys.stderr.write(f"quickhealth: error: {_one_line(str(exc))}\n")
+        # one line per finding (e.g. each refused target of a program), each on one line
+        lines = [_one_line(x) for x in str(exc).split("\n") if x.strip()] or ["(no message)"]
+        if len(lines) > 50:
+            lines = lines[:49] + [f"... and {len(lines) - 49} more"]
+        sys.stderr.write("".join(f"quickhealth: error: {x}\n" for x in lines))
         return exc.exit_status
     except KeyboardInterrupt:
         sys.stderr.write("quickhealth: interrupted\n")

@@ -130,8 +130,16 @@ def _fit(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a directory")
+    from quickhealth.station.fsio import refuse_overwriting_inputs
+
+    outputs = ("model.json", "report.json", "residuals.csv")
+    refuse_overwriting_inputs(
+        [("--out", out / n) for n in outputs],
+        [args.meas, args.robot if Path(args.robot).is_file() else None],
+    )
     robot = formats.load_robot(args.robot)
     meas = formats.read_measurements(args.meas, robot.n_joints)
+    formats.check_poses_for_fit(meas, robot, args.meas)
     effects = parse_effects(args.effects, robot)
     noise = InstrumentNoise(
         sigma_pos=args.sigma_pos_mm * 1e-3,
@@ -173,8 +181,11 @@ def _fit(args: argparse.Namespace) -> int:
             for name, fig in figs.items():
                 fig.savefig(tmp / f"{name}.png", dpi=110)
         out.mkdir(parents=True, exist_ok=True)
+        replaced = sorted(f.name for f in tmp.iterdir() if (out / f.name).exists())
+        if replaced:
+            print(f"replacing {', '.join(replaced)} in {out}", file=sys.stderr)
         for f in tmp.iterdir():
-            shutil.move(str(f), out / f.name)
+            (tmp / f.name).replace(out / f.name)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     for line in sel.fitted.summary() + sel.summary():
@@ -322,11 +333,12 @@ def _predict(args: argparse.Namespace) -> int:
 
     from quickhealth.identify.errors import InputError
     from quickhealth.identify.transforms import R_to_rpy
-    from quickhealth.identify.workspace import predict_commands
     from quickhealth.station import formats
+    from quickhealth.station.fsio import refuse_overwriting_inputs
 
     if args.threshold_mm is not None:
         _positive("--threshold-mm", args.threshold_mm)
+    refuse_overwriting_inputs([("--out", args.out)], [args.model, args.input])
     fm = formats.read_model(args.model)
     nj = fm.robot.n_joints
     inp = Path(args.input)
@@ -334,10 +346,12 @@ def _predict(args: argparse.Namespace) -> int:
     if inp.suffix.lower() in (".script", ".urscript", ".urp"):
         q, src_lines = formats.read_urscript_joints(inp, nj)
         time = temp = None
+        formats.check_joint_limits(q, fm.robot, str(inp), src_lines, what="target")
     else:
         meas = formats.read_measurements(inp, nj, joints_only=True)
         q, time, temp = meas.q, meas.time, meas.temp
         src_lines = None
+        formats.check_joint_limits(q, fm.robot, str(inp))
     for e in fm.effects:
         for col in e.requires():
             if (time if col == "time" else temp if col == "temp" else 0) is None:
@@ -345,7 +359,7 @@ def _predict(args: argparse.Namespace) -> int:
                     f"{inp}:1:1: the model's effect {e.name!r} needs the {col!r} column"
                 )
     thr = None if args.threshold_mm is None else args.threshold_mm * 1e-3
-    pred = predict_commands(fm, q, thr, time=time, temp=temp)
+    pred = _predict_chunked(fm, q, thr, time, temp)
     cols = ["row"]
     if src_lines is not None:
         cols.append("line")
@@ -404,6 +418,37 @@ def _predict(args: argparse.Namespace) -> int:
         print(f"{n_over} commands above {args.threshold_mm} mm")
         return 1 if n_over else 0
     return 0
+
+
+PREDICT_CHUNK = 5000  # commands per block: memory stays bounded (~100 MB) for any file
+
+
+def _predict_chunked(fm: Any, q: Any, thr: Any, time: Any, temp: Any) -> Any:
+    """:func:`predict_commands` in blocks of ``PREDICT_CHUNK`` commands (bounded memory)."""
+    import numpy as np
+
+    from quickhealth.identify.workspace import CommandPrediction, predict_commands
+
+    parts = []
+    for a in range(0, len(q), PREDICT_CHUNK):
+        b = a + PREDICT_CHUNK
+        parts.append(
+            predict_commands(
+                fm,
+                q[a:b],
+                thr,
+                time=None if time is None else time[a:b],
+                temp=None if temp is None else temp[a:b],
+            )
+        )
+    if len(parts) == 1:
+        return parts[0]
+    return CommandPrediction(
+        *(np.concatenate([getattr(p, f) for p in parts]) for f in (
+            "T_instr_target", "err", "err_vec", "err_sigma", "over_threshold", "extrapolated"
+        )),
+        thr,
+    )  # fmt: skip
 
 
 # --------------------------------------------------------------------------- WAM import
