@@ -69,9 +69,12 @@ def corrected_robot(robot: RobotModel, spec: ErrorModelSpec, coeffs: ArrayLike) 
 
 
 def _attr(text: str) -> str:
-    """``text`` escaped for a double-quoted XML attribute (&, <, >, ", control characters)."""
+    """``text`` escaped for a double-quoted XML attribute (&, <, >, quotes); tab, newline and
+    CR as character references; other control characters (not allowed in XML 1.0) as ``_``."""
     out = xml_escape(str(text), {'"': "&quot;", "'": "&apos;"})
-    return "".join(c if c >= " " else f"&#{ord(c)};" for c in out)
+    return "".join(
+        c if c >= " " and c != "\x7f" else (f"&#{ord(c)};" if c in "\t\n\r" else "_") for c in out
+    )
 
 
 def _fmt(v: ArrayLike) -> str:

@@ -416,7 +416,24 @@ def parse_measurements(
 
 
 def format_measurements(meas: Measurements) -> str:
-    """CSV v1 text of ``meas`` (mm, deg; full precision)."""
+    """CSV v1 text of ``meas`` (mm, deg; full precision).
+
+    Raises
+    ------
+    InputError
+        Data the contract (and :func:`parse_measurements`) would refuse: non-finite joints,
+        a pose id with a control character (a newline would split the row).
+    """
+    if not np.all(np.isfinite(meas.q)):
+        i = int(np.argwhere(~np.isfinite(meas.q))[0][0])
+        raise InputError(f"measurement row {i + 1}: joint angles are not finite; not written")
+    if meas.pose_id is not None:
+        for i, pid in enumerate(meas.pose_id):
+            if any(c < " " or c == "\x7f" for c in str(pid)) or len(str(pid)) > MAX_CELL_CHARS:
+                raise InputError(
+                    f"measurement row {i + 1}: pose_id {str(pid)[:40]!r} has a control character "
+                    "or is too long; not written"
+                )
     buf = io.StringIO()
     for k, v in meas.meta.items():
         buf.write(f"# {k}: {v}\n")

@@ -67,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
     plan = plan_from_dict(doc, "plan.json")  # the program is made from the validated document
     script = render_urscript(plan)
     out.mkdir(parents=True, exist_ok=True)
+    replaced = [n for n in ("plan.json", "loop.script") if (out / n).exists()]
+    if replaced:
+        print(f"replacing {', '.join(replaced)} in {out}", file=sys.stderr)
     _write(out / "plan.json", dumps(doc).encode("utf-8"))
     _write(out / "loop.script", script.encode("utf-8"))
     figs = write_figures(res, out)

@@ -450,7 +450,7 @@ def _compensate(args: argparse.Namespace) -> int:
                     f"{np.degrees(fm.spec.q_hi[j]):.6g}] deg: the model would extrapolate"
                 )
     if problems:
-        raise InputError("\n".join(problems) + "\nnothing written")
+        raise InputError("\n".join(f"{x}; nothing written" for x in problems))
     comp = compensate_joints(fm.robot, fm.spec, fm.coeffs, q, T_tcp)
     dq = np.degrees(comp.q - q)
     for k in range(len(q)):
@@ -471,7 +471,7 @@ def _compensate(args: argparse.Namespace) -> int:
                 "is outside the robot's limits"
             )
     if problems:
-        raise InputError("\n".join(problems) + "\nnothing written")
+        raise InputError("\n".join(f"{x}; nothing written" for x in problems))
     if is_script:
         new_text = replace_targets(text, targets.spans, comp.q)
     else:
