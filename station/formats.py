@@ -718,18 +718,46 @@ def robot_to_json(robot: RobotModel) -> dict[str, Any]:
     }
 
 
+def _shaped(d: dict[str, Any], key: str, shape: tuple[int, ...], optional: bool = False) -> Any:
+    """``d[key]`` as a float array of ``shape`` (-1: any length), or InputError."""
+    v = d.get(key)
+    if v is None and optional:
+        return None
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"robot.{key} is not an array of numbers") from None
+    if a.ndim != len(shape) or any(n not in (-1, m) for n, m in zip(shape, a.shape, strict=True)):
+        raise InputError(f"robot.{key} has shape {a.shape}, expected {shape}")
+    return a
+
+
 def robot_from_json(d: dict[str, Any]) -> RobotModel:
-    """Inverse of :func:`robot_to_json`."""
+    """Inverse of :func:`robot_to_json` (shapes checked: InputError without a file name)."""
+    if not isinstance(d, dict):
+        raise InputError("robot is not a JSON object")
+    q_offset = _shaped(d, "q_offset", (-1,))
+    nj = q_offset.shape[0]
+    if not 1 <= nj <= 12:
+        raise InputError(f"robot has {nj} joints (1..12 expected)")
+    links = _shaped(d, "links", (nj + 1, 4, 4))
+    q_min = _shaped(d, "q_min", (nj,))
+    q_max = _shaped(d, "q_max", (nj,))
+    masses = _shaped(d, "masses", (nj,), optional=True)
+    coms = _shaped(d, "coms", (nj, 3), optional=True)
+    names = d.get("joint_names", ())
+    if not isinstance(names, list | tuple) or len(names) not in (0, nj):
+        raise InputError(f"robot.joint_names must list {nj} names")
     return RobotModel(
         name=str(d["name"]),
-        links=np.asarray(d["links"], float),
-        q_offset=np.asarray(d["q_offset"], float),
-        q_min=np.asarray(d["q_min"], float),
-        q_max=np.asarray(d["q_max"], float),
-        masses=None if d.get("masses") is None else np.asarray(d["masses"], float),
-        coms=None if d.get("coms") is None else np.asarray(d["coms"], float),
-        joint_names=tuple(d.get("joint_names", ())),
-        dh=d.get("dh"),
+        links=links,
+        q_offset=q_offset,
+        q_min=q_min,
+        q_max=q_max,
+        masses=masses,
+        coms=coms,
+        joint_names=tuple(str(n) for n in names),
+        dh=d.get("dh") if isinstance(d.get("dh"), dict) else None,
         convention=str(d.get("convention", "generic")),
     )
 
@@ -803,7 +831,10 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
             f"{name}: not a quickhealth model (schema {got!r}, expected {MODEL_SCHEMA!r})"
         )
     try:
-        robot = robot_from_json(doc["robot"])
+        try:
+            robot = robot_from_json(doc["robot"])
+        except InputError as exc:
+            raise InputError(f"{name}: model file is incomplete or damaged: {exc}") from None
         sp = doc["spec"]
         spec = ErrorModelSpec(np.asarray(sp["orders"], np.int64), sp["q_lo"], sp["q_hi"])
         effects = parse_effects([e["name"] for e in doc["effects"]], robot)
@@ -922,8 +953,15 @@ def read_model(path: str | os.PathLike[str]) -> Any:
     p = Path(path)
     # binary files (e.g. a pickle) are refused as not UTF-8: never loaded as code
     doc = load_json_limited(p, "model")
-    fm = model_from_json(doc, str(p))
-    check_model(fm, str(p))
+    try:
+        fm = model_from_json(doc, str(p))
+        check_model(fm, str(p))
+    except InputError as exc:
+        msg = str(exc)
+        raise InputError(msg if msg.startswith(str(p)) else f"{p}: {msg}") from None
+    except Exception as exc:  # noqa: BLE001 - any other failure to interpret it: damaged
+        what = " ".join(repr(exc).split())[:200]
+        raise InputError(f"{p}: model file is incomplete or damaged: {what}") from None
     return fm
 
 

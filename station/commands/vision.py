@@ -196,7 +196,12 @@ def _check_pose_id(pid: str, where: str) -> str:
     """A pose id usable in CSV v1 and as an image file name: no control characters, no path."""
     from quickhealth.identify.errors import InputError
 
-    if not pid or len(pid) > 128 or any(c < " " or c in "/\\\x7f" for c in pid) or pid in (".", ".."):
+    if (
+        not pid
+        or len(pid) > 128
+        or any(c < " " or c in "/\\\x7f" for c in pid)
+        or pid in (".", "..")
+    ):
         raise InputError(
             f"{where}: pose_id {pid[:40]!r} must be 1-128 characters without control "
             "characters or path separators"
