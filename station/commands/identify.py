@@ -377,27 +377,32 @@ def _predict(args: argparse.Namespace) -> int:
     qd = np.degrees(q)
     xyz = pred.T_instr_target[:, :3, 3] * 1e3
     rpy = np.degrees(R_to_rpy(pred.T_instr_target[:, :3, :3]))
-    lines = [",".join(cols)]
-    for i in range(len(q)):
-        v = [str(i + 1)]
-        if src_lines is not None:
-            v.append(str(src_lines[i]))
-        if meas is not None and meas.pose_id is not None:
-            v.append(meas.pose_id[i])
-        v += [f"{x:.6f}" for x in qd[i]] + [f"{x:.6f}" for x in xyz[i]]
-        if fm.has_orientation:
-            v += [f"{x:.7f}" for x in rpy[i]]
-        v += [
-            f"{pred.err[i] * 1e3:.6f}",
-            f"{pred.err_sigma[i] * 1e3:.6f}",
-            str(int(pred.extrapolated[i])),
-        ]
-        if has_meas:
-            assert meas is not None
-            v.append(f"{np.linalg.norm(meas.pos[i] * 1e3 - xyz[i]):.6f}")
-        if thr is not None:
-            v.append(str(int(pred.over_threshold[i])))
-        lines.append(",".join(v))
+    # one format string per row, numbers as columns (vectorised build; 200 000 rows in ~1 s)
+    fmt = ["%d"]
+    data: list[Any] = [np.arange(1, len(q) + 1)]
+    if src_lines is not None:
+        fmt.append("%d")
+        data.append(np.asarray(src_lines))
+    if meas is not None and meas.pose_id is not None:
+        fmt.append("%s")
+        data.append(np.asarray(meas.pose_id, dtype=object))
+    fmt += ["%.6f"] * (nj + 3)
+    data += list(qd.T) + list(xyz.T)
+    if fm.has_orientation:
+        fmt += ["%.7f"] * 3
+        data += list(rpy.T)
+    fmt += ["%.6f", "%.6f", "%d"]
+    data += [pred.err * 1e3, pred.err_sigma * 1e3, pred.extrapolated.astype(int)]
+    if has_meas:
+        assert meas is not None
+        fmt.append("%.6f")
+        data.append(np.linalg.norm(meas.pos * 1e3 - xyz, axis=1))
+    if thr is not None:
+        fmt.append("%d")
+        data.append(pred.over_threshold.astype(int))
+    row_fmt = ",".join(fmt)
+    cols_py = [c.tolist() for c in data]
+    lines = [",".join(cols)] + [row_fmt % r for r in zip(*cols_py, strict=True)]
     formats.write_text_atomic(args.out, "\n".join(lines) + "\n")
     n_over = int(pred.over_threshold.sum())
     msg = (
