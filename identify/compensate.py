@@ -28,8 +28,8 @@ SYNOPSIS::
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, replace
+from xml.sax.saxutils import escape as xml_escape
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,6 +38,7 @@ from scipy.optimize import least_squares
 from .errormodel import ErrorModelSpec, joint_error_motions
 from .robot import RobotModel, chain, from_dh
 from .transforms import R_to_rpy, inv_T, log_so3, small_error_transform
+from .urscript import joint_targets, replace_targets
 
 F = NDArray[np.float64]
 
@@ -67,6 +68,15 @@ def corrected_robot(robot: RobotModel, spec: ErrorModelSpec, coeffs: ArrayLike) 
     )
 
 
+def _attr(text: str) -> str:
+    """``text`` escaped for a double-quoted XML attribute (&, <, >, quotes); tab, newline and
+    CR as character references; other control characters (not allowed in XML 1.0) as ``_``."""
+    out = xml_escape(str(text), {'"': "&quot;", "'": "&apos;"})
+    return "".join(
+        c if c >= " " and c != "\x7f" else (f"&#{ord(c)};" if c in "\t\n\r" else "_") for c in out
+    )
+
+
 def _fmt(v: ArrayLike) -> str:
     return " ".join(f"{x:.9g}" for x in np.asarray(v, float))
 
@@ -82,7 +92,7 @@ def urdf_text(robot: RobotModel, *, name: str | None = None) -> str:
     names = list(robot.joint_names) or [f"j{i + 1}" for i in range(nj)]
     lines = [
         '<?xml version="1.0"?>',
-        f'<robot name="{name or robot.name}">',
+        f'<robot name="{_attr(name or robot.name)}">',
         '  <link name="base_link"/>',
     ]
     for i in range(nj):
@@ -104,7 +114,7 @@ def urdf_text(robot: RobotModel, *, name: str | None = None) -> str:
         else:
             lines.append(f'  <link name="{child}"/>')
         lines += [
-            f'  <joint name="{names[i]}" type="revolute">',
+            f'  <joint name="{_attr(names[i])}" type="revolute">',
             f'    <parent link="{parent}"/><child link="{child}"/>',
             f'    <origin xyz="{_fmt(origin[:3, 3])}" rpy="{_fmt(R_to_rpy(origin[:3, :3]))}"/>',
             '    <axis xyz="0 0 1"/>',
@@ -380,38 +390,19 @@ def compensate_joints(
 
 # ---------------------------------------------------------------------- URScript text
 
-_MOVE = re.compile(r"\b(movej|movel|movep|servoj|speedj)?\(\s*\[([^\[\]]*)\]")
-
 
 def urscript_joint_targets(text: str, n_joints: int) -> tuple[list[tuple[int, int]], F]:
-    """Joint-list targets ``movej([q1, …, qN], …)`` (also movel/movep/servoj) in a URScript.
+    """Readable joint-list targets ``movej([q1, …, qN], …)`` (also movel/movep/servoj).
 
     Returns the character spans of the lists' contents and the targets, shape (n, N), rad.
-    Pose targets ``p[...]`` are Cartesian and left alone.
+    The tokenizer is :func:`quickhealth.identify.urscript.joint_targets` (comments and strings
+    are never targets); moves it cannot read are in its ``unreadable`` list, which a caller
+    that rewrites a program must check (``quickhealth compensate`` refuses them).
     """
-    spans, rows = [], []
-    for m in _MOVE.finditer(text):
-        if m.group(1) is None:
-            continue
-        parts = [p.strip() for p in m.group(2).split(",")]
-        if len(parts) != n_joints:
-            continue
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            continue  # a variable, not a literal target
-        spans.append(m.span(2))
-        rows.append(vals)
-    return spans, np.array(rows, dtype=float).reshape(-1, n_joints)
+    t = joint_targets(text, n_joints)
+    return list(t.spans), t.q
 
 
 def urscript_replace_targets(text: str, spans: list[tuple[int, int]], q: ArrayLike) -> str:
     """The program with each joint list at ``spans`` replaced by the row of ``q`` (rad)."""
-    q = np.atleast_2d(np.asarray(q, float))
-    out, pos = [], 0
-    for (a, b), row in zip(spans, q, strict=True):
-        out.append(text[pos:a])
-        out.append(", ".join(f"{v:.9f}" for v in row))
-        pos = b
-    out.append(text[pos:])
-    return "".join(out)
+    return replace_targets(text, spans, q)

@@ -762,8 +762,9 @@ def assess_trend(
             changes_l.append(())
             continue
         pooled.extend(_null_ratios(ch))
-        lam = max(1.0, float(np.median(pooled))) if len(pooled) >= 6 else 1.0
-        changes_l.append(rejudge(ch, lam, **kw))
+        # the genomic-control inflation factor; not ``lam``, the EWMA weight of the charts
+        gc = max(1.0, float(np.median(pooled))) if len(pooled) >= 6 else 1.0
+        changes_l.append(rejudge(ch, gc, **kw))
     changes = tuple(changes_l)
     charts, progs = {}, {}
     since = runs[baseline_index:]

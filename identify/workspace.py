@@ -180,10 +180,24 @@ def predict_commands(
     series are not trusted there.
     """
     q = np.atleast_2d(np.asarray(q, float))
-    T = fitted.predict(q, time=time, temp=temp)
-    ev = fitted.tcp_error_vector(q, time=time, temp=temp)
+    if fitted.effects:
+        T = fitted.predict(q, time=time, temp=temp)
+        ev = fitted.tcp_error_vector(q, time=time, temp=temp)
+        Jt = _joint_coeff_position_jacobian(fitted, q)  # (n, 3, P)
+    else:  # one forward pass serves the pose, the error and the Jacobian (no perturbation)
+        fw = _forward(
+            fitted.robot,
+            fitted.spec,
+            fitted.coeffs,
+            fitted.T_instr_base0,
+            fitted.T_flange_target0,
+            q,
+            Perturbation(),
+        )
+        T = fw[0]
+        ev = T[:, :3, 3] - fitted.nominal_pose(q)[:, :3, 3]
+        Jt = _joint_coeff_position_jacobian(fitted, q, fw)
     err = np.linalg.norm(ev, axis=1)
-    Jt = _joint_coeff_position_jacobian(fitted, q)  # (n, 3, P)
     sel = _joint_coeff_index(fitted)
     C = fitted.cov[np.ix_(sel, sel)]
     dirn = ev / np.maximum(err, 1e-15)[:, None]
@@ -200,10 +214,13 @@ def _joint_coeff_index(fitted: FittedModel) -> NDArray[np.int64]:
     return np.flatnonzero((idx[:, 0] >= 1) & (idx[:, 0] <= fitted.spec.n_joints))
 
 
-def _joint_coeff_position_jacobian(fitted: FittedModel, q: F) -> F:
-    """∂(target position)/∂(joint Chebyshev coefficients), shape (n, 3, n_joint_coeffs)."""
+def _joint_coeff_position_jacobian(fitted: FittedModel, q: F, fw: tuple | None = None) -> F:
+    """∂(target position)/∂(joint Chebyshev coefficients), shape (n, 3, n_joint_coeffs).
+
+    ``fw``: the unperturbed ``_forward`` result for ``q`` when the caller has it already.
+    """
     spec = fitted.spec
-    T, A, mot = _forward(
+    T, A, mot = fw or _forward(
         fitted.robot,
         spec,
         fitted.coeffs,

@@ -121,10 +121,9 @@ def _iso(t: datetime) -> str:
 
 
 def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from exc
+    from quickhealth.station.formats import load_json_limited
+
+    doc = load_json_limited(path, "json")
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a JSON object")
     return doc
@@ -313,6 +312,14 @@ class Archive:
         if not report_p.is_file():
             raise InputError(f"{src}: no report.json (fit the run first: quickhealth identify fit)")
         report = _read_json(report_p)
+        # a run the trend and reprocess can use: the fit's figures and a valid model
+        from quickhealth.station import formats
+
+        formats.check_report(report, str(report_p))
+        model_p = src / "model.json"
+        if not model_p.is_file():
+            raise InputError(f"{src}: no model.json (fit the run first: quickhealth identify fit)")
+        formats.read_model(model_p)
         found = run_metadata(src)
         found.update(meta or {})
         robot = safe_name(robot, "robot")

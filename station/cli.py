@@ -1,7 +1,8 @@
 """quickhealth — quick health assessment of an industrial robot's accuracy.
 
 Exit status: 0 success; 1 the assessment found a problem it was asked to flag;
-2 bad input or usage; 3 hardware or runtime failure.
+2 bad input or usage; 3 hardware or runtime failure (an unexpected error is an
+"internal error", exit 3, one line; --debug shows its traceback).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import argparse  # noqa: E402
 import importlib  # noqa: E402
 import pkgutil  # noqa: E402
 import sys  # noqa: E402
+import traceback  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
 from quickhealth.identify.errors import QuickhealthError  # noqa: E402
@@ -42,30 +44,103 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"quickhealth {software_version()}")
+    parser.add_argument(
+        "--debug",
+        action="store_true",
+        help="show the traceback of an internal error (exit 3) instead of one line",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         mod = importlib.import_module(f"{commands.__name__}.{info.name}")
         register = getattr(mod, "register", None)
         if register is not None:
             register(sub)
+    _finite_floats(parser)
     return parser
 
 
+def _finite_floats(parser: argparse.ArgumentParser) -> None:
+    """Every ``type=float`` option of every command accepts finite numbers only.
+
+    ``--margin nan`` or ``--threshold-mm inf`` would otherwise pass argparse and silently
+    change what a comparison means; they are usage errors (exit 2, one line).
+    """
+    from .formats import finite_float
+
+    for action in parser._actions:
+        if action.type is float:
+            action.type = finite_float
+        if isinstance(action, argparse._SubParsersAction):
+            for sp in action.choices.values():
+                _finite_floats(sp)
+
+
+def _one_line(text: str, limit: int = 400) -> str:
+    """``text`` on one line, cut to ``limit`` characters (a message never spans lines)."""
+    s = " ".join(str(text).split())
+    return s if len(s) <= limit else s[: limit - 1] + "…"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit status (never raises for known errors)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    func = getattr(args, "func", None)
-    if func is None:
-        parser.print_help()
-        return 2
+    """Run the command line; returns the exit status (never raises, never exits 1 on a crash).
+
+    Exit 1 is reserved for "the assessment flagged a problem".  A known error prints its one
+    line (status 2 or 3); anything unexpected is an internal error: one line and status 3, the
+    traceback only with ``--debug``.
+    """
+    debug = "--debug" in (sys.argv[1:] if argv is None else list(argv))
     try:
-        return int(func(args) or 0)
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        debug = bool(getattr(args, "debug", debug))
+        func = getattr(args, "func", None)
+        if func is None:
+            parser.print_help()
+            return 2
+        status = int(func(args) or 0)
+        return status
+    except SystemExit as exc:  # argparse --help / usage errors, sys.exit() in a command
+        code = exc.code
+        if code is None:
+            return 0
+        if isinstance(code, int):
+            return code
+        sys.stderr.write(f"quickhealth: error: {_one_line(str(code))}\n")
+        return 2
     except QuickhealthError as exc:
-        sys.stderr.write(f"quickhealth: error: {exc}\n")
+        if debug:
+            traceback.print_exc()
+        # one line per finding (e.g. each refused target of a program), each on one line
+        lines = [_one_line(x) for x in str(exc).split("\n") if x.strip()] or ["(no message)"]
+        if len(lines) > 50:
+            lines = lines[:49] + [f"... and {len(lines) - 49} more"]
+        sys.stderr.write("".join(f"quickhealth: error: {x}\n" for x in lines))
         return exc.exit_status
     except KeyboardInterrupt:
         sys.stderr.write("quickhealth: interrupted\n")
+        return 3
+    except MemoryError:
+        sys.stderr.write(
+            "quickhealth: error: out of memory (the input is too large for this machine)\n"
+        )
+        return 3
+    except RecursionError:
+        sys.stderr.write("quickhealth: error: input nested too deeply (recursion limit)\n")
+        return 2
+    except OSError as exc:
+        if debug:
+            traceback.print_exc()
+        where = f"{exc.filename}: " if exc.filename else ""
+        what = exc.strerror or type(exc).__name__
+        sys.stderr.write(f"quickhealth: error: {_one_line(where + what)}\n")
+        return 3
+    except Exception as exc:  # noqa: BLE001 - the contract: one line, exit 3, never exit 1
+        if debug:
+            traceback.print_exc()
+        sys.stderr.write(
+            f"quickhealth: internal error: {type(exc).__name__}: {_one_line(str(exc), 300)} "
+            "(run with --debug for the traceback)\n"
+        )
         return 3
 
 

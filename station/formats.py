@@ -40,7 +40,6 @@ import json
 import math
 import os
 import re
-import tempfile
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
@@ -52,6 +51,8 @@ from numpy.typing import NDArray
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.measurements import Measurements
 from quickhealth.identify.robot import RobotModel, from_dh, ur5
+
+from .fsio import write_atomic
 
 F = NDArray[np.float64]
 
@@ -75,6 +76,160 @@ OPTIONAL_COLUMNS = (
     "sroll",
     "pose_id",
 )
+
+
+# --------------------------------------------------------------------------- limits
+# Every file the station reads is bounded (docs/identify.md, "Limits"): a file over its size
+# limit, a non-regular file (a FIFO, /dev/zero behind a symlink), a cell over MAX_CELL_CHARS,
+# more rows than the command handles, or JSON nested deeper than MAX_JSON_DEPTH is refused
+# with one line (exit 2) before it can cost memory.
+
+MiB = 1 << 20
+MAX_BYTES = {
+    "measurements": 256 * MiB,  # ~1 M rows of CSV v1
+    "model": 64 * MiB,
+    "report": 64 * MiB,
+    "program": 16 * MiB,
+    "robot": 4 * MiB,
+    "json": 64 * MiB,
+}
+MAX_ROWS = 1_000_000  # predict / compensate: streamed through vectorised code
+MAX_FIT_ROWS = 20_000  # fit, diagnose, compare: the order search is O(rows x fits)
+MAX_CELL_CHARS = 256  # one CSV cell (a pose_id, a number)
+MAX_JSON_DEPTH = 32  # model.json and report.json are at most 5 levels deep
+MIN_DISTINCT_POSES = 8  # fewer different joint configurations cannot support any model
+MIN_JOINT_SPAN_DEG = 1.0  # a joint that moves less than this cannot be identified
+
+
+def read_text_limited(path: str | os.PathLike[str], what: str = "json") -> str:
+    """A UTF-8 text file, refused (one line) when it is missing, not a regular file, larger
+    than ``MAX_BYTES[what]`` or not UTF-8 text."""
+    p = Path(path)
+    limit = MAX_BYTES.get(what, MAX_BYTES["json"])
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read: {exc.strerror}") from None
+    import stat as _stat
+
+    if _stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{p}: is a directory, expected a {what} file")
+    if not _stat.S_ISREG(st.st_mode):
+        raise InputError(f"{p}: not a regular file (a device or a pipe); refusing to read it")
+    if st.st_size > limit:
+        raise InputError(
+            f"{p}: {st.st_size / MiB:.1f} MiB is over the {limit // MiB} MiB limit of a {what} file"
+        )
+    try:
+        with open(p, "rb") as fh:
+            data = fh.read(limit + 1)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read: {exc.strerror}") from None
+    if len(data) > limit:
+        raise InputError(f"{p}: over the {limit // MiB} MiB limit of a {what} file")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"{p}: not UTF-8 text (binary content at byte {exc.start}); expected a {what} file"
+        ) from None
+
+
+_read_text_limited = read_text_limited
+
+
+def _json_depth_ok(text: str, limit: int = MAX_JSON_DEPTH) -> bool:
+    """True when no bracket nesting of ``text`` is deeper than ``limit`` (strings skipped)."""
+    # strip string literals, then track the depth with cumulative sums (vectorised)
+    stripped = re.sub(r'"(?:[^"\\]|\\.)*"', '""', text)
+    b = np.frombuffer(stripped.encode("utf-8", "replace"), dtype=np.uint8)
+    step = np.zeros(b.size, dtype=np.int32)
+    step[(b == ord("[")) | (b == ord("{"))] = 1
+    step[(b == ord("]")) | (b == ord("}"))] = -1
+    return b.size == 0 or int(np.cumsum(step).max(initial=0)) <= limit
+
+
+def load_json_limited(path: str | os.PathLike[str], what: str = "json") -> Any:
+    """A JSON document within the size and depth limits; every failure is one line."""
+    p = Path(path)
+    text = read_text_limited(p, what)
+    if not _json_depth_ok(text):
+        raise InputError(f"{p}: JSON nested deeper than {MAX_JSON_DEPTH} levels; not a {what} file")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
+    except (ValueError, RecursionError) as exc:  # e.g. an integer of 100 000 digits
+        raise InputError(f"{p}: not a usable {what} file: {str(exc).splitlines()[0]}") from None
+
+
+def finite_float(text: str) -> float:
+    """argparse type of every float option: a finite number (``nan``, ``inf`` are refused)."""
+    import argparse
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return v
+
+
+def check_joint_limits(
+    q: F, robot: RobotModel, name: str, lines: Sequence[int] | None = None, what: str = "row"
+) -> None:
+    """Refuse joint values (rad) outside the robot's limits, one line naming the first."""
+    q = np.atleast_2d(q)
+    lo = np.asarray(robot.q_min)[None, :] - 1e-9
+    hi = np.asarray(robot.q_max)[None, :] + 1e-9
+    bad = ~((q >= lo) & (q <= hi))
+    if not bad.any():
+        return
+    i, j = (int(v) for v in np.argwhere(bad)[0])
+    where = f"{name}:{lines[i]}:" if lines is not None else f"{name}: {what} {i + 1}: "
+    if lines is not None:
+        where += " "
+    n = int(bad.any(axis=1).sum())
+    raise InputError(
+        f"{where}joint {j + 1} at {math.degrees(q[i, j]):.6g} deg is outside the robot's limits "
+        f"[{math.degrees(robot.q_min[j]):.6g}, {math.degrees(robot.q_max[j]):.6g}] deg"
+        + (f" ({n} {what}s in all)" if n > 1 else "")
+    )
+
+
+def check_poses_for_fit(meas: Measurements, robot: RobotModel, name: str) -> None:
+    """Meaning of a measurement set before a fit: rows, joint limits, distinct poses, spans.
+
+    Raises
+    ------
+    InputError
+        More than ``MAX_FIT_ROWS`` rows, a joint outside the robot's limits, fewer than
+        ``MIN_DISTINCT_POSES`` different joint configurations, or a joint that does not move
+        (its error motions cannot be identified: named).
+    """
+    if meas.n_poses > MAX_FIT_ROWS:
+        raise InputError(
+            f"{name}: {meas.n_poses} rows is over the fit's limit of {MAX_FIT_ROWS} (the order "
+            "search costs rows x fits; the NIST loop has 150 poses): fit a subset"
+        )
+    check_joint_limits(meas.q, robot, name)
+    distinct = np.unique(np.round(meas.q, 6), axis=0).shape[0]
+    if distinct < MIN_DISTINCT_POSES and distinct < meas.n_poses:  # (few rows: the fit says)
+        raise InputError(
+            f"{name}: only {distinct} distinct joint configuration(s) in {meas.n_poses} rows; "
+            f"a fit needs at least {MIN_DISTINCT_POSES}"
+        )
+    span = np.degrees(np.ptp(meas.q, axis=0))
+    still = [j + 1 for j in range(meas.n_joints) if span[j] < MIN_JOINT_SPAN_DEG]
+    if still:
+        raise InputError(
+            f"{name}: joint(s) {', '.join(map(str, still))} move less than "
+            f"{MIN_JOINT_SPAN_DEG} deg over the data: their error motions cannot be identified; "
+            "measure with every joint moving"
+        )
 
 
 # --------------------------------------------------------------------------- CSV v1
@@ -103,12 +258,7 @@ def read_measurements(
         that is not a finite number, angles that look like radians, a ragged row.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: cannot read: {exc}") from None
+    text = read_text_limited(p, "measurements")
     return parse_measurements(text, str(p), n_joints, joints_only=joints_only)
 
 
@@ -129,7 +279,21 @@ def parse_measurements(
             if m:
                 meta[m.group(1)] = m.group(2).strip()
             continue
-        cells = [c.strip() for c in next(csv.reader([line]))]
+        if len(line) > MAX_CELL_CHARS * 64:
+            raise InputError(f"{name}:{lineno}:1: line of {len(line)} characters is too long")
+        if '"' not in line:  # the common case, 20x faster than the csv module per line
+            cells = [c.strip() for c in line.split(",")]
+        else:
+            try:
+                cells = [c.strip() for c in next(csv.reader([line]))]
+            except csv.Error as exc:
+                raise InputError(f"{name}:{lineno}:1: not a CSV row: {exc}") from None
+        for j, c in enumerate(cells):
+            if len(c) > MAX_CELL_CHARS:
+                raise InputError(
+                    f"{name}:{lineno}:{j + 1}: cell of {len(c)} characters is over the limit "
+                    f"of {MAX_CELL_CHARS}"
+                )
         if header is None:
             header, header_line = cells, lineno
         else:
@@ -176,6 +340,8 @@ def parse_measurements(
             )
     if not rows:
         raise InputError(f"{name}:{header_line + 1}:1: no data rows")
+    if len(rows) > MAX_ROWS:
+        raise InputError(f"{name}: {len(rows)} data rows is over the limit of {MAX_ROWS}")
     for lineno, cells in rows:
         if len(cells) != len(header):
             raise InputError(
@@ -183,8 +349,19 @@ def parse_measurements(
                 f"cells, the header has {len(header)}"
             )
 
+    parsed: dict[str, F] = {}
+
     def numbers(c: str, positive: bool = False) -> F:
+        if c in parsed and not positive:
+            return parsed[c]
         j = col[c]
+        try:  # vectorised fast path; the loop below finds the cell to blame
+            fast = np.array([cells[j] for _, cells in rows], dtype=np.float64)
+        except ValueError:
+            fast = None
+        if fast is not None and np.all(np.isfinite(fast)) and not (positive and np.any(fast <= 0)):
+            parsed[c] = fast
+            return fast
         out = np.empty(len(rows))
         for i, (lineno, cells) in enumerate(rows):
             cell = cells[j]
@@ -253,7 +430,24 @@ def parse_measurements(
 
 
 def format_measurements(meas: Measurements) -> str:
-    """CSV v1 text of ``meas`` (mm, deg; full precision)."""
+    """CSV v1 text of ``meas`` (mm, deg; full precision).
+
+    Raises
+    ------
+    InputError
+        Data the contract (and :func:`parse_measurements`) would refuse: non-finite joints,
+        a pose id with a control character (a newline would split the row).
+    """
+    if not np.all(np.isfinite(meas.q)):
+        i = int(np.argwhere(~np.isfinite(meas.q))[0][0])
+        raise InputError(f"measurement row {i + 1}: joint angles are not finite; not written")
+    if meas.pose_id is not None:
+        for i, pid in enumerate(meas.pose_id):
+            if any(c < " " or c == "\x7f" for c in str(pid)) or len(str(pid)) > MAX_CELL_CHARS:
+                raise InputError(
+                    f"measurement row {i + 1}: pose_id {str(pid)[:40]!r} has a control character "
+                    "or is too long; not written"
+                )
     buf = io.StringIO()
     for k, v in meas.meta.items():
         buf.write(f"# {k}: {v}\n")
@@ -293,17 +487,8 @@ def write_measurements(path: str | os.PathLike[str], meas: Measurements) -> None
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``text`` to ``path`` atomically, respecting the umask (:func:`..fsio.write_atomic`)."""
+    write_atomic(path, text)
 
 
 # --------------------------------------------------------------------------- robot descriptions
@@ -338,13 +523,42 @@ def read_dh_toml(path: str | os.PathLike[str]) -> RobotModel:
     """Robot from a DH table in TOML (format in the module docstring)."""
     p = Path(path)
     try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+        doc = tomllib.loads(read_text_limited(p, "robot"))
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{p}: not valid TOML: {exc}") from None
+    try:
+        robot = _dh_from_doc(p, doc)
+    except (TypeError, ValueError, AttributeError, KeyError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(f"{p}: not a DH table: {' '.join(str(exc).split())}") from None
+    _check_robot(robot, str(p))
+    return robot
+
+
+def _check_robot(robot: RobotModel, name: str) -> None:
+    """Finite link transforms and limits, sane sizes (a robot under 20 m, limits within ±4 turns)."""
+    links = np.asarray(robot.links, float)
+    if not np.all(np.isfinite(links)) or not np.all(np.isfinite(robot.q_offset)):
+        raise InputError(f"{name}: the robot's link transforms are not all finite numbers")
+    if np.abs(links[:, :3, 3]).max(initial=0.0) > 20.0:
+        raise InputError(f"{name}: a link is longer than 20 m; check length_unit")
+    lo, hi = np.asarray(robot.q_min, float), np.asarray(robot.q_max, float)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise InputError(f"{name}: joint limits are not all finite numbers")
+    if np.any(hi <= lo) or np.abs(np.concatenate([lo, hi])).max() > 8 * math.pi + 1e-9:
+        raise InputError(f"{name}: joint limits must satisfy q_min < q_max within ±1440 deg")
+
+
+def _dh_from_doc(p: Path, doc: dict[str, Any]) -> RobotModel:
     head = doc.get("robot", {})
+    if not isinstance(head, dict):
+        raise InputError(f"{p}: [robot] must be a table")
     joints = doc.get("joint")
     if not isinstance(joints, list) or not joints:
         raise InputError(f"{p}: no [[joint]] tables")
+    if not all(isinstance(j, dict) for j in joints):
+        raise InputError(f"{p}: every joint must be a [[joint]] table")
     conv = head.get("convention", "dh")
     if conv not in ("dh", "mdh"):
         raise InputError(f"{p}: [robot] convention must be 'dh' or 'mdh', got {conv!r}")
@@ -357,7 +571,7 @@ def read_dh_toml(path: str | os.PathLike[str]) -> RobotModel:
         v = joints[i].get(key, default)
         if v is None:
             raise InputError(f"{p}: joint {i + 1} has no {key!r}")
-        if not isinstance(v, int | float) or not math.isfinite(v):
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
             raise InputError(f"{p}: joint {i + 1}: {key} = {v!r} is not a number")
         return float(v)
 
@@ -377,7 +591,11 @@ def read_dh_toml(path: str | os.PathLike[str]) -> RobotModel:
         coms = []
         for i, j in enumerate(joints):
             c = j["com"]
-            if not (isinstance(c, list) and len(c) == 3):
+            if not (
+                isinstance(c, list)
+                and len(c) == 3
+                and all(isinstance(x, int | float) and not isinstance(x, bool) for x in c)
+            ):
                 raise InputError(f"{p}: joint {i + 1}: com must be a list of 3 numbers")
             coms.append([float(x) * lu for x in c])
     names = tuple(str(j.get("name", f"j{i + 1}")) for i, j in enumerate(joints))
@@ -408,6 +626,7 @@ def read_urdf(path: str | os.PathLike[str]) -> RobotModel:
     import pinocchio as pin
 
     p = Path(path)
+    read_text_limited(p, "robot")  # size, regular file, UTF-8 before pinocchio sees it
     try:
         model = pin.buildModelFromUrdf(str(p))
     except (ValueError, RuntimeError) as exc:
@@ -513,18 +732,46 @@ def robot_to_json(robot: RobotModel) -> dict[str, Any]:
     }
 
 
+def _shaped(d: dict[str, Any], key: str, shape: tuple[int, ...], optional: bool = False) -> Any:
+    """``d[key]`` as a float array of ``shape`` (-1: any length), or InputError."""
+    v = d.get(key)
+    if v is None and optional:
+        return None
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"robot.{key} is not an array of numbers") from None
+    if a.ndim != len(shape) or any(n not in (-1, m) for n, m in zip(shape, a.shape, strict=True)):
+        raise InputError(f"robot.{key} has shape {a.shape}, expected {shape}")
+    return a
+
+
 def robot_from_json(d: dict[str, Any]) -> RobotModel:
-    """Inverse of :func:`robot_to_json`."""
+    """Inverse of :func:`robot_to_json` (shapes checked: InputError without a file name)."""
+    if not isinstance(d, dict):
+        raise InputError("robot is not a JSON object")
+    q_offset = _shaped(d, "q_offset", (-1,))
+    nj = q_offset.shape[0]
+    if not 1 <= nj <= 12:
+        raise InputError(f"robot has {nj} joints (1..12 expected)")
+    links = _shaped(d, "links", (nj + 1, 4, 4))
+    q_min = _shaped(d, "q_min", (nj,))
+    q_max = _shaped(d, "q_max", (nj,))
+    masses = _shaped(d, "masses", (nj,), optional=True)
+    coms = _shaped(d, "coms", (nj, 3), optional=True)
+    names = d.get("joint_names", ())
+    if not isinstance(names, list | tuple) or len(names) not in (0, nj):
+        raise InputError(f"robot.joint_names must list {nj} names")
     return RobotModel(
         name=str(d["name"]),
-        links=np.asarray(d["links"], float),
-        q_offset=np.asarray(d["q_offset"], float),
-        q_min=np.asarray(d["q_min"], float),
-        q_max=np.asarray(d["q_max"], float),
-        masses=None if d.get("masses") is None else np.asarray(d["masses"], float),
-        coms=None if d.get("coms") is None else np.asarray(d["coms"], float),
-        joint_names=tuple(d.get("joint_names", ())),
-        dh=d.get("dh"),
+        links=links,
+        q_offset=q_offset,
+        q_min=q_min,
+        q_max=q_max,
+        masses=masses,
+        coms=coms,
+        joint_names=tuple(str(n) for n in names),
+        dh=d.get("dh") if isinstance(d.get("dh"), dict) else None,
         convention=str(d.get("convention", "generic")),
     )
 
@@ -598,7 +845,10 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
             f"{name}: not a quickhealth model (schema {got!r}, expected {MODEL_SCHEMA!r})"
         )
     try:
-        robot = robot_from_json(doc["robot"])
+        try:
+            robot = robot_from_json(doc["robot"])
+        except InputError as exc:
+            raise InputError(f"{name}: model file is incomplete or damaged: {exc}") from None
         sp = doc["spec"]
         spec = ErrorModelSpec(np.asarray(sp["orders"], np.int64), sp["q_lo"], sp["q_hi"])
         effects = parse_effects([e["name"] for e in doc["effects"]], robot)
@@ -629,10 +879,82 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
             n_poses=int(st["n_poses"]),
             held=tuple(doc.get("held", ())),
         )
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         if isinstance(exc, InputError):
             raise
-        raise InputError(f"{name}: model file is incomplete or damaged: {exc!r}") from None
+        what = " ".join(repr(exc).split())[:200]
+        raise InputError(f"{name}: model file is incomplete or damaged: {what}") from None
+
+
+# largest believable Chebyshev coefficient of a joint error motion: 20 mm, 0.05 rad (2.9 deg).
+# A UR5's identified errors are tens of µm and µrad; anything near these is a broken model.
+MAX_COEFF_M = 0.02
+MAX_COEFF_RAD = 0.05
+
+
+def check_model(fm: Any, name: str) -> None:
+    """Meaning of a model: coefficient count, finite numbers, sane magnitudes and ranges.
+
+    Raises
+    ------
+    InputError
+        One line naming the first offending entry.
+    """
+    spec = fm.spec
+    robot = fm.robot
+    _check_robot(robot, name)
+    nj = robot.n_joints
+    if spec.orders.shape[0] < nj:
+        raise InputError(
+            f"{name}: the error model has orders for {spec.orders.shape[0]} joints, the robot has {nj}"
+        )
+    if np.any(spec.orders < 0) or np.any(spec.orders > 40):
+        raise InputError(f"{name}: Chebyshev orders must be in 0..40")
+    c = np.asarray(fm.coeffs, float)
+    if c.ndim != 1 or c.size != spec.n_params:
+        raise InputError(
+            f"{name}: {c.size} coefficients, but the orders need {spec.n_params}: damaged model"
+        )
+    labels = spec.labels()
+    bad = np.flatnonzero(~np.isfinite(c))
+    if bad.size:
+        raise InputError(
+            f"{name}: coefficient {labels[bad[0]]} is {c[bad[0]]}, not a finite number"
+        )
+    is_len = spec.index()[:, 1] < 3
+    cap = np.where(is_len, MAX_COEFF_M, MAX_COEFF_RAD)
+    big = np.flatnonzero(np.abs(c) > cap)
+    if big.size:
+        k = int(big[np.argmax(np.abs(c[big]) / cap[big])])
+        unit, scale = ("mm", 1e3) if is_len[k] else ("mrad", 1e3)
+        raise InputError(
+            f"{name}: coefficient {labels[k]} = {c[k] * scale:.6g} {unit} is beyond any real "
+            f"robot (limit {cap[k] * scale:.0f} {unit}): refusing the model"
+        )
+    if not (np.all(np.isfinite(spec.q_lo)) and np.all(np.isfinite(spec.q_hi))):
+        raise InputError(f"{name}: the model's joint ranges are not finite numbers")
+    if (
+        np.any(spec.q_hi <= spec.q_lo)
+        or np.any(spec.q_lo < robot.q_min - 1e-6)
+        or np.any(spec.q_hi > robot.q_max + 1e-6)
+    ):
+        raise InputError(
+            f"{name}: the model's identified joint ranges are empty or outside the robot's limits"
+        )
+    cov = np.asarray(fm.cov, float)
+    if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or cov.shape[0] < c.size:
+        raise InputError(
+            f"{name}: the covariance has shape {cov.shape}, expected square >= {c.size}"
+        )
+    if not np.all(np.isfinite(cov)):
+        raise InputError(f"{name}: the covariance holds numbers that are not finite")
+    for e, prm in zip(fm.effects, fm.effect_params, strict=True):
+        if not np.all(np.isfinite(prm)):
+            raise InputError(f"{name}: effect {e.name} has parameters that are not finite")
+    for key in ("T_instr_base0", "T_flange_target0"):
+        T = np.asarray(getattr(fm, key), float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InputError(f"{name}: {key} is not a finite 4x4 transform")
 
 
 def write_model(path: str | os.PathLike[str], fitted: Any) -> None:
@@ -646,15 +968,18 @@ def write_model(path: str | os.PathLike[str], fitted: Any) -> None:
 def read_model(path: str | os.PathLike[str]) -> Any:
     """Read model.json back into a FittedModel."""
     p = Path(path)
+    # binary files (e.g. a pickle) are refused as not UTF-8: never loaded as code
+    doc = load_json_limited(p, "model")
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
-    except UnicodeDecodeError:  # e.g. a pickle: binary files are never loaded as code
-        raise InputError(f"{p}: not a model.json file (binary content, not UTF-8 JSON)") from None
-    return model_from_json(doc, str(p))
+        fm = model_from_json(doc, str(p))
+        check_model(fm, str(p))
+    except InputError as exc:
+        msg = str(exc)
+        raise InputError(msg if msg.startswith(str(p)) else f"{p}: {msg}") from None
+    except Exception as exc:  # noqa: BLE001 - any other failure to interpret it: damaged
+        what = " ".join(repr(exc).split())[:200]
+        raise InputError(f"{p}: model file is incomplete or damaged: {what}") from None
+    return fm
 
 
 # --------------------------------------------------------------------------- report.json
@@ -688,66 +1013,83 @@ def write_report(path: str | os.PathLike[str], report: dict[str, Any]) -> None:
 def read_report(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read report.json."""
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
-    if doc.get("schema") != REPORT_SCHEMA:
-        raise InputError(f"{p}: not a quickhealth report (schema {doc.get('schema')!r})")
+    doc = load_json_limited(p, "report")
+    if not isinstance(doc, dict) or doc.get("schema") != REPORT_SCHEMA:
+        got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
+        raise InputError(f"{p}: not a quickhealth report (schema {got!r})")
     return doc
+
+
+REPORT_REQUIRED = ("n_poses", "rms_pos_mm", "chi2", "bic")
+REPORT_FIGURES = ("mean_mm", "std_mm", "max_mm")
+
+
+def check_report(doc: Any, name: str) -> None:
+    """A report.json fit for the archive and the trend: the fit's figures are all there.
+
+    Raises
+    ------
+    InputError
+        The first missing or non-finite figure (``workspace.mean_mm`` …, ``n_poses`` …).
+    """
+    if not isinstance(doc, dict):
+        raise InputError(f"{name}: not a quickhealth report (a JSON object is expected)")
+    ws = doc.get("workspace")
+    for key in REPORT_FIGURES:
+        v = ws.get(key) if isinstance(ws, dict) else doc.get(f"workspace_{key}")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+            raise InputError(
+                f"{name}: workspace.{key} is {'missing' if v is None else repr(v)}: "
+                "not a complete fit report (run quickhealth identify fit)"
+            )
+    for key in REPORT_REQUIRED:
+        v = doc.get(key)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise InputError(
+                f"{name}: {key} is {'missing' if v is None else repr(v)}: not a complete fit "
+                "report (run quickhealth identify fit)"
+            )
 
 
 # --------------------------------------------------------------------------- URScript
 
 
-_MOVE = re.compile(r"\b(movej|movel|movep|servoj)\s*\(\s*(p?)\[([^\]]*)\]")
+def read_urscript(path: str | os.PathLike[str], n_joints: int) -> tuple[str, Any]:
+    """A URScript program's text and its joint targets (:mod:`quickhealth.identify.urscript`).
+
+    The one reader of programs for ``predict`` and ``compensate``.  Every move whose target
+    cannot be read (a variable, a pose literal ``p[...]``, an expression, a wrong length) is
+    refused, one line per target (``file:line:column: what``): nothing is guessed.
+
+    Raises
+    ------
+    InputError
+        Missing or binary file, a program that does not tokenize, unreadable targets, no
+        target at all.
+    """
+    from quickhealth.identify.urscript import joint_targets
+
+    p = Path(path)
+    text = _read_text_limited(p, "program")
+    if "\x00" in text:
+        raise InputError(f"{p}: not a URScript program (binary content)")
+    try:
+        t = joint_targets(text, n_joints)
+    except InputError as exc:
+        raise InputError(f"{p}:{exc}") from None
+    if t.unreadable:
+        raise InputError(
+            "\n".join(f"{p}:{line}:{col}: {cmd} {why}" for line, col, cmd, why in t.unreadable)
+        )
+    if not len(t.q):
+        raise InputError(f"{p}:1:1: no movej/movel with a joint target found")
+    return text, t
 
 
 def read_urscript_joints(path: str | os.PathLike[str], n_joints: int) -> tuple[F, list[int]]:
-    """Joint targets (rad, shape (n, n_joints)) of every ``movej``/``movel`` with a joint list.
-
-    URScript joint lists are in radians.  A move to a Cartesian pose ``p[...]`` has no joint
-    target and is an error (the model predicts from joints).
-
-    Returns
-    -------
-    q : ndarray, shape (n, n_joints), rad
-    lines : list of int, the 1-based line of each target
-    """
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    qs: list[list[float]] = []
-    lines: list[int] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        code = line.split("#", 1)[0]
-        for m in _MOVE.finditer(code):
-            col = m.start() + 1
-            if m.group(2):
-                raise InputError(
-                    f"{p}:{lineno}:{col}: {m.group(1)} to a Cartesian pose p[...] has no joint "
-                    "target; use joint lists"
-                )
-            try:
-                vals = [float(v) for v in m.group(3).split(",")]
-            except ValueError:
-                raise InputError(
-                    f"{p}:{lineno}:{col}: {m.group(1)} target is not a list of numbers"
-                ) from None
-            if len(vals) != n_joints or not all(math.isfinite(v) for v in vals):
-                raise InputError(
-                    f"{p}:{lineno}:{col}: {m.group(1)} has {len(vals)} joint values, the robot "
-                    f"has {n_joints}"
-                )
-            qs.append(vals)
-            lines.append(lineno)
-    if not qs:
-        raise InputError(f"{p}:1:1: no movej/movel with a joint target found")
-    return np.array(qs), lines
+    """Joint targets (rad, shape (n, n_joints)) and their 1-based lines (:func:`read_urscript`)."""
+    _, t = read_urscript(path, n_joints)
+    return t.q, list(t.lines)
 
 
 # --------------------------------------------------------------------------- WAM data set

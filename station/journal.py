@@ -40,6 +40,8 @@ import numpy as np
 
 from quickhealth.identify.errors import InputError
 
+from .fsio import fsync_dir, write_atomic
+
 JOURNAL = "journal.jsonl"
 SCHEMA = "quickhealth.journal/1"
 
@@ -49,30 +51,9 @@ def _crc(rec: dict[str, Any]) -> int:
     return zlib.crc32(body.encode("utf-8"))
 
 
-def fsync_dir(path: Path) -> None:
-    """Make a rename or a new file in ``path`` durable."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def write_bytes_atomic(path: Path, data: bytes, *, sync_dir: bool = True) -> None:
     """Write ``data`` to ``path`` through a temporary file, fsync, rename (and dir fsync)."""
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    try:
-        view = memoryview(data)
-        while view:
-            n = os.write(fd, view)
-            view = view[n:]
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
-    if sync_dir:
-        fsync_dir(path.parent)
+    write_atomic(path, data, durable=True, sync_dir=sync_dir, mkdir=False)
 
 
 @dataclass

@@ -22,6 +22,8 @@ from quickhealth.vision.boards import TargetDescription, reference_target
 from quickhealth.vision.calibrate import CalibrationResult
 from quickhealth.vision.camera import CameraModel, StereoRig
 
+from .fsio import write_atomic
+
 U8 = NDArray[np.uint8]
 
 
@@ -36,15 +38,58 @@ def expand_glob(pattern: str, what: str) -> list[Path]:
     return files
 
 
+MAX_IMAGE_PIXELS = 50_000_000  # 50 Mpx: twice the largest machine-vision sensor we expect
+MAX_IMAGE_BYTES = 200 << 20
+
+
+def _header_pixels(path: Path) -> int | None:
+    """Width x height from the file's header without decoding it (None: format unknown)."""
+    try:
+        from PIL import Image
+
+        Image.MAX_IMAGE_PIXELS = None  # we judge the size ourselves, below
+        with Image.open(path) as im:
+            w, h = im.size
+        return int(w) * int(h)
+    except Exception:  # noqa: BLE001 - an unknown or broken header: OpenCV decides below
+        return None
+
+
 def read_gray(path: Path) -> U8:
-    """One image as 8-bit grey; InputError for unreadable or corrupt files."""
+    """One image as 8-bit grey; InputError for unreadable, corrupt or oversized files.
+
+    Limits (docs/vision.md): a regular file of at most 200 MiB whose header claims at most
+    ``MAX_IMAGE_PIXELS`` pixels; the header is read before anything is decoded.
+    """
+    import stat
+
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{path}: not a regular file (a device or a pipe); refusing to read it")
+    if st.st_size > MAX_IMAGE_BYTES:
+        raise InputError(f"{path}: {st.st_size >> 20} MiB is over the 200 MiB limit of an image")
+    n_px = _header_pixels(path)
+    if n_px is not None and n_px > MAX_IMAGE_PIXELS:
+        raise InputError(
+            f"{path}: the image header claims {n_px / 1e6:.0f} Mpx, over the limit of "
+            f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx"
+        )
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    try:
+        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    except cv2.error as exc:
+        msg = " ".join(str(exc).split())[-160:]
+        raise InputError(f"{path}: OpenCV cannot decode this image: {msg}") from None
     if img is None:
         raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
+    if img.size > MAX_IMAGE_PIXELS:
+        raise InputError(f"{path}: {img.size / 1e6:.0f} Mpx is over the limit")
     return img
 
 
@@ -76,17 +121,7 @@ def write_png(path: Path, img: U8) -> None:
 
 
 def _write_bytes(path: Path, data: bytes) -> None:
-    import tempfile
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, data)
 
 
 def write_json(path: Path, doc: dict[str, Any]) -> None:

@@ -123,8 +123,15 @@ def run_diagnose(args: argparse.Namespace) -> int:
         raise InputError(f"--alpha must be between 0 and 1, got {args.alpha}")
     if args.max_harmonic < 1:
         raise InputError(f"--max-harmonic must be at least 1, got {args.max_harmonic}")
+    from quickhealth.station.formats import MAX_FIT_ROWS, check_joint_limits
+    from quickhealth.station.fsio import refuse_overwriting_inputs
+
+    refuse_overwriting_inputs([("--json", args.json)], [args.model, args.meas])
     fitted = read_model(args.model)
     meas = read_measurements(args.meas, fitted.robot.n_joints)
+    if meas.n_poses > MAX_FIT_ROWS:
+        raise InputError(f"{args.meas}: {meas.n_poses} rows is over the limit of {MAX_FIT_ROWS}")
+    check_joint_limits(meas.q, fitted.robot, str(args.meas))
     cands = None
     if args.candidates:
         cands = [c.strip() for c in args.candidates.split(",") if c.strip()]
@@ -251,6 +258,13 @@ def run_twin(args: argparse.Namespace) -> int:
     files = [(args.out, q[: args.n], args.seed + 2)]
     if args.heldout:
         files.append((args.out.with_suffix(".heldout.csv"), q[args.n :], args.seed + 3))
+    from quickhealth.station.fsio import refuse_overwriting_inputs
+
+    refuse_overwriting_inputs(
+        [("--out", f[0]) for f in files]
+        + [("--truth", args.truth or args.out.with_suffix(".truth.json"))],
+        [args.plan],
+    )
     for path, qq, s in files:
         t, temp = schedules(qq.shape[0], args.duration, args.temp_rise)
         meas = twin.measure(qq, t, temp, seed=s, orientation=not args.position_only, meta=meta)

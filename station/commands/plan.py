@@ -12,9 +12,7 @@ DIR/fig6_targets.png.  Nothing is written when the input is refused (exit status
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 
@@ -36,16 +34,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from quickhealth.station.fsio import write_atomic
+
+    write_atomic(path, data, durable=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
     plan = plan_from_dict(doc, "plan.json")  # the program is made from the validated document
     script = render_urscript(plan)
     out.mkdir(parents=True, exist_ok=True)
+    replaced = [n for n in ("plan.json", "loop.script") if (out / n).exists()]
+    if replaced:
+        print(f"replacing {', '.join(replaced)} in {out}", file=sys.stderr)
     _write(out / "plan.json", dumps(doc).encode("utf-8"))
     _write(out / "loop.script", script.encode("utf-8"))
     figs = write_figures(res, out)

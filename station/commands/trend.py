@@ -145,6 +145,12 @@ def register(subparsers: Any) -> None:
     c.add_argument("--out", required=True, help="the compensated program")
     c.add_argument("--errors", default=None, help="CSV of predicted error per target")
     c.add_argument("--tcp-mm", default="0,0,0", help="tool centre point on the flange, mm")
+    c.add_argument(
+        "--max-correction-deg",
+        type=float,
+        default=1.0,
+        help="largest change of any joint of any target (1.0); a larger one is refused",
+    )
     c.set_defaults(func=_compensate)
 
     # ---- report
@@ -336,13 +342,26 @@ def _export(args: argparse.Namespace) -> int:
     )
     from quickhealth.identify.errors import InputError
     from quickhealth.station.formats import read_model, write_text_atomic
+    from quickhealth.station.fsio import refuse_overwriting_inputs
 
     if not (args.urdf or args.ur_calibration or args.json):
         raise InputError("nothing to export: give --urdf, --ur-calibration and/or --json")
-    fm = read_model(args.model)
+    refuse_overwriting_inputs(
+        [("--urdf", args.urdf), ("--ur-calibration", args.ur_calibration), ("--json", args.json)],
+        [args.model],
+    )
+    import numpy as np
+
+    fm = read_model(args.model)  # validated: finite, sane coefficients (never a URDF of "nan")
+    # every document is computed before the first is written: no half export on a failure
+    docs: list[tuple[str, str, str]] = []
     if args.urdf:
-        write_text_atomic(args.urdf, urdf_text(corrected_robot(fm.robot, fm.spec, fm.coeffs)))
-        print(f"wrote {args.urdf} (joint origins with the identified constant joint errors)")
+        rc = corrected_robot(fm.robot, fm.spec, fm.coeffs)
+        if not np.all(np.isfinite(rc.links)):
+            raise InputError(f"{args.model}: the corrected kinematics are not finite")
+        docs.append(
+            (args.urdf, urdf_text(rc), "joint origins with the identified constant joint errors")
+        )
     if args.ur_calibration or args.json:
         try:
             cal = dh_deltas(fm.robot, fm.spec, fm.coeffs)
@@ -354,8 +373,7 @@ def _export(args: argparse.Namespace) -> int:
             f"{cal.residual_pos_rms * 1e3:.4f} mm rms of it"
         )
         if args.ur_calibration:
-            write_text_atomic(args.ur_calibration, ur_calibration_text(cal))
-            print(f"wrote {args.ur_calibration}")
+            docs.append((args.ur_calibration, ur_calibration_text(cal), "UR-style DH deltas"))
         if args.json:
             doc = {
                 "units": "m, rad",
@@ -366,71 +384,118 @@ def _export(args: argparse.Namespace) -> int:
                 "residual_pos_rms_mm": cal.residual_pos_rms * 1e3,
                 "residual_rot_rms_mrad": cal.residual_rot_rms * 1e3,
             }
-            write_text_atomic(args.json, json.dumps(doc, indent=1) + "\n")
-            print(f"wrote {args.json}")
+            docs.append((args.json, json.dumps(doc, indent=1, allow_nan=False) + "\n", "deltas"))
+    for path, text, what in docs:
+        write_text_atomic(path, text)
+        print(f"wrote {path} ({what})")
     return 0
 
 
 def _compensate(args: argparse.Namespace) -> int:
+    """Compensate a program; refuse (exit 2, nothing written) anything that could make it worse.
+
+    Refused, one line per target: a target outside the robot's joint limits or outside the
+    joint range the model was identified on (the series would extrapolate), a compensated
+    target outside the joint limits, a correction above ``--max-correction-deg`` on any joint,
+    a target whose compensation did not converge.
+    """
     import numpy as np
 
-    from quickhealth.identify.compensate import (
-        compensate_joints,
-        urscript_joint_targets,
-        urscript_replace_targets,
-    )
+    from quickhealth.identify.compensate import compensate_joints
     from quickhealth.identify.errors import InputError
+    from quickhealth.identify.urscript import replace_targets
     from quickhealth.station import formats
+    from quickhealth.station.fsio import refuse_overwriting_inputs
 
+    cap = args.max_correction_deg
+    if not 0 < cap <= 10:
+        raise InputError(f"--max-correction-deg must be in (0, 10], got {cap}")
+    refuse_overwriting_inputs(
+        [("--out", args.out), ("--errors", args.errors)], [args.model, args.program]
+    )
     fm = formats.read_model(args.model)
     nj = fm.robot.n_joints
     try:
         tcp = np.array([float(v) for v in args.tcp_mm.split(",")]) * 1e-3
     except ValueError:
         raise InputError(f"--tcp-mm must be X,Y,Z in mm, got {args.tcp_mm!r}") from None
-    if tcp.shape != (3,):
-        raise InputError(f"--tcp-mm must be X,Y,Z in mm, got {args.tcp_mm!r}")
+    if tcp.shape != (3,) or not np.all(np.isfinite(tcp)) or np.abs(tcp).max() > 2.0:
+        raise InputError(f"--tcp-mm must be X,Y,Z in mm (finite, within 2000), got {args.tcp_mm!r}")
     T_tcp = np.eye(4)
     T_tcp[:3, 3] = tcp
     prog = Path(args.program)
-    if prog.suffix.lower() in (".script", ".urscript", ".urp"):
-        try:
-            text = prog.read_text()
-        except FileNotFoundError:
-            raise InputError(f"{prog}: file not found") from None
-        spans, q = urscript_joint_targets(text, nj)
-        if not len(q):
-            raise InputError(f"{prog}: no movej/movel joint-list targets with {nj} joints")
+    is_script = prog.suffix.lower() in (".script", ".urscript", ".urp")
+    if is_script:
+        text, targets = formats.read_urscript(prog, nj)
+        q = targets.q
+        where = [f"{prog}:{ln}: target {k + 1}" for k, ln in enumerate(targets.lines)]
     else:
         meas = formats.read_measurements(prog, nj, joints_only=True)
         q = meas.q
+        where = [f"{prog}: target {k + 1}" for k in range(len(q))]
+    lo, hi = fm.robot.q_min, fm.robot.q_max
+    problems: list[str] = []
+    for k in range(len(q)):
+        for j in range(nj):
+            v = q[k, j]
+            if not lo[j] <= v <= hi[j]:
+                problems.append(
+                    f"{where[k]}: joint {j + 1} at {np.degrees(v):.6g} deg is outside the "
+                    f"robot's limits [{np.degrees(lo[j]):.6g}, {np.degrees(hi[j]):.6g}] deg"
+                )
+            elif not fm.spec.q_lo[j] - 1e-9 <= v <= fm.spec.q_hi[j] + 1e-9:
+                problems.append(
+                    f"{where[k]}: joint {j + 1} at {np.degrees(v):.6g} deg is outside the range "
+                    f"the model was identified on [{np.degrees(fm.spec.q_lo[j]):.6g}, "
+                    f"{np.degrees(fm.spec.q_hi[j]):.6g}] deg: the model would extrapolate"
+                )
+    if problems:
+        raise InputError("\n".join(f"{x}; nothing written" for x in problems))
     comp = compensate_joints(fm.robot, fm.spec, fm.coeffs, q, T_tcp)
-    if prog.suffix.lower() in (".script", ".urscript", ".urp"):
-        formats.write_text_atomic(args.out, urscript_replace_targets(text, spans, comp.q))
+    dq = np.degrees(comp.q - q)
+    for k in range(len(q)):
+        if not np.all(np.isfinite(comp.q[k])) or not comp.converged[k]:
+            problems.append(f"{where[k]}: compensation did not converge (near a singularity?)")
+            continue
+        j = int(np.argmax(np.abs(dq[k])))
+        if abs(dq[k, j]) > cap:
+            problems.append(
+                f"{where[k]}: joint {j + 1} correction {dq[k, j]:+.4g} deg exceeds "
+                f"--max-correction-deg {cap:g}"
+            )
+        out_of = np.flatnonzero((comp.q[k] < lo) | (comp.q[k] > hi))
+        if out_of.size:
+            j = int(out_of[0])
+            problems.append(
+                f"{where[k]}: compensated joint {j + 1} at {np.degrees(comp.q[k, j]):.6g} deg "
+                "is outside the robot's limits"
+            )
+    if problems:
+        raise InputError("\n".join(f"{x}; nothing written" for x in problems))
+    if is_script:
+        new_text = replace_targets(text, targets.spans, comp.q)
     else:
         lines = [",".join(f"q{j + 1}" for j in range(nj))]
         lines += [",".join(f"{v:.9f}" for v in np.degrees(row)) for row in comp.q]
-        formats.write_text_atomic(args.out, "\n".join(lines) + "\n")
+        new_text = "\n".join(lines) + "\n"
+    rows = None
     if args.errors:
         rows = ["target,err_before_mm,err_after_mm,rot_after_mrad,max_dq_deg,converged"]
-        dq = np.degrees(np.abs(comp.q - q)).max(axis=1)
+        adq = np.abs(dq).max(axis=1)
         for i in range(len(q)):
             rows.append(
                 f"{i + 1},{comp.error_before_pos[i] * 1e3:.6f},{comp.residual_pos[i] * 1e3:.6f},"
-                f"{comp.residual_rot[i] * 1e3:.6f},{dq[i]:.6f},{int(comp.converged[i])}"
+                f"{comp.residual_rot[i] * 1e3:.6f},{adq[i]:.6f},{int(comp.converged[i])}"
             )
+    formats.write_text_atomic(args.out, new_text)
+    if rows is not None:
         formats.write_text_atomic(args.errors, "\n".join(rows) + "\n")
     print(
         f"{len(q)} targets: predicted TCP error {comp.error_before_pos.mean() * 1e3:.4f} mm mean "
         f"({comp.error_before_pos.max() * 1e3:.4f} max) before, "
-        f"{comp.residual_pos.max() * 1e3:.6f} mm max after compensation"
+        f"{comp.residual_pos.max() * 1e3:.6f} mm max after compensation; largest correction "
+        f"{np.abs(dq).max():.4f} deg (cap {cap:g})"
     )
-    if not comp.converged.all():
-        bad = np.flatnonzero(~comp.converged) + 1
-        print(
-            f"warning: targets {', '.join(map(str, bad[:10]))} did not converge (near a singularity?)",
-            file=sys.stderr,
-        )
     print(f"wrote {args.out}" + (f", {args.errors}" if args.errors else ""))
     return 0
 

@@ -182,8 +182,31 @@ def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
             raise InputError(
                 f"{path}:{ln}:{head.index(bad) + 1}: {bad} is not a number ({d[bad]!r})"
             ) from None
-        ids.append(d["pose_id"])
+        bad_q = [c for c, v in zip(qcols, q[-1], strict=True) if not np.isfinite(v)]
+        if bad_q:
+            raise InputError(
+                f"{path}:{ln}:{head.index(bad_q[0]) + 1}: {bad_q[0]} is {d[bad_q[0]]!r}, not a "
+                "finite joint angle"
+            )
+        ids.append(_check_pose_id(d["pose_id"], f"{path}:{ln}:{head.index('pose_id') + 1}"))
     return ids, np.radians(np.array(q)), np.radians(np.array(pan)), np.array(time), np.array(temp)
+
+
+def _check_pose_id(pid: str, where: str) -> str:
+    """A pose id usable in CSV v1 and as an image file name: no control characters, no path."""
+    from quickhealth.identify.errors import InputError
+
+    if (
+        not pid
+        or len(pid) > 128
+        or any(c < " " or c in "/\\\x7f" for c in pid)
+        or pid in (".", "..")
+    ):
+        raise InputError(
+            f"{where}: pose_id {pid[:40]!r} must be 1-128 characters without control "
+            "characters or path separators"
+        )
+    return pid
 
 
 def _read_journal(run: Path) -> tuple[list[str], Any, Any, Any, Any, list[tuple[Path, Path]]]:
@@ -205,6 +228,10 @@ def _read_journal(run: Path) -> tuple[list[str], Any, Any, Any, Any, list[tuple[
         files = [(run / r["images"][0], run / r["images"][1]) for r in recs]
     except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise InputError(f"{run / JOURNAL}: captured record lacks {exc}") from None
+    for i, pid in enumerate(ids):
+        _check_pose_id(pid, f"{run / JOURNAL}: captured pose {i + 1}")
+    if q.ndim != 2 or not np.all(np.isfinite(q)):
+        raise InputError(f"{run / JOURNAL}: captured joint angles are not all finite numbers")
     return ids, q, pan, time, np.full(len(ids), np.nan), files
 
 

@@ -246,3 +246,43 @@ def test_curves_compared_only_where_both_runs_measured():
     }
     # 4 T3(u) + 3 T1(u) = 16u³ - 9u: at |u| ≤ 0.3 at most |16·0.027 - 2.7| → 2.27e-4·... smaller
     assert ch[(2, "dz")].max_change < full[(2, "dz")].max_change / 2
+
+
+def test_assess_trend_charts_use_the_ewma_weight_not_the_inflation_factor():
+    """The charts smooth with λ (0.2 by default), whatever the curve test's inflation factor.
+
+    The fits here scatter 2x their reported σ, so the genomic-control factor is well above 1;
+    it once overwrote λ and the plotted EWMA equalled the data.
+    """
+    rng = np.random.default_rng(11)
+    runs = _history(rng, 20)
+    runs = [
+        RunState(
+            r.run_id,
+            r.t_s,
+            figures_mm=r.figures_mm,
+            spec=r.spec,
+            coeffs=runs[0].coeffs + 2.0 * (r.coeffs - runs[0].coeffs),
+            cov=r.cov,
+            meta=r.meta,
+        )
+        for r in runs
+    ]
+    res = assess_trend(runs, 0)
+    assert res.curve_changes[-1] and res.curve_changes[-1][0].inflation > 1.5
+    for lam in (0.2, 0.5):
+        res = assess_trend(runs, 0, lam=lam)
+        for f, ch in res.charts.items():
+            vals = [r.figures_mm[f] for r in runs]
+            x = np.asarray(vals)
+            z = np.empty_like(x)
+            mu0 = x[:8].mean()
+            for i in range(len(x)):  # EWMA restarted from the in-control mean (n_phase1 = 8)
+                m0 = x[: min(i + 1, 8)].mean()
+                zz = m0
+                for v in x[1 : i + 1]:
+                    zz = lam * v + (1 - lam) * zz
+                z[i] = zz
+            assert np.allclose(ch.ewma_mm, z), f
+            assert not np.allclose(ch.ewma_mm[1:], vals[1:]), f
+            assert ch.mu0_mm == pytest.approx(mu0)

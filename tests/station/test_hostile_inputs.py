@@ -1,0 +1,1217 @@
+"""Hostile and degenerate inputs through the command line (issue 13's corpus).
+
+Every case runs ``quickhealth.station.cli.main`` in-process (the console script's own entry
+point, same code) on files it makes from real fitted data, and checks: the exit status, one
+``quickhealth: error:`` line per finding (one for most cases), no traceback, no input file
+changed, no output left behind, and the program's targets where a program is written.  A
+handful also run through the installed ``quickhealth`` script in a subprocess.
+
+Classes (issue 13 "What was seen"): 1 bad data -> confident verdict, 2 unsafe compensation,
+3 the URScript reader, 4 crashes exiting 1, 5 outputs destroying inputs, 6 memory bounds,
+7 (trend: tests/identify/test_trend.py), 8 small but misleading.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import stat
+import struct
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quickhealth.identify.errormodel import ErrorModelSpec
+from quickhealth.identify.fit import InstrumentNoise, fit_model
+from quickhealth.identify.twin import make_twin, random_joints
+from quickhealth.identify.urscript import joint_targets
+from quickhealth.station import formats
+from quickhealth.station.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+GOOD_Q = [0.3, -1.2, 1.1, -0.5, 1.2, 0.4]
+GOOD_Q2 = [-0.4, -1.6, 1.7, -1.0, 0.9, -0.2]
+
+
+def _list(q: list[float]) -> str:
+    return "[" + ", ".join(f"{v:g}" for v in q) + "]"
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    """Good files: a fitted model, its measurements, a program, a fitted run folder."""
+    d = tmp_path_factory.mktemp("good")
+    twin = make_twin(seed=2)
+    q = random_joints(twin.robot, 60, seed=3, T_instr_base=twin.truth.T_instr_base)
+    meas = twin.measure(q, seed=4)
+    spec = ErrorModelSpec.uniform(6, 1, twin.robot.q_min, twin.robot.q_max)
+    fm = fit_model(twin.robot, meas, spec, noise=InstrumentNoise(3e-5, 1e-4))
+    formats.write_model(d / "model.json", fm)
+    formats.write_measurements(d / "meas.csv", meas)
+    (d / "prog.script").write_text(
+        f"def prog():\n  movej({_list(GOOD_Q)}, a=1.0, v=0.2)\n"
+        f"  movel({_list(GOOD_Q2)}, a=1.0, v=0.2)\nend\n"
+    )
+    run = d / "run1"
+    run.mkdir()
+    formats.write_model(run / "model.json", fm)
+    formats.write_measurements(run / "measurements.csv", meas)
+    formats.write_report(
+        run / "report.json",
+        {
+            "n_poses": fm.n_poses,
+            "chi2": fm.chi2_data,
+            "bic": fm.bic,
+            "rms_pos_mm": fm.rms_pos * 1e3,
+            "workspace": {"mean_mm": 0.3, "std_mm": 0.1, "max_mm": 0.8},
+        },
+    )
+    return {"dir": d, "fm": fm, "meas": meas, "doc": json.loads((d / "model.json").read_text())}
+
+
+@dataclass
+class Case:
+    argv: list[str]
+    code: int
+    pattern: str
+    inputs: list[Path] = field(default_factory=list)  # must not change
+    absent: list[Path] = field(default_factory=list)  # must not exist afterwards
+    n_lines: int = 1
+    check: Callable[[], None] | None = None
+
+
+def _digest(p: Path) -> str | None:
+    if p.is_symlink() or not p.exists():
+        return None if not p.is_symlink() else os.readlink(p)
+    if p.is_dir():
+        return "dir:" + ",".join(sorted(x.name for x in p.iterdir()))
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+def _model(base, tmp: Path, edit: Callable[[dict], None], name: str = "m.json") -> Path:
+    doc = json.loads(json.dumps(base["doc"]))
+    edit(doc)
+    p = tmp / name
+    p.write_text(json.dumps(doc))
+    return p
+
+
+def _coeff(label: str, value: float) -> Callable[[dict], None]:
+    def edit(doc: dict) -> None:
+        spec = ErrorModelSpec(
+            np.array(doc["spec"]["orders"]), doc["spec"]["q_lo"], doc["spec"]["q_hi"]
+        )
+        doc["coeffs"][spec.labels().index(label)] = value
+
+    return edit
+
+
+def _csv(
+    base,
+    tmp: Path,
+    rows: list[list[float]] | None = None,
+    name: str = "bad.csv",
+    text: str | None = None,
+) -> Path:
+    p = tmp / name
+    if text is None:
+        head = "q1,q2,q3,q4,q5,q6,x,y,z"
+        body = "\n".join(",".join(f"{v!r}" for v in r) for r in rows or [])
+        text = head + "\n" + body + "\n"
+    p.write_text(text)
+    return p
+
+
+def _good_rows(base) -> list[list[float]]:
+    m = base["meas"]
+    return [[float(v) for v in (*np.degrees(m.q[i]), *(m.pos[i] * 1e3))] for i in range(m.n_poses)]
+
+
+def _script(tmp: Path, body: str, name: str = "p.script") -> Path:
+    p = tmp / name
+    p.write_text(body)
+    return p
+
+
+def _png_header(tmp: Path, w: int, h: int, name: str) -> Path:
+    """A valid PNG signature and IHDR claiming w x h (the data is one tiny IDAT)."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
+
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+    png += chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b"")
+    p = tmp / name
+    p.write_bytes(png)
+    return p
+
+
+# --------------------------------------------------------------------------- the corpus
+
+CASES: dict[str, Callable[[dict, Path], Case]] = {}
+
+
+def case(name: str):
+    def deco(f):
+        CASES[name] = f
+        return f
+
+    return deco
+
+
+def _fit(csv: Path, tmp: Path, *extra: str) -> list[str]:
+    return [
+        "identify",
+        "fit",
+        str(csv),
+        "--robot",
+        "ur5",
+        "--out",
+        str(tmp / "out"),
+        "--quiet",
+        *extra,
+    ]
+
+
+# ---- 1. bad data must not become a confident verdict
+
+
+@case("fit-150-copies-of-one-row")
+def _(b, t):
+    csv = _csv(b, t, [_good_rows(b)[0]] * 150)
+    return Case(_fit(csv, t), 2, r"only 1 distinct joint configuration", [csv], [t / "out"])
+
+
+@case("fit-q3-5000-deg")
+def _(b, t):
+    rows = _good_rows(b)
+    rows[7][2] = 5000.0
+    csv = _csv(b, t, rows)
+    return Case(
+        _fit(csv, t),
+        2,
+        r"bad\.csv: row 8: joint 3 at 5000 deg is outside the robot's limits",
+        [csv],
+        [t / "out"],
+    )
+
+
+@case("fit-q2-1e308")
+def _(b, t):
+    rows = _good_rows(b)
+    rows[0][1] = 1e308
+    csv = _csv(b, t, rows)
+    return Case(_fit(csv, t), 2, r"joint 2 at 1e\+308 deg is outside", [csv], [t / "out"])
+
+
+@case("fit-joint-1-never-moves")
+def _(b, t):
+    rows = _good_rows(b)
+    for r in rows:
+        r[0] = 10.0
+    csv = _csv(b, t, rows)
+    return Case(
+        _fit(csv, t),
+        2,
+        r"joint\(s\) 1 move less than 1.0 deg .* cannot be identified",
+        [csv],
+        [t / "out"],
+    )
+
+
+@case("fit-nan-cell")
+def _(b, t):
+    csv = _csv(b, t, _good_rows(b))
+    lines = csv.read_text().splitlines()
+    lines[3] = "nan," + lines[3].split(",", 1)[1]
+    csv.write_text("\n".join(lines) + "\n")
+    return Case(
+        _fit(csv, t), 2, r"bad\.csv:4:1: column 'q1': nan is not finite", [csv], [t / "out"]
+    )
+
+
+@case("fit-margin-nan")
+def _(b, t):
+    return Case(
+        _fit(b["dir"] / "meas.csv", t, "--margin", "nan"),
+        2,
+        r"--margin: invalid finite_float value|'nan' is not a finite number",
+        [b["dir"] / "meas.csv"],
+        [t / "out"],
+    )
+
+
+@case("fit-margin-inf")
+def _(b, t):
+    return Case(
+        _fit(b["dir"] / "meas.csv", t, "--margin", "inf"),
+        2,
+        r"'inf' is not a finite number",
+        [],
+        [t / "out"],
+    )
+
+
+@case("fit-sigma-pos-nan")
+def _(b, t):
+    return Case(
+        _fit(b["dir"] / "meas.csv", t, "--sigma-pos-mm", "nan"),
+        2,
+        r"--sigma-pos-mm.*'nan' is not a finite number",
+        [],
+        [t / "out"],
+    )
+
+
+@case("fit-over-row-limit")
+def _(b, t):
+    row = ",".join(["1"] * 9)
+    csv = _csv(b, t, text="q1,q2,q3,q4,q5,q6,x,y,z\n" + (row + "\n") * (formats.MAX_FIT_ROWS + 1))
+    return Case(
+        _fit(csv, t),
+        2,
+        rf"{formats.MAX_FIT_ROWS + 1} rows is over the fit's limit of {formats.MAX_FIT_ROWS}",
+        [csv],
+        [t / "out"],
+    )
+
+
+@case("predict-threshold-nan")
+def _(b, t):
+    d = b["dir"]
+    return Case(
+        [
+            "identify",
+            "predict",
+            str(d / "model.json"),
+            str(d / "prog.script"),
+            "--out",
+            str(t / "o.csv"),
+            "--threshold-mm",
+            "nan",
+        ],
+        2,
+        "not a finite number",
+        [],
+        [t / "o.csv"],
+    )
+
+
+def _predict(b, t, model: Path, inp: Path | None = None) -> Case:
+    inp = inp or b["dir"] / "prog.script"
+    return Case(
+        ["identify", "predict", str(model), str(inp), "--out", str(t / "o.csv")],
+        2,
+        "",
+        [model, inp],
+        [t / "o.csv"],
+    )
+
+
+def _with(c: Case, pattern: str, **kw) -> Case:
+    c.pattern = pattern
+    for k, v in kw.items():
+        setattr(c, k, v)
+    return c
+
+
+@case("model-nan-coefficient")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, _coeff("j2.dx.c0", float("nan")))),
+        r"coefficient j2\.dx\.c0 is nan, not a finite number",
+    )
+
+
+@case("model-null-coefficient")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, _coeff("j2.dx.c0", None))), r"coefficient j2\.dx\.c0 is nan"
+    )
+
+
+@case("model-too-few-coefficients")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, lambda d: d.__setitem__("coeffs", d["coeffs"][:5]))),
+        r"5 coefficients, but the orders need \d+",
+    )
+
+
+@case("model-huge-coefficient")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, _coeff("j2.ez.c1", 40.0))),
+        r"coefficient j2\.ez\.c1 = 40000 mrad is beyond any real robot",
+    )
+
+
+@case("model-wrong-schema")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, lambda d: d.__setitem__("schema", "quickhealth.model/9"))),
+        r"not a quickhealth model \(schema 'quickhealth\.model/9'",
+    )
+
+
+@case("model-200k-deep-json")
+def _(b, t):
+    p = t / "deep.json"
+    p.write_text("[" * 200_000 + "]" * 200_000)
+    return _with(_predict(b, t, p), r"JSON nested deeper than 32 levels")
+
+
+@case("model-100k-digit-integer")
+def _(b, t):
+    p = t / "digits.json"
+    p.write_text('{"schema": "quickhealth.model/1", "n": ' + "9" * 100_000 + "}")
+    return _with(_predict(b, t, p), r"not a usable model file: Exceeds the limit")
+
+
+@case("model-binary-pickle")
+def _(b, t):
+    import pickle
+
+    p = t / "model.pkl"
+    p.write_bytes(pickle.dumps({"coeffs": [1.0, 2.0], "x": b"\xff\xfe"}))
+    return _with(_predict(b, t, p), r"not UTF-8 text \(binary content")
+
+
+@case("model-symlink-to-dev-zero")
+def _(b, t):
+    p = t / "zero.json"
+    p.symlink_to("/dev/zero")
+    return _with(_predict(b, t, p), r"zero\.json: not a regular file")
+
+
+@case("model-is-a-directory")
+def _(b, t):
+    (t / "mdir").mkdir()
+    return _with(_predict(b, t, t / "mdir"), r"mdir: is a directory")
+
+
+@case("model-nan-covariance")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, lambda d: d["cov"][0].__setitem__(0, None))),
+        r"covariance holds numbers that are not finite",
+    )
+
+
+@case("model-nan-joint-range")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, lambda d: d["spec"]["q_lo"].__setitem__(1, None))),
+        r"joint ranges are not finite",
+    )
+
+
+@case("model-missing-key")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, lambda d: d.pop("stats"))),
+        r"model file is incomplete or damaged: KeyError\('stats'\)",
+    )
+
+
+@case("model-links-string")
+def _(b, t):
+    return _with(
+        _predict(b, t, _model(b, t, lambda d: d["robot"].__setitem__("links", "abc"))),
+        r"model file is incomplete or damaged",
+    )
+
+
+# ---- 1. reports and the archive
+
+
+def _archive_add(b, t, run: Path) -> Case:
+    arch = t / "arch"
+    return Case(
+        ["archive", "add", str(run), "--robot", "cell3", "--archive", str(arch)],
+        2,
+        "",
+        [run],
+        [arch / "robots"],
+    )
+
+
+def _run_copy(b, t, edit: Callable[[Path], None]) -> Path:
+    import shutil
+
+    run = t / "run"
+    shutil.copytree(b["dir"] / "run1", run)
+    edit(run)
+    return run
+
+
+@case("archive-report-only-schema")
+def _(b, t):
+    run = _run_copy(
+        b, t, lambda r: (r / "report.json").write_text('{"schema": "quickhealth.report/1"}')
+    )
+    return _with(
+        _archive_add(b, t, run), r"workspace\.mean_mm is missing: not a complete fit report"
+    )
+
+
+@case("archive-report-max-null")
+def _(b, t):
+    def edit(r: Path) -> None:
+        doc = json.loads((r / "report.json").read_text())
+        doc["workspace"]["max_mm"] = None
+        (r / "report.json").write_text(json.dumps(doc))
+
+    return _with(_archive_add(b, t, _run_copy(b, t, edit)), r"workspace\.max_mm is missing")
+
+
+@case("archive-report-bic-inf")
+def _(b, t):
+    def edit(r: Path) -> None:
+        txt = (r / "report.json").read_text()
+        doc = json.loads(txt)
+        doc["bic"] = float("-inf")
+        (r / "report.json").write_text(json.dumps(doc))
+
+    return _with(
+        _archive_add(b, t, _run_copy(b, t, edit)), r"bic is -inf: not a complete fit report"
+    )
+
+
+@case("archive-run-without-model")
+def _(b, t):
+    return _with(
+        _archive_add(b, t, _run_copy(b, t, lambda r: (r / "model.json").unlink())),
+        r"no model\.json \(fit the run first",
+    )
+
+
+@case("archive-run-with-nan-model")
+def _(b, t):
+    def edit(r: Path) -> None:
+        doc = json.loads((r / "model.json").read_text())
+        doc["coeffs"][0] = None
+        (r / "model.json").write_text(json.dumps(doc))
+
+    return _with(_archive_add(b, t, _run_copy(b, t, edit)), r"model\.json: coefficient .* is nan")
+
+
+@case("archive-report-deep-json")
+def _(b, t):
+    run = _run_copy(
+        b, t, lambda r: (r / "report.json").write_text('{"a":' * 5000 + "1" + "}" * 5000)
+    )
+    return _with(_archive_add(b, t, run), r"JSON nested deeper than 32 levels")
+
+
+# ---- 2. compensate must never make a program worse
+
+
+def _comp(b, t, model: Path | None = None, prog: Path | None = None, *extra: str) -> Case:
+    model = model or b["dir"] / "model.json"
+    prog = prog or b["dir"] / "prog.script"
+    out = t / "comp.script"
+    return Case(
+        ["compensate", str(model), str(prog), "--out", str(out), *extra],
+        2,
+        "",
+        [model, prog],
+        [out],
+    )
+
+
+@case("compensate-huge-j2-coefficient")
+def _(b, t):
+    return _with(
+        _comp(b, t, _model(b, t, _coeff("j2.ez.c0", 2.0))),
+        r"coefficient j2\.ez\.c0 = 2000 mrad is beyond any real robot",
+    )
+
+
+@case("compensate-correction-over-cap")
+def _(b, t):
+    m = _model(b, t, _coeff("j2.ez.c0", 0.04))  # 2.3 deg: a believable model, a large correction
+    return _with(
+        _comp(b, t, m),
+        r"p?rog\.script:[23]: target [12]: joint 2 correction [-+]2\.\d+ deg exceeds --max-correction-deg 1; nothing written",
+        n_lines=2,
+    )
+
+
+@case("compensate-100-rad-target")
+def _(b, t):
+    p = _script(t, f"movej({_list([0.3, 100.0, 1.1, -0.5, 1.2, 0.4])})\nmovej({_list(GOOD_Q)})\n")
+    return _with(
+        _comp(b, t, None, p),
+        r"p\.script:1: target 1: joint 2 at 5729\.58 deg is outside the robot's limits",
+    )
+
+
+@case("compensate-outside-identified-range")
+def _(b, t):
+    m = _model(b, t, lambda d: d["spec"]["q_lo"].__setitem__(0, 0.0))
+    p = _script(t, f"movej({_list(GOOD_Q)})\nmovej({_list([-0.4] + GOOD_Q[1:])})\n")
+    return _with(
+        _comp(b, t, m, p),
+        r"p\.script:2: target 2: joint 1 at -22\.9183 deg is outside the range the model was identified on",
+    )
+
+
+@case("compensate-max-correction-nan")
+def _(b, t):
+    return _with(
+        _comp(b, t, None, None, "--max-correction-deg", "nan"), r"'nan' is not a finite number"
+    )
+
+
+@case("compensate-max-correction-zero")
+def _(b, t):
+    return _with(
+        _comp(b, t, None, None, "--max-correction-deg", "0"),
+        r"--max-correction-deg must be in \(0, 10\]",
+    )
+
+
+@case("compensate-tcp-nan")
+def _(b, t):
+    return _with(_comp(b, t, None, None, "--tcp-mm", "nan,0,0"), r"--tcp-mm must be X,Y,Z in mm")
+
+
+@case("compensate-out-is-the-program")
+def _(b, t):
+    c = _comp(b, t)
+    c.argv[c.argv.index("--out") + 1] = str(b["dir"] / "prog.script")
+    return _with(c, r"prog\.script: --out names an input file of this command", absent=[])
+
+
+@case("compensate-errors-is-the-model")
+def _(b, t):
+    return _with(
+        _comp(b, t, None, None, "--errors", str(b["dir"] / "model.json")),
+        r"model\.json: --errors names an input file",
+    )
+
+
+@case("compensate-within-a-raised-cap")
+def _(b, t):
+    m = _model(b, t, _coeff("j2.ez.c0", 0.04))
+    c = _comp(b, t, m, None, "--max-correction-deg", "5")
+    out = t / "comp.script"
+
+    def check() -> None:
+        got = joint_targets(out.read_text(), 6)
+        assert got.q.shape == (2, 6) and not got.unreadable
+        dq = np.degrees(got.q - np.array([GOOD_Q, GOOD_Q2]))
+        assert 1.0 < np.abs(dq).max() < 5.0
+        assert "def prog():" in out.read_text() and "a=1.0, v=0.2" in out.read_text()
+
+    return _with(c, r"2 targets: predicted TCP error", code=0, absent=[], check=check)
+
+
+# ---- 3. one URScript reader for predict and compensate
+
+
+@case("script-targets-in-comments-and-strings")
+def _(b, t):
+    p = _script(
+        t,
+        f'# movej({_list(GOOD_Q2)})\n textmsg("movej({_list(GOOD_Q2)})")\n'
+        f"movej({_list(GOOD_Q)}, a=1)  # movel({_list(GOOD_Q2)})\n"
+        f"popup('movel([1,2,3,4,5,6])')\n",
+    )
+    c = _comp(b, t, None, p)
+    out = t / "comp.script"
+
+    def check() -> None:
+        new = out.read_text()
+        assert new.count("[") == p.read_text().count("[")
+        got = joint_targets(new, 6)
+        assert got.q.shape == (1, 6) and got.lines == (3,)
+        assert f"# movej({_list(GOOD_Q2)})" in new and f'textmsg("movej({_list(GOOD_Q2)})")' in new
+        assert "popup('movel([1,2,3,4,5,6])')" in new
+        assert np.abs(got.q[0] - GOOD_Q).max() < np.radians(1.0)
+
+    return _with(c, r"1 targets:", code=0, absent=[], check=check)
+
+
+def _predict_rows(t: Path, n: int, lines: list[int]) -> Callable[[], None]:
+    def check() -> None:
+        rows = (t / "o.csv").read_text().splitlines()
+        head = rows[0].split(",")
+        assert len(rows) == n + 1
+        assert [int(r.split(",")[head.index("line")]) for r in rows[1:]] == lines
+
+    return check
+
+
+@case("script-space-before-bracket")
+def _(b, t):
+    p = _script(t, f"movej ({_list(GOOD_Q)})\nmovel\t(\n  {_list(GOOD_Q2)}, a=1)\n")
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", p),
+        r"2 commands: predicted TCP error",
+        code=0,
+        absent=[],
+        check=_predict_rows(t, 2, [1, 2]),
+    )
+
+
+@case("script-hash-inside-string-then-move")
+def _(b, t):
+    p = _script(t, f'textmsg("a # b"); movej({_list(GOOD_Q)})\nmovej({_list(GOOD_Q2)})\n')
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", p),
+        r"2 commands",
+        code=0,
+        absent=[],
+        check=_predict_rows(t, 2, [1, 2]),
+    )
+
+
+@case("script-variable-target")
+def _(b, t):
+    p = _script(t, f"home_q = {_list(GOOD_Q)}\nmovej({_list(GOOD_Q)})\n  movej(home_q, a=1)\n")
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", p),
+        r"p\.script:3:3: movej target 'home_q' is not a literal joint list",
+    )
+
+
+@case("script-pose-literal-target")
+def _(b, t):
+    p = _script(t, f"movej({_list(GOOD_Q)})\nmovel(p[0.1, 0.2, 0.3, 0, 0, 0])\n")
+    return _with(
+        _comp(b, t, None, p),
+        r"p\.script:2:1: movel to a Cartesian pose p\[\.\.\.\] has no joint target",
+    )
+
+
+@case("script-two-unreadable-targets")
+def _(b, t):
+    p = _script(t, f"movej({_list(GOOD_Q)})\nmovej(q0)\nmovel(p[0,0,0,0,0,0])\n")
+    return _with(
+        _comp(b, t, None, p),
+        r"p\.script:[23]:1: (movej target 'q0'|movel to a Cartesian)",
+        n_lines=2,
+    )
+
+
+@case("script-unterminated-string")
+def _(b, t):
+    p = _script(t, f'textmsg("oops)\nmovej({_list(GOOD_Q)})\n')
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", p), r"p\.script:1:9: string literal is not closed"
+    )
+
+
+@case("script-binary")
+def _(b, t):
+    p = t / "bin.script"
+    p.write_bytes(bytes(range(256)) * 8)
+    return _with(_predict(b, t, b["dir"] / "model.json", p), r"bin\.script: not UTF-8 text")
+
+
+@case("script-nul-bytes")
+def _(b, t):
+    p = _script(t, f"movej({_list(GOOD_Q)})\x00\x00\n")
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", p),
+        r"p\.script: not a URScript program \(binary content\)",
+    )
+
+
+@case("script-unbalanced-bracket")
+def _(b, t):
+    p = _script(t, "movej([0.3, -1.2, 1.1, -0.5, 1.2, 0.4)\n")
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", p), r"p\.script:1:38: '\)' closes nothing open"
+    )
+
+
+@case("script-wrong-joint-count")
+def _(b, t):
+    p = _script(t, "movej([0.3, -1.2, 1.1])\n")
+    return _with(_comp(b, t, None, p), r"p\.script:1:1: movej has 3 joint values, the robot has 6")
+
+
+@case("script-no-targets")
+def _(b, t):
+    p = _script(t, 'def prog():\n  textmsg("movej([1,2,3,4,5,6])")\nend\n')
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", p),
+        r"p\.script:1:1: no movej/movel with a joint target found",
+    )
+
+
+@case("script-expression-target")
+def _(b, t):
+    p = _script(t, f"movej({_list(GOOD_Q)} + [0, 0, 0, 0, 0, 0.1])\n")
+    return _with(_comp(b, t, None, p), r"p\.script:1:1: movej target is an expression")
+
+
+@case("script-symlink-to-dev-zero")
+def _(b, t):
+    p = t / "z.script"
+    p.symlink_to("/dev/zero")
+    return _with(_predict(b, t, b["dir"] / "model.json", p), r"z\.script: not a regular file")
+
+
+@case("predict-csv-target-outside-limits")
+def _(b, t):
+    rows = _good_rows(b)[:5]
+    rows[2][0] = 400.0
+    csv = _csv(b, t, rows)
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", csv),
+        r"bad\.csv: row 3: joint 1 at 400 deg is outside the robot's limits",
+    )
+
+
+# ---- 4. crashes must not exit 1: robot files, cells, file systems, images
+
+
+def _robot_fit(b, t, toml: str) -> Case:
+    r = t / "r.toml"
+    r.write_text(toml)
+    csv = b["dir"] / "meas.csv"
+    return Case(
+        ["identify", "fit", str(csv), "--robot", str(r), "--out", str(t / "out"), "--quiet"],
+        2,
+        "",
+        [csv, r],
+        [t / "out"],
+    )
+
+
+_J = "[[joint]]\na = {a}\nd = 0.0\nalpha = 90.0\n"
+
+
+@case("robot-toml-string-number")
+def _(b, t):
+    return _with(_robot_fit(b, t, _J.format(a='"0.4"') * 6), r"joint 1: a = '0\.4' is not a number")
+
+
+@case("robot-toml-joint-not-a-table")
+def _(b, t):
+    return _with(
+        _robot_fit(b, t, "joint = [1, 2, 3]\n"), r"every joint must be a \[\[joint\]\] table"
+    )
+
+
+@case("robot-toml-com-strings")
+def _(b, t):
+    j = _J.format(a="0.1") + 'mass = 1.0\ncom = ["a", "b", "c"]\n'
+    return _with(_robot_fit(b, t, j * 6), r"joint 1: com must be a list of 3 numbers")
+
+
+@case("robot-toml-robot-not-a-table")
+def _(b, t):
+    return _with(
+        _robot_fit(b, t, 'robot = "ur5"\n' + _J.format(a="0.1") * 6), r"\[robot\] must be a table"
+    )
+
+
+@case("robot-toml-unit-list")
+def _(b, t):
+    return _with(
+        _robot_fit(b, t, '[robot]\nlength_unit = ["mm"]\n' + _J.format(a="0.1") * 6),
+        r"r\.toml: not a DH table",
+    )
+
+
+@case("robot-toml-huge-link")
+def _(b, t):
+    return _with(_robot_fit(b, t, _J.format(a="1e300") * 6), r"a link is longer than 20 m")
+
+
+@case("csv-cell-over-128-KiB")
+def _(b, t):
+    csv = _csv(b, t, _good_rows(b)[:10])
+    lines = csv.read_text().splitlines()
+    lines[2] = "1" * (129 * 1024) + "," + lines[2].split(",", 1)[1]
+    csv.write_text("\n".join(lines) + "\n")
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", csv),
+        r"bad\.csv:3:1: line of \d+ characters is too long",
+    )
+
+
+@case("csv-cell-over-256-chars")
+def _(b, t):
+    csv = _csv(b, t, text="pose_id,q1,q2,q3,q4,q5,q6\n" + "x" * 300 + ",0,-90,0,-90,0,0\n")
+    return _with(
+        _predict(b, t, b["dir"] / "model.json", csv),
+        r"bad\.csv:2:1: cell of 300 characters is over the limit of 256",
+    )
+
+
+@case("csv-symlink-to-dev-zero")
+def _(b, t):
+    p = t / "z.csv"
+    p.symlink_to("/dev/zero")
+    return _with(_predict(b, t, b["dir"] / "model.json", p), r"z\.csv: not a regular file")
+
+
+@case("out-on-unwritable-file-system")
+def _(b, t):
+    d = b["dir"]
+    out = Path("/sys/qh-corpus.csv")  # the kernel refuses a new file here, even to root
+    return Case(
+        ["identify", "predict", str(d / "model.json"), str(d / "prog.script"), "--out", str(out)],
+        2,
+        r"/sys/qh-corpus\.csv: cannot write: Permission denied",
+        [d / "model.json"],
+        [out],
+    )
+
+
+@case("image-header-20000x20000")
+def _(b, t):
+    _png_header(t, 20000, 20000, "l0.png")
+    _png_header(t, 20000, 20000, "r0.png")
+    argv = [
+        "vision",
+        "calibrate",
+        "--board",
+        "charuco:7x5:30:21:DICT_4X4_50",
+        "--left",
+        str(t / "l*.png"),
+        "--right",
+        str(t / "r*.png"),
+        "--out",
+        str(t / "cal.json"),
+    ]
+    return Case(
+        argv,
+        2,
+        r"l0\.png: the image header claims 400 Mpx, over the limit of 50 Mpx",
+        [t / "l0.png"],
+        [t / "cal.json"],
+    )
+
+
+@case("image-header-beyond-opencv")
+def _(b, t):
+    _png_header(t, 2_000_000, 2_000_000, "l0.png")
+    _png_header(t, 2_000_000, 2_000_000, "r0.png")
+    argv = [
+        "vision",
+        "calibrate",
+        "--board",
+        "charuco:7x5:30:21:DICT_4X4_50",
+        "--left",
+        str(t / "l*.png"),
+        "--right",
+        str(t / "r*.png"),
+        "--out",
+        str(t / "cal.json"),
+    ]
+    return Case(
+        argv, 2, r"l0\.png: the image header claims 4000000 Mpx", [t / "l0.png"], [t / "cal.json"]
+    )
+
+
+# ---- 5. outputs never destroy inputs, never half-written, escaped
+
+
+@case("predict-out-is-the-measurements")
+def _(b, t):
+    d = b["dir"]
+    return Case(
+        [
+            "identify",
+            "predict",
+            str(d / "model.json"),
+            str(d / "meas.csv"),
+            "--out",
+            str(d / "meas.csv"),
+        ],
+        2,
+        r"meas\.csv: --out names an input file of this command; refusing to overwrite it",
+        [d / "meas.csv", d / "model.json"],
+    )
+
+
+@case("predict-out-is-the-model-via-symlink")
+def _(b, t):
+    d = b["dir"]
+    (t / "alias.json").symlink_to(d / "model.json")
+    return Case(
+        [
+            "identify",
+            "predict",
+            str(d / "model.json"),
+            str(d / "prog.script"),
+            "--out",
+            str(t / "alias.json"),
+        ],
+        2,
+        r"alias\.json: --out names an input file",
+        [d / "model.json"],
+    )
+
+
+@case("predict-out-is-a-directory")
+def _(b, t):
+    d = b["dir"]
+    (t / "o.csv").mkdir()
+    return Case(
+        [
+            "identify",
+            "predict",
+            str(d / "model.json"),
+            str(d / "prog.script"),
+            "--out",
+            str(t / "o.csv"),
+        ],
+        2,
+        r"o\.csv: is a directory, expected a file name",
+        [d / "model.json", t / "o.csv"],
+    )
+
+
+@case("fit-out-would-overwrite-the-input")
+def _(b, t):
+    csv = t / "model.json"
+    csv.write_bytes((b["dir"] / "meas.csv").read_bytes())
+    return Case(
+        ["identify", "fit", str(csv), "--robot", "ur5", "--out", str(t), "--quiet"],
+        2,
+        r"model\.json: --out names an input file",
+        [csv],
+    )
+
+
+@case("export-nan-model-leaves-nothing")
+def _(b, t):
+    m = _model(b, t, _coeff("j3.dy.c0", float("nan")))
+    return Case(
+        ["export", str(m), "--urdf", str(t / "c.urdf"), "--json", str(t / "dh.json")],
+        2,
+        r"coefficient j3\.dy\.c0 is nan",
+        [m],
+        [t / "c.urdf", t / "dh.json"],
+    )
+
+
+@case("export-joint-name-xml-injection")
+def _(b, t):
+    evil = 'x"/><evil/><joint name="y'
+    m = _model(
+        b,
+        t,
+        lambda d: d["robot"].__setitem__(
+            "joint_names", [evil, "a&b", "<j3>", "j4'", "j5\x01", "j6"]
+        ),
+    )
+    urdf = t / "c.urdf"
+
+    def check() -> None:
+        root = ET.parse(urdf).getroot()
+        assert root.find(".//evil") is None
+        names = [j.get("name") for j in root.iter("joint")]
+        assert names[:5] == [evil, "a&b", "<j3>", "j4'", "j5_"] and len(names) == 7
+
+    return Case(
+        ["export", str(m), "--urdf", str(urdf)], 0, r"wrote .*c\.urdf", [m], [], check=check
+    )
+
+
+@case("diagnose-json-is-the-measurements")
+def _(b, t):
+    d = b["dir"]
+    return Case(
+        ["diagnose", str(d / "model.json"), str(d / "meas.csv"), "--json", str(d / "meas.csv")],
+        2,
+        r"meas\.csv: --json names an input file",
+        [d / "meas.csv"],
+    )
+
+
+@case("outputs-respect-the-umask")
+def _(b, t):
+    d = b["dir"]
+    out = t / "o.csv"
+    old = os.umask(0o027)
+
+    def check() -> None:
+        os.umask(old)
+        assert stat.S_IMODE(out.stat().st_mode) == 0o640
+        assert not [p for p in t.iterdir() if p.name.startswith(".o.csv")]
+
+    return Case(
+        ["identify", "predict", str(d / "model.json"), str(d / "prog.script"), "--out", str(out)],
+        0,
+        r"2 commands",
+        [d / "model.json"],
+        [],
+        check=check,
+    )
+
+
+# ---- 8. small but misleading: vision measure index files
+
+
+def _index_run(b, t, rows: str) -> Case:
+    run = t / "vrun"
+    (run / "images").mkdir(parents=True)
+    (run / "images" / "index.csv").write_text("pose_id,q1,q2,q3,q4,q5,q6\n" + rows)
+    return Case(
+        ["vision", "measure", str(run)],
+        2,
+        "",
+        [run / "images" / "index.csv"],
+        [run / "measurements.csv"],
+    )
+
+
+@case("vision-index-nan-joint")
+def _(b, t):
+    return _with(
+        _index_run(b, t, "P1,0,nan,0,0,0,0\n"),
+        r"index\.csv:2:3: q2 is 'nan', not a finite joint angle",
+    )
+
+
+@case("vision-index-newline-in-pose-id")
+def _(b, t):
+    return _with(
+        _index_run(b, t, '"P\n1",0,-90,0,0,0,0\n'),
+        r"index\.csv:2:1: pose_id 'P\\n1' must be 1-128 characters without control characters",
+    )
+
+
+@case("vision-index-path-in-pose-id")
+def _(b, t):
+    return _with(
+        _index_run(b, t, "../../etc/x,0,-90,0,0,0,0\n"), r"pose_id '\.\./\.\./etc/x' must be"
+    )
+
+
+# ------------------------------------------------------------------------------ runner
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_hostile_input(name, base, tmp_path, capsys):
+    c = CASES[name](base, tmp_path)
+    before = {p: _digest(p) for p in c.inputs}
+    rc = main(c.argv)
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    assert rc == c.code, (rc, err)
+    if c.code == 0:
+        assert re.search(c.pattern, out), out
+    else:
+        lines = err.strip().splitlines()
+        assert len(lines) == c.n_lines, err
+        assert all(
+            re.match(r"quickhealth( [\w-]+)*: (error|internal error): ", x) for x in lines
+        ), err
+        assert any(re.search(c.pattern, x) for x in lines), err
+    for p, h in before.items():
+        assert _digest(p) == h, f"{p} changed"
+    for p in c.absent:
+        assert not p.exists() and not p.is_symlink(), f"{p} was written"
+    leftovers = [p for p in tmp_path.rglob(".*.tmp")]
+    assert not leftovers, leftovers
+    if c.check is not None:
+        c.check()
+
+
+def test_corpus_covers_sixty_cases():
+    assert len(CASES) >= 60, len(CASES)
+
+
+def test_unexpected_error_is_exit_3_one_line_traceback_only_with_debug(monkeypatch, capsys):
+    """A bug is an internal error (3), never 1: a cron `trend ... || alert` can tell."""
+    import quickhealth.station.cli as cli
+
+    def boom(args):
+        raise ZeroDivisionError("a bug")
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    sub.choices["trend"].set_defaults(func=boom)
+    assert main(["trend", "cell3"]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith("quickhealth: internal error: ZeroDivisionError: a bug")
+    assert main(["--debug", "trend", "cell3"]) == 3
+    assert "Traceback" in capsys.readouterr().err
+
+
+def test_memory_error_and_oserror_are_one_line(monkeypatch, capsys):
+    import quickhealth.station.cli as cli
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    for exc, code, text in (
+        (MemoryError(), 3, "out of memory"),
+        (RecursionError(), 2, "nested too deeply"),
+        (OSError(28, "No space left on device", "/x"), 3, "/x: No space left on device"),
+    ):
+
+        def raiser(args, exc=exc):
+            raise exc
+
+        sub.choices["trend"].set_defaults(func=raiser)
+        assert main(["trend", "cell3"]) == code
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and text in err, err
+
+
+def test_read_only_file_system_is_exit_2(monkeypatch, tmp_path):
+    """EROFS from the kernel (simulated at os.open: mounting needs privileges) is usage, exit 2."""
+    import errno
+
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station import fsio
+
+    def ro(*a, **k):
+        raise OSError(errno.EROFS, "Read-only file system", str(a[0]))
+
+    monkeypatch.setattr(fsio.os, "open", ro)
+    with pytest.raises(InputError, match="cannot write: Read-only file system"):
+        fsio.write_atomic(tmp_path / "x.csv", "a")
+
+
+# ------------------------------------------------------------------- real subprocesses
+
+EXE = Path(sys.executable).with_name("quickhealth")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name",
+    [
+        "model-nan-coefficient",
+        "compensate-correction-over-cap",
+        "predict-out-is-the-measurements",
+        "script-binary",
+    ],
+)
+def test_hostile_input_through_the_installed_script(name, base, tmp_path):
+    if not EXE.exists():
+        pytest.skip(f"{EXE} not installed")
+    c = CASES[name](base, tmp_path)
+    before = {p: _digest(p) for p in c.inputs}
+    r = subprocess.run([str(EXE), *c.argv], capture_output=True, text=True, timeout=120)
+    assert r.returncode == c.code, r.stderr
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == c.n_lines and any(re.search(c.pattern, x) for x in lines), r.stderr
+    assert all(_digest(p) == h for p, h in before.items())
+    assert not any(p.exists() for p in c.absent)
