@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from .effects import Effect, EffectContext, Perturbation, parse_effect, total_perturbation
 from .effects._base import perturbed_loop_pose
@@ -833,6 +832,8 @@ def _scan(
     one-step (against the model alone) gives what adding the effect to *this* model would
     do, for the predicted RMS drop and the parameter estimate.
     """
+    from scipy import stats  # 1 s to import: only where it is used
+
     out: list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]] = []
     plain = bases[()]
     for effect in effects:
@@ -857,6 +858,8 @@ def _scan(
 
 def _order_hints(state: LoopState, wp: WhitenedProblem, bases: _Bases, alpha: float) -> list[str]:
     """Joints whose residuals still follow a smooth function of the joint angle."""
+    from scipy import stats
+
     base = bases[()]
     nj = state.robot.n_joints
     res_now = wp.whiten.unwhite(base.r_perp.reshape(-1, wp.n_comp))
@@ -1164,6 +1167,7 @@ def jitter_binary(x: F, width: float = 0.12) -> F:
 def plot_spectrum(diag: Diagnosis) -> Any:
     """Figure: the residual spectrum (cyclic score statistic per harmonic) of every joint."""
     from matplotlib.figure import Figure
+    from scipy import stats
 
     fig = Figure(figsize=(7.0, 4.2), layout="constrained")
     ax = fig.add_subplot()

@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2 as chi2_dist
 
+from .distributions import chi2_median
 from .effects import Effect
 from .errormodel import MOTIONS, ErrorModelSpec, chebyshev_basis
 from .fit import (
@@ -232,7 +232,7 @@ def chi2_check(
     sigmas are taken as the sign of a tight prior.
     """
     dof = max(fitted.dof, 1)
-    med = float(chi2_dist.median(dof))
+    med = chi2_median(dof)
     ratio = fitted.chi2_data / med
     if ratio <= factor:
         return Chi2Check(
@@ -450,7 +450,7 @@ def _search(
         )
         n_fits += k_fits
     loose = None
-    if fitted.chi2_data > chi2_factor * float(chi2_dist.median(max(fitted.dof, 1))):
+    if fitted.chi2_data > chi2_factor * chi2_median(max(fitted.dof, 1)):
         loose = fit_model(robot, meas, fitted.spec, effects, noise, _loosen(prior), init=fitted)
         n_fits += 1
     check = chi2_check(fitted, chi2_factor, loose)

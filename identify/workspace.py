@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2, norm
 
+from .distributions import chi2_ppf, norm_ppf
 from .errormodel import MOTIONS, chebyshev_basis, chebyshev_u
 from .fit import FittedModel, Perturbation, _forward, _motion_jacobian
 
@@ -153,8 +153,8 @@ def joint_curves(
         C = fitted.cov[np.ix_(sel, sel)]
         sigma[m] = np.sqrt(np.clip(np.einsum("ki,ij,kj->k", B, C, B), 0.0, None))
         k_free[m] = max(int(np.sum(np.diag(C) > 0)), 1)
-    z = float(norm.ppf(0.5 + level / 2))
-    zs = np.sqrt(chi2.ppf(level, k_free))[:, None]
+    z = norm_ppf(0.5 + level / 2)
+    zs = np.sqrt([chi2_ppf(level, k) for k in k_free])[:, None]
     return JointCurves(joint, theta, values, sigma, level, zs * sigma, z * sigma)
 
 
