@@ -45,10 +45,10 @@ from .fit import (
     FittedModel,
     InstrumentNoise,
     ParameterPrior,
-    _labels,
-    _Problem,
     bic_value,
     fit_model,
+    linearised,
+    parameter_labels,
 )
 from .measurements import Measurements
 from .robot import RobotModel
@@ -307,16 +307,13 @@ class _Lin:
 
 
 def _linearise(fitted: FittedModel, meas: Measurements) -> _Lin:
-    prob = _Problem.build(
-        fitted.robot, meas, fitted.spec, fitted.effects, fitted.noise, fitted.prior, fitted
-    )
+    lin = linearised(fitted, meas)
     p = fitted.params
-    r, J = prob.residual_and_jacobian(p)
-    _, Jw, u = prob.whitened_motion_jacobian(p)
+    r, J, Jw, u = lin.r, lin.J, lin.J_motion, lin.u
     labels = fitted.labels
     fixed = set(fitted.unidentifiable) | set(fitted.held)
     free = np.array([lb not in fixed for lb in labels])
-    D = prob.sigma_p[free]
+    D = lin.sigma_p[free]
     Jf = J[:, free] * D
     P = Jf.shape[1]
     A = np.vstack([Jf, np.eye(P)])
@@ -325,9 +322,7 @@ def _linearise(fitted: FittedModel, meas: Measurements) -> _Lin:
     H = A.T @ A
     Hinv = np.linalg.inv(H)
     x = Hinv @ (A.T @ b)  # remaining step (≈ 0 at the optimum)
-    return _Lin(
-        meas.n_poses, prob.d, Q, b, Hinv, x, A, np.flatnonzero(free), Jw, u, int(free.sum())
-    )
+    return _Lin(meas.n_poses, lin.d, Q, b, Hinv, x, A, np.flatnonzero(free), Jw, u, int(free.sum()))
 
 
 def _score_raise(lin: _Lin, j: int, m: int, cur: int, new: int, sigma: float) -> float:
@@ -390,7 +385,7 @@ def _search(
     for _step in range(max_steps):
         lin = _linearise(fitted, meas)
         orders = fitted.spec.orders
-        labels = _labels(fitted.spec, effects)
+        labels = parameter_labels(fitted.spec, effects)
         pos_of = {lb: i for i, lb in enumerate(labels)}
         free_pos = {int(ix): k for k, ix in enumerate(lin.free_idx)}
         moves: list[tuple[float, str, int, int, int]] = []

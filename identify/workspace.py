@@ -21,8 +21,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .distributions import chi2_ppf, norm_ppf
+from .effects import Perturbation
 from .errormodel import MOTIONS, chebyshev_basis, chebyshev_u
-from .fit import FittedModel, Perturbation, _forward, _motion_jacobian
+from .fit import FittedModel
+from .linearize import forward, motion_jacobian
 
 F = NDArray[np.float64]
 
@@ -203,7 +205,7 @@ def _joint_coeff_index(fitted: FittedModel) -> NDArray[np.int64]:
 def _joint_coeff_position_jacobian(fitted: FittedModel, q: F) -> F:
     """∂(target position)/∂(joint Chebyshev coefficients), shape (n, 3, n_joint_coeffs)."""
     spec = fitted.spec
-    T, A, mot = _forward(
+    T, A, mot = forward(
         fitted.robot,
         spec,
         fitted.coeffs,
@@ -213,7 +215,7 @@ def _joint_coeff_position_jacobian(fitted: FittedModel, q: F) -> F:
         Perturbation(),
     )
     assert A is not None and mot is not None
-    Jm = _motion_jacobian(T, A, mot, None)[:, :3]  # (n, 3, nf, 6)
+    Jm = motion_jacobian(T, A, mot, None)[:, :3]  # (n, 3, nf, 6)
     idx = spec.index()[_joint_coeff_index(fitted)]
     if idx.size == 0:
         return np.zeros((q.shape[0], 3, 0))
