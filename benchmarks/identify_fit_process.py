@@ -39,7 +39,10 @@ def main() -> None:
         )
         fit = [*QH, "identify", "fit", str(meas), "--robot", "ur5", "--quiet"]
         timed([*fit, "--out", f"{tmp}/warm"])  # file cache warm, .pyc written
-        for label, extra, target in (("without plots", [], 1.0), ("with --plots", ["--plots"], 3.0)):
+        for label, extra, target in (
+            ("without plots", [], 1.0),
+            ("with --plots", ["--plots"], 3.0),
+        ):
             t = [timed([*fit, "--out", f"{tmp}/o{i}", *extra]) for i in range(args.repeats)]
             print(
                 f"identify fit, 150 full-pose poses, {label}: median {statistics.median(t):.2f} s "
