@@ -163,6 +163,7 @@ class FittedModel:
     prior: ParameterPrior = field(default_factory=ParameterPrior)
     n_poses: int = 0
     held: tuple[str, ...] = ()  # labels held at their start value (e.g. a known base)
+    reference_time: float | None = None  # s, ``time`` of the last pose fitted (drift's "now")
 
     # ---- parameter bookkeeping
     @property
@@ -801,6 +802,7 @@ class _Problem:
             noise=self.noise,
             prior=self.prior,
             n_poses=n,
+            reference_time=None if self.meas.time is None else float(self.meas.time[-1]),
         )
 
 

@@ -572,6 +572,7 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
         },
         "unidentifiable": list(fitted.unidentifiable),
         "held": list(fitted.held),
+        "reference_time_s": getattr(fitted, "reference_time", None),
         "noise": {
             "sigma_pos": fitted.noise.sigma_pos,
             "sigma_rot": fitted.noise.sigma_rot,
@@ -628,6 +629,9 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
             prior=ParameterPrior(**doc["prior"]),
             n_poses=int(st["n_poses"]),
             held=tuple(doc.get("held", ())),
+            reference_time=(
+                None if doc.get("reference_time_s") is None else float(doc["reference_time_s"])
+            ),
         )
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, InputError):

@@ -320,7 +320,6 @@ def _figures(sel: Any, meas: Any) -> dict[str, Any]:
 def _predict(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from quickhealth.identify.errors import InputError
     from quickhealth.identify.transforms import R_to_rpy
     from quickhealth.identify.workspace import predict_commands
     from quickhealth.station import formats
@@ -338,12 +337,6 @@ def _predict(args: argparse.Namespace) -> int:
         meas = formats.read_measurements(inp, nj, joints_only=True)
         q, time, temp = meas.q, meas.time, meas.temp
         src_lines = None
-    for e in fm.effects:
-        for col in e.requires():
-            if (time if col == "time" else temp if col == "temp" else 0) is None:
-                raise InputError(
-                    f"{inp}:1:1: the model's effect {e.name!r} needs the {col!r} column"
-                )
     thr = None if args.threshold_mm is None else args.threshold_mm * 1e-3
     pred = predict_commands(fm, q, thr, time=time, temp=temp)
     cols = ["row"]
@@ -399,11 +392,20 @@ def _predict(args: argparse.Namespace) -> int:
             f"; measured minus model: mean {d.mean():.3f} mm, rms {np.sqrt(np.mean(d**2)):.3f} mm"
         )
     print(msg)
+    if pred.assumed.describe():
+        print(
+            f"the input has no column for {', '.join(_missing(pred.assumed))}: predicted "
+            f"{pred.assumed.describe()} (the model's reference conditions)"
+        )
     print(f"wrote {args.out}")
     if thr is not None:
         print(f"{n_over} commands above {args.threshold_mm} mm")
         return 1 if n_over else 0
     return 0
+
+
+def _missing(c: Any) -> list[str]:
+    return [n for n, v in (("temp", c.temp_c), ("time", c.time_s)) if v is not None]
 
 
 # --------------------------------------------------------------------------- WAM import
