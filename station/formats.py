@@ -56,7 +56,8 @@ from quickhealth.identify.robot import RobotModel, from_dh, ur5
 F = NDArray[np.float64]
 
 MODEL_SCHEMA = "quickhealth.model/1"
-REPORT_SCHEMA = "quickhealth.report/1"
+REPORT_SCHEMA = "quickhealth.report/2"  # station/report_json.py; /1 files still read
+REPORT_SCHEMAS_READ = ("quickhealth.report/1", REPORT_SCHEMA)
 BUILTIN_ROBOTS = {"ur5": ur5}
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
@@ -693,7 +694,7 @@ def read_report(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise InputError(f"{p}: file not found") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
-    if doc.get("schema") != REPORT_SCHEMA:
+    if doc.get("schema") not in REPORT_SCHEMAS_READ:
         raise InputError(f"{p}: not a quickhealth report (schema {doc.get('schema')!r})")
     return doc
 
