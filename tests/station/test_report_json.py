@@ -14,8 +14,8 @@ from quickhealth.identify.errors import InputError
 from quickhealth.identify.twin import make_twin, random_joints, schedules
 from quickhealth.station.cli import main
 from quickhealth.station.formats import write_measurements
-from quickhealth.station.reprocess import ReprocessJob, reprocess_run
 from quickhealth.station.report_json import SCHEMA, check_report
+from quickhealth.station.reprocess import ReprocessJob, reprocess_run
 from quickhealth.station.tui.facade import Station
 
 MAX_ORDER = 2
