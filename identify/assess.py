@@ -129,15 +129,35 @@ def assess(
             auto_rescale=auto_rescale,
             progress=progress,
         )
-        fitted, noise, prior = selection.fitted, selection.noise, selection.prior
+        fitted = selection.fitted
     else:
         fitted = fit_model(robot, measurements, spec, eff, noise, prior)
+    return evaluate(
+        measurements,
+        fitted,
+        selection,
+        workspace_samples=workspace_samples,
+        curve_points=curve_points,
+    )
+
+
+def evaluate(
+    measurements: Measurements,
+    fitted: FittedModel,
+    selection: Selection | None = None,
+    *,
+    workspace_samples: int = WORKSPACE_SAMPLES,
+    curve_points: int = CURVE_POINTS,
+) -> Assessment:
+    """The assessment of a model already fitted to ``measurements`` (e.g. the refit with an
+    added effect of :func:`~quickhealth.identify.compare.compare_effect`): its workspace
+    error at the reference conditions and its joint curves.  :func:`assess` ends here."""
     return Assessment(
         measurements=measurements,
         fitted=fitted,
         selection=selection,
-        noise=noise,
-        prior=prior,
+        noise=selection.noise if selection is not None else fitted.noise,
+        prior=selection.prior if selection is not None else fitted.prior,
         workspace=workspace_error(fitted, n_samples=workspace_samples),
         curves=tuple(all_joint_curves(fitted, n_points=curve_points)),
     )

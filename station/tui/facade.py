@@ -240,9 +240,10 @@ class Analysis:
             png,
             progress=progress,
         )
+        after = offload(jobs.evaluate_job, cmp.fitted_after, self.meas)
         with self._lock:
             self.effects = tuple(e.name for e in cmp.fitted_after.effects)
-            self._model = _Model(cmp.fitted_after, self.effects, self.meas.n_poses)
+            self._model = _Model(after, self.effects, self.meas.n_poses)
         step(total, total, "done")
         b, a = cmp.before, cmp.after
         return Refit(

@@ -34,6 +34,13 @@ def assess_job(
     return assess(meas, robot, list(effects), max_order=max_order, progress=progress)
 
 
+def evaluate_job(fitted: Any, meas: Measurements, progress: Progress | None = None) -> Any:
+    """``identify.assess.evaluate``: the assessment of an already fitted model."""
+    from quickhealth.identify.assess import evaluate
+
+    return evaluate(meas, fitted)
+
+
 def diagnose_job(fitted: Any, meas: Measurements, progress: Progress | None = None) -> Any:
     """The diagnosis (``identify.diagnose.Diagnosis``) of ``fitted`` on ``meas``."""
     from quickhealth.identify.diagnose import diagnose, state_from_fitted
