@@ -19,7 +19,8 @@ with ``C_i`` translations × (1 + link_scale).  Residuals are measured minus mod
 The noise model (:func:`noise_covariance`): per-row ``sx, sy, sz`` or the instrument default
 per axis; per-row ``spitch, syaw, sroll`` (uncertainties of the *angles*) mapped through the
 roll-yaw-pitch rates, or the instrument default isotropic on the rotation vector; plus the
-encoders' noise propagated through the loop (implicit-loop effective variance).
+encoders' noise propagated through the loop (implicit-loop effective variance).  Rows marked ``Measurements.excluded`` get an
+uninformative covariance (cross-validation keeps left-out poses for the execution order).
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ from .transforms import log_so3, rot_x, rot_y, rpy_to_R, small_error_transform
 F = NDArray[np.float64]
 
 _NO_PERTURBATION = Perturbation()
+
+#: Standard uncertainty (m, rad) of an excluded row (``Measurements.excluded``): no information.
+EXCLUDED_SIGMA = 1e3
 
 
 @dataclass(frozen=True)
@@ -379,6 +383,8 @@ def noise_covariance(meas: Measurements, noise: InstrumentNoise, Jq: F | None = 
             raise ValueError("noise_covariance: encoder noise needs the joint-angle Jacobian")
         g = Jq[..., :d]
         cov += noise.sigma_q**2 * np.einsum("nji,njk->nik", g, g)
+    if meas.excluded is not None:  # rows kept only for the execution order
+        cov[np.asarray(meas.excluded, bool)] = np.eye(d) * EXCLUDED_SIGMA**2
     return cov
 
 
