@@ -51,6 +51,18 @@ def joint_curve_figure(curves: JointCurves, truth: np.ndarray | None = None) -> 
         ax = fig.add_subplot(2, 3, m + 1)
         v = curves.values[m] * 1e3
         h = curves.half_width[m] * 1e3
+        unit = "mm" if m < 3 else "mrad"
+        if not np.any(v) and not np.any(h):  # held at zero: not "no error", unknown
+            ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=8, y=1.0)
+            ax.set_facecolor("#f2f2f2")
+            ax.text(0.5, 0.5, "not identifiable\nfrom this data", ha="center", va="center",
+                    fontsize=8, color="0.3", transform=ax.transAxes)  # fmt: skip
+            ax.set_yticks([])
+            ax.tick_params(labelsize=7)
+            if m >= 3:
+                ax.set_xlabel(f"joint {curves.joint} angle (deg)", fontsize=8)
+            ax.set_xlim(th[0], th[-1])
+            continue
         ax.fill_between(
             th,
             v - h,
@@ -63,8 +75,8 @@ def joint_curve_figure(curves: JointCurves, truth: np.ndarray | None = None) -> 
         ax.plot(th, v, color="#224488", lw=1.5, label="identified")
         if truth is not None:
             ax.plot(th, truth[m] * 1e3, color="#cc3311", lw=1, ls="--", label="truth")
-        unit = "mm" if m < 3 else "mrad"
-        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=8)
+        # a fixed title position: placing it above the tick labels measured every label
+        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=8, y=1.0)
         ax.set_ylabel(unit, fontsize=8)
         ax.tick_params(labelsize=7)
         ax.locator_params(nbins=4)
@@ -93,7 +105,7 @@ def residual_plot(fitted: FittedModel, meas: Measurements) -> Figure:
     ax.set_xlabel("pose (execution order)")
     ax.set_ylabel("measured − model (mm)")
     ax.legend(fontsize=7, ncol=5)
-    ax.set_title(f"Residuals: rms {fitted.rms_pos * 1e3:.4f} mm")
+    ax.set_title(f"Residuals: rms {fitted.rms_pos * 1e3:.4f} mm", y=1.0)
     if fitted.residual_rot is not None:
         ax2 = fig.add_subplot(rows + 1, 1, 2)
         rr = np.degrees(fitted.residual_rot) * 1e3

@@ -154,7 +154,7 @@ def _coverage_figure(robot: Any, q: F, q_lo: F, q_hi: F) -> Figure:
     for j in range(nj):
         ax = fig.add_subplot(2, nj, j + 1)
         ax.hist(np.degrees(q[:, j]), bins=24, range=(np.degrees(q_lo[j]), np.degrees(q_hi[j])))
-        ax.set_title(f"joint {j + 1}", fontsize=8)
+        ax.set_title(f"joint {j + 1}", fontsize=8, y=1.0)
         ax.tick_params(labelsize=6)
         ax.set_xlabel("deg", fontsize=7)
     T = robot.fk(q)
@@ -186,7 +186,7 @@ def _joint_figure(curves: Any, fitted: Any = None) -> Figure:
         ax = fig.add_subplot(1, 6, m + 1)
         v = curves.values[m] * 1e3
         h = curves.half_width[m] * 1e3
-        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=7)
+        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=7, y=1.0)
         state = _motion_state(fitted, curves.joint, m, v, h)
         if state:
             ax.set_facecolor("#f2f2f2")
