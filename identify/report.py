@@ -47,8 +47,9 @@ def joint_curve_figure(curves: JointCurves, truth: np.ndarray | None = None) -> 
     """
     fig = Figure(figsize=(9.0, 6.0))
     th = np.degrees(curves.theta)
+    axes = fig.subplots(2, 3, sharex=True).ravel()  # x tick labels on the bottom row only
     for m in range(6):
-        ax = fig.add_subplot(2, 3, m + 1)
+        ax = axes[m]
         v = curves.values[m] * 1e3
         h = curves.half_width[m] * 1e3
         unit = "mm" if m < 3 else "mrad"
