@@ -28,7 +28,6 @@ from numpy.typing import NDArray
 from .diagnose import (
     implied_channel,
     jitter_binary,
-    pose_residuals,
     regressor_values,
     sensitivities,
     state_from_fitted,
@@ -37,11 +36,10 @@ from .diagnose import (
 from .effects import Effect, EffectContext, parse_effects
 from .errors import InputError
 from .fit import FittedModel, fit_model
+from .linearize import measurement_context, pose_residuals
 from .measurements import Measurements
-from .robot import gravity_torques
 
 F = NDArray[np.float64]
-_MASK_SIGMA = 1e3  # m / rad: a row with this uncertainty does not inform the fit
 
 
 @dataclass(frozen=True)
@@ -181,9 +179,7 @@ class Comparison:
 
 
 def _context(fitted: FittedModel, meas: Measurements) -> EffectContext:
-    robot = fitted.robot
-    tau = gravity_torques(robot, meas.q) if robot.masses is not None else None
-    return EffectContext(robot, meas.q, meas.approach_sign(), tau, meas.time, meas.temp)
+    return measurement_context(fitted.robot, meas)
 
 
 def _predict_res(fitted: FittedModel, meas: Measurements, approach: F | None = None) -> F:
@@ -192,22 +188,10 @@ def _predict_res(fitted: FittedModel, meas: Measurements, approach: F | None = N
 
 
 def _mask(meas: Measurements, rows: NDArray[np.bool_], fitted: FittedModel) -> Measurements:
-    n = meas.n_poses
-    sp = (
-        np.array(meas.sigma_pos, float)
-        if meas.sigma_pos is not None
-        else np.full((n, 3), fitted.noise.sigma_pos)
-    )
-    sp[rows] = _MASK_SIGMA
-    sr = None
-    if meas.has_orientation:
-        sr = (
-            np.array(meas.sigma_rpy, float)
-            if meas.sigma_rpy is not None
-            else np.full((n, 3), fitted.noise.sigma_rot)
-        )
-        sr[rows] = _MASK_SIGMA
-    return replace(meas, sigma_pos=sp, sigma_rpy=sr)
+    """``meas`` with ``rows`` left out of the fit but kept for the execution order; the other
+    rows keep the one noise model (a per-angle sigma put in for them would have weighted
+    them differently from the fit of all the data)."""
+    return replace(meas, excluded=np.asarray(rows, bool).copy())
 
 
 def compare_effect(

@@ -55,6 +55,10 @@ class Measurements:
     pose_id : tuple of str, or None
     meta : dict of str to str
         ``# key: value`` metadata (robot serial, instrument, run id …).
+    excluded : ndarray of bool, shape (n,), or None
+        Rows kept for the execution order (the next row's approach direction) that carry no
+        information: the noise model gives them an uninformative covariance (cross-validation
+        leaves poses out this way).  Never read from or written to a file.
     """
 
     q: F
@@ -67,6 +71,7 @@ class Measurements:
     sigma_rpy: F | None = None
     pose_id: tuple[str, ...] | None = None
     meta: dict[str, str] = field(default_factory=dict)
+    excluded: NDArray[np.bool_] | None = None
 
     def __post_init__(self) -> None:
         n = self.q.shape[0]
@@ -82,6 +87,8 @@ class Measurements:
             v = getattr(self, name)
             if v is not None and v.shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {v.shape}")
+        if self.excluded is not None and self.excluded.shape != (n,):
+            raise ValueError(f"excluded must have shape ({n},), got {self.excluded.shape}")
         if self.pose_id is not None and len(self.pose_id) != n:
             raise ValueError("pose_id needs one entry per row")
 
@@ -129,4 +136,5 @@ class Measurements:
             sigma_pos=take(self.sigma_pos),
             sigma_rpy=take(self.sigma_rpy),
             pose_id=pid,
+            excluded=take(self.excluded),
         )

@@ -36,8 +36,9 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full parser, with every command group found in ``station/commands``."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every command group found in ``station/commands``; with ``command``
+    (a top-level command name in ``commands.COMMAND_MODULES``) only the group that has it."""
     parser = _Parser(
         prog="quickhealth",
         description=__doc__,
@@ -50,8 +51,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="show the traceback of an internal error (exit 3) instead of one line",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        mod = importlib.import_module(f"{commands.__name__}.{info.name}")
+    names = sorted(m.name for m in pkgutil.iter_modules(commands.__path__))
+    if command in commands.COMMAND_MODULES:
+        names = [commands.COMMAND_MODULES[command]]
+    for name in names:
+        mod = importlib.import_module(f"{commands.__name__}.{name}")
         register = getattr(mod, "register", None)
         if register is not None:
             register(sub)
@@ -86,11 +90,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Exit 1 is reserved for "the assessment flagged a problem".  A known error prints its one
     line (status 2 or 3); anything unexpected is an internal error: one line and status 3, the
-    traceback only with ``--debug``.
+    traceback only with ``--debug``.  Only the module of the command asked for is imported.
     """
-    debug = "--debug" in (sys.argv[1:] if argv is None else list(argv))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
     try:
-        parser = build_parser()
+        parser = build_parser(next((a for a in argv if not a.startswith("-")), None))
         args = parser.parse_args(argv)
         debug = bool(getattr(args, "debug", debug))
         func = getattr(args, "func", None)

@@ -57,7 +57,8 @@ from .fsio import write_atomic
 F = NDArray[np.float64]
 
 MODEL_SCHEMA = "quickhealth.model/1"
-REPORT_SCHEMA = "quickhealth.report/1"
+REPORT_SCHEMA = "quickhealth.report/2"  # station/report_json.py; /1 files still read
+REPORT_SCHEMAS_READ = ("quickhealth.report/1", REPORT_SCHEMA)
 BUILTIN_ROBOTS = {"ur5": ur5}
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
@@ -819,6 +820,7 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
         },
         "unidentifiable": list(fitted.unidentifiable),
         "held": list(fitted.held),
+        "reference_time_s": getattr(fitted, "reference_time", None),
         "noise": {
             "sigma_pos": fitted.noise.sigma_pos,
             "sigma_rot": fitted.noise.sigma_rot,
@@ -878,6 +880,9 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
             prior=ParameterPrior(**doc["prior"]),
             n_poses=int(st["n_poses"]),
             held=tuple(doc.get("held", ())),
+            reference_time=(
+                None if doc.get("reference_time_s") is None else float(doc["reference_time_s"])
+            ),
         )
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         if isinstance(exc, InputError):
@@ -1014,7 +1019,7 @@ def read_report(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read report.json."""
     p = Path(path)
     doc = load_json_limited(p, "report")
-    if not isinstance(doc, dict) or doc.get("schema") != REPORT_SCHEMA:
+    if not isinstance(doc, dict) or doc.get("schema") not in REPORT_SCHEMAS_READ:
         got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
         raise InputError(f"{p}: not a quickhealth report (schema {got!r})")
     return doc

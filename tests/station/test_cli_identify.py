@@ -337,3 +337,22 @@ def test_identify_compare_bad_input_exit_2_one_line(backlash_fit, tmp_path, caps
     assert main(["identify", "compare", str(tmp_path / "no.json"), *args[1:]]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not found" in err[0]
+
+
+def test_command_table_names_the_module_of_every_command() -> None:
+    """``quickhealth CMD`` imports only COMMAND_MODULES[CMD]: the table must match what each
+    command module registers (a command not in the table still works, importing them all)."""
+    import argparse
+    import importlib
+    import pkgutil
+
+    from quickhealth.station import commands
+
+    found = {}
+    for info in pkgutil.iter_modules(commands.__path__):
+        mod = importlib.import_module(f"{commands.__name__}.{info.name}")
+        if hasattr(mod, "register"):
+            sub = argparse.ArgumentParser().add_subparsers()
+            mod.register(sub)
+            found.update({name: info.name for name in sub.choices})
+    assert found == commands.COMMAND_MODULES

@@ -1141,7 +1141,7 @@ def test_unexpected_error_is_exit_3_one_line_traceback_only_with_debug(monkeypat
         raise ZeroDivisionError("a bug")
 
     parser = cli.build_parser()
-    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(cli, "build_parser", lambda command=None: parser)
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
     sub.choices["trend"].set_defaults(func=boom)
     assert main(["trend", "cell3"]) == 3
@@ -1156,7 +1156,7 @@ def test_memory_error_and_oserror_are_one_line(monkeypatch, capsys):
     import quickhealth.station.cli as cli
 
     parser = cli.build_parser()
-    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(cli, "build_parser", lambda command=None: parser)
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
     for exc, code, text in (
         (MemoryError(), 3, "out of memory"),
