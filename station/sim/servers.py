@@ -12,10 +12,13 @@
 
 The stream
 ----------
-Each RTDE session streams from its own thread on absolute deadlines ``t0 + k/f`` (no
-drift; a late wake-up skips the missed slots instead of bursting).  Per packet it holds the
+One thread, the controller cycle (:class:`Streamer`), feeds every RTDE session, as a real
+controller's RTDE samples its one control loop: absolute deadlines ``t0 + k/f`` at 125 Hz
+(CB3) or 500 Hz (e-Series), no drift, missed cycles skipped rather than sent in a burst;
+each session gets every n-th cycle for its requested rate.  Per cycle it holds the
 controller lock only to copy the state (:meth:`Controller.snapshot`); forward kinematics,
-packing and sending happen outside it, and nothing it waits on ever plans a path.
+packing and sending happen outside it, sends never block (a client that stops reading is
+dropped after 1 MB of backlog), and nothing it waits on ever plans a path.
 """
 
 from __future__ import annotations
@@ -53,9 +56,15 @@ from .wire import (
     rtde_type,
 )
 
+SEND_BACKLOG = 1 << 20  # bytes a client may leave unread before its session is closed
+
 
 class RtdeSession:
-    """One RTDE client connection: its recipes, its requested rate and its stream thread."""
+    """One RTDE client connection: its recipes, its requested rate, its unsent bytes.
+
+    The handshake runs in the connection's own thread; data packets are pushed by the
+    controller's single :class:`Streamer` thread without ever blocking on this client.
+    """
 
     def __init__(self, ctrl: Controller, conn: socket.socket) -> None:
         self.ctrl = ctrl
@@ -65,22 +74,55 @@ class RtdeSession:
         self.next_output_id = 1  # output and input recipes are numbered separately:
         self.next_input_id = 1  # the client hard-codes input recipe ids 1, 2, 3 …
         self.freq = 125.0
-        self.streaming = threading.Event()
+        self.streaming = False
         self.send_lock = threading.Lock()
+        self.pending = b""  # stream bytes the socket did not take yet
         self.closed = False
         self.packets = 0  # data packets streamed
-        self.late = 0  # stream slots missed (the thread woke after the next deadline)
+        self.max_lag = 0.0  # s, the latest a packet went out after its cycle's deadline
 
     def send(self, ptype: int, payload: bytes) -> None:
+        """A handshake reply, after any stream bytes still pending (blocking)."""
         with self.send_lock:
-            self.conn.sendall(packet(ptype, payload))
+            data, self.pending = self.pending + packet(ptype, payload), b""
+            self.conn.sendall(data)
+
+    def push(self, data: bytes) -> None:
+        """Stream bytes: sent without blocking; a client that stops reading is dropped.
+
+        If a handshake reply is being sent right now, this cycle's packet is skipped.
+        """
+        if not self.send_lock.acquire(blocking=False):
+            return
+        try:
+            buf = self.pending + data
+            try:
+                n = self.conn.send(buf, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                n = 0
+            except OSError:
+                self.closed = True
+                return
+            self.pending = buf[n:]
+        finally:
+            self.send_lock.release()
+        if len(self.pending) > SEND_BACKLOG:
+            self.ctrl.say("RTDE client stopped reading: connection closed")
+            self.closed = True
+            close_socket(self.conn)
+
+    def divider(self) -> int:
+        """Send every n-th controller cycle: the requested rate, at most the cycle rate."""
+        return max(1, round(self.ctrl.stream_hz / max(min(self.freq, self.ctrl.stream_hz), 1.0)))
+
+    def hz(self) -> float:
+        return self.ctrl.stream_hz / self.divider()
 
     def serve(self) -> None:
-        threading.Thread(target=self._stream, name="rtde-stream", daemon=True).start()
         with self.ctrl.lock:
             self.ctrl.sessions.append(self)
         try:
-            while not self.ctrl.stop_event.is_set():
+            while not self.ctrl.stop_event.is_set() and not self.closed:
                 size, ptype = struct.unpack(">HB", recv_exact(self.conn, 3))
                 payload = recv_exact(self.conn, size - 3) if size > 3 else b""
                 self._handle(ptype, payload)
@@ -88,11 +130,10 @@ class RtdeSession:
             pass
         finally:
             self.closed = True
-            self.streaming.set()
-            close_socket(self.conn)
             with self.ctrl.lock:
                 if self in self.ctrl.sessions:
                     self.ctrl.sessions.remove(self)
+            close_socket(self.conn)
 
     def _handle(self, ptype: int, payload: bytes) -> None:
         if ptype == P_REQUEST_PROTOCOL_VERSION:
@@ -121,9 +162,9 @@ class RtdeSession:
             self.send(ptype, bytes([rid]) + ",".join(types).encode())
         elif ptype == P_START:
             self.send(ptype, b"\x01")
-            self.streaming.set()
+            self.streaming = True
         elif ptype == P_PAUSE:
-            self.streaming.clear()
+            self.streaming = False
             self.send(ptype, b"\x01")
         elif ptype == P_DATA and payload:
             recipe = self.inputs.get(payload[0])
@@ -132,31 +173,57 @@ class RtdeSession:
         elif ptype == P_TEXT_MESSAGE:
             pass
 
-    def period(self) -> float:
-        """Stream period: the requested rate, at most what the controller version streams."""
-        return 1.0 / max(min(self.freq, self.ctrl.stream_hz), 1.0)
 
-    def _stream(self) -> None:
-        self.streaming.wait()
-        period = self.period()
+class Streamer:
+    """The controller cycle: one thread that feeds every RTDE session.
+
+    Runs at the controller's cycle rate (125 Hz CB3, 500 Hz e-Series) on absolute deadlines
+    ``t0 + k/f`` (no drift; after a late wake-up the missed cycles are skipped, never
+    sent in a burst).  Each cycle with a session due takes one snapshot (the controller
+    lock only while copying state) and pushes each due session its packets without
+    blocking, so one stalled client never delays another.
+    """
+
+    def __init__(self, ctrl: Controller) -> None:
+        self.ctrl = ctrl
+        self.cycles = 0
+        self.missed = 0  # cycles skipped because the thread woke too late
+        self.thread = threading.Thread(target=self.run, name="rtde-stream", daemon=True)
+
+    def start(self) -> Streamer:
+        self.thread.start()
+        return self
+
+    def run(self) -> None:
+        ctrl = self.ctrl
+        period = 1.0 / ctrl.stream_hz
         deadline = time.monotonic()
-        while not self.closed and not self.ctrl.stop_event.is_set():
-            if self.streaming.is_set() and self.outputs:
-                state = self.ctrl.snapshot()  # the lock only while copying
-                try:
-                    data = b"".join(packet(P_DATA, r.pack(state)) for r in self.outputs)
-                    with self.send_lock:
-                        self.conn.sendall(data)
-                except OSError:
-                    return
-                self.packets += 1
+        k = 0
+        while not ctrl.stop_event.is_set():
+            with ctrl.lock:
+                sessions = list(ctrl.sessions)
+            due = [
+                r
+                for r in sessions
+                if r.streaming and r.outputs and not r.closed and k % r.divider() == 0
+            ]
+            if due:
+                lag = time.monotonic() - deadline
+                state = ctrl.snapshot()  # the lock only while copying
+                for r in due:
+                    r.push(b"".join(packet(P_DATA, rec.pack(state)) for rec in r.outputs))
+                    r.packets += 1
+                    r.max_lag = max(r.max_lag, lag)
+            k += 1
+            self.cycles += 1
             deadline += period
             delay = deadline - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            else:  # late: skip the missed slots, keep the grid
+            else:  # late: skip the missed cycles, keep the grid
                 missed = int(-delay / period)
-                self.late += missed
+                self.missed += missed
+                k += missed
                 deadline += period * missed
 
 
@@ -325,9 +392,9 @@ def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
                 "accepting": ctrl.accepting(),
                 "version": list(ctrl.version),
                 "streams": [
-                    {"hz": 1.0 / r.period(), "packets": r.packets, "late": r.late}
+                    {"hz": r.hz(), "packets": r.packets, "max_lag_ms": r.max_lag * 1e3}
                     for r in ctrl.sessions
-                    if r.streaming.is_set() and r.outputs
+                    if r.streaming and r.outputs
                 ],
             }
     if cmd == "truth":
@@ -423,6 +490,7 @@ def serve(ctrl: Controller, *, rtde_port: int = RTDE_PORT) -> None:
     ]
     for t in threads:
         t.start()
+    Streamer(ctrl).start()
     ctrl.say("listening on 127.0.0.1")
     ctrl.stop_event.wait()
     ctrl.close()
