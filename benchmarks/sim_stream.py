@@ -124,8 +124,8 @@ def measure(version: str, busy: bool, leg, *, wait_s: float = 600.0) -> dict:
         sim = _start(start_sim_controller, version, wait_s)
         load = os.getloadavg()[0]
         baseline = os_baseline_ms()
-        r = rtde_receive.RTDEReceiveInterface("127.0.0.1")  # 125 Hz on CB3, 500 Hz on e-Series
-        c = rtde_control.RTDEControlInterface("127.0.0.1")
+        r = rtde_receive.RTDEReceiveInterface(sim.host)  # 125 Hz on CB3, 500 Hz on e-Series
+        c = rtde_control.RTDEControlInterface(sim.host)
         if not c.moveJ([float(v) for v in q_a], motion.joint_speed, motion.joint_accel):
             raise RuntimeError("moveJ to the start of the leg failed")
         poll = Poller(r)

@@ -100,7 +100,7 @@ def start_sim_cell(
     emu = MotorEmulator().start()
     robot = motor = None
     try:
-        robot = UrRobot("127.0.0.1")
+        robot = UrRobot(sim.host)
         motor = SerialPanMotor(emu.port)
         rig = scaled_rig(world.rig, image_scale)
 

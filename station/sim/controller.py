@@ -40,7 +40,7 @@ from quickhealth.station.hardware.urtypes import (
 )
 
 from .arm import Arm, Motion, Path, T_from_pose, ik_near, joint_path, linear_path, pose_from_T
-from .wire import CB3_VERSION, CONTROL_PORT, max_stream_hz
+from .wire import CB3_VERSION, CONTROL_PORT, HOST, max_stream_hz
 
 # Register commands of the rtde_control script (rtde.h).
 CMD_NONE = 0
@@ -107,8 +107,10 @@ class Controller:
         control_port: int = CONTROL_PORT,
         verbose: bool = False,
         version: tuple[int, int, int, int] = CB3_VERSION,
+        host: str = HOST,
     ) -> None:
         self.arm = arm
+        self.host = host  # the loopback address every server listens on
         self.control_port = control_port
         self.verbose = verbose
         self.version = tuple(version)

@@ -29,11 +29,16 @@ from .wire import (
     HOST,
     RTDE_PORT,
     SCRIPT_PORT,
+    check_loopback,
     max_stream_hz,
     parse_version,
 )
 
-PORT_LOCK = "/tmp/quickhealth-ur-ports.lock"
+PORT_LOCK = "/tmp/quickhealth-ur-ports-{host}.lock"
+# The UR ports are fixed (the ur-rtde client hard-codes them), so two simulators on one host
+# need two addresses: every address of 127.0.0.0/8 is loopback on Linux.  A simulator started
+# without an address takes the first free one of these.
+LOOPBACK_POOL = tuple(f"127.0.0.{n}" for n in range(1, 255))
 
 
 class SimControllerHandle:
@@ -47,8 +52,9 @@ class SimControllerHandle:
     >>> sim.stop()                                         # doctest: +SKIP
     """
 
-    def __init__(self, proc: Any, control_port: int, port_lock: int = -1) -> None:
+    def __init__(self, proc: Any, control_port: int, port_lock: int = -1, host: str = HOST) -> None:
         self.proc = proc
+        self.host = host  # the loopback address of its UR ports: connect the client here
         self.control_port = control_port
         self._port_lock = port_lock
         self._sock: socket.socket | None = None
@@ -59,7 +65,7 @@ class SimControllerHandle:
         """Send one control request and return the decoded answer (raises on error)."""
         with self._lock:
             if self._sock is None:
-                self._sock = socket.create_connection((HOST, self.control_port), timeout=5.0)
+                self._sock = socket.create_connection((self.host, self.control_port), timeout=5.0)
                 self._file = self._sock.makefile("rwb", buffering=0)
             self._file.write((json.dumps({"cmd": cmd, **kw}) + "\n").encode())
             line = self._file.readline()
@@ -119,33 +125,51 @@ class SimControllerHandle:
         self.stop()
 
 
-def _take_port_lock(wait_s: float) -> int:
+def _try_address(host: str) -> int:
+    """The lock of ``host``'s UR ports (an open descriptor), or -1 when another simulator
+    holds it or something else listens there."""
     import fcntl
 
+    fd = os.open(PORT_LOCK.format(host=host), os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return -1
+    if not ports_free(host):
+        os.close(fd)
+        return -1
+    return fd
+
+
+def _take_address(host: str | None, wait_s: float) -> tuple[str, int]:
+    """A loopback address whose UR ports are free, and its lock (held until the simulator
+    stops).  ``host`` given: wait up to ``wait_s`` for that one; else the first free one."""
     from quickhealth.identify.errors import HardwareError
 
-    fd = os.open(PORT_LOCK, os.O_RDWR | os.O_CREAT, 0o666)
+    pool = (check_loopback(host),) if host is not None else LOOPBACK_POOL
     deadline = time.monotonic() + wait_s
     while True:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            return fd
-        except BlockingIOError:
-            if time.monotonic() > deadline:
-                os.close(fd)
-                raise HardwareError(
-                    f"another controller simulator holds the UR ports (waited {wait_s:.0f} s)"
-                ) from None
-            time.sleep(0.1)
+        for h in pool:
+            fd = _try_address(h)
+            if fd >= 0:
+                return h, fd
+        if time.monotonic() > deadline:
+            where = pool[0] if host is not None else "any loopback address"
+            raise HardwareError(
+                f"UR ports 30004/29999/30003 on {where} are in use by another simulator "
+                f"or controller (waited {wait_s:.0f} s)"
+            )
+        time.sleep(0.1)
 
 
-def ports_free() -> bool:
-    """True when the fixed UR ports are free on 127.0.0.1."""
+def ports_free(host: str = HOST) -> bool:
+    """True when the fixed UR ports are free on ``host``."""
     for port in (RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT):
         s = socket.socket()
         try:
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            s.bind((HOST, port))
+            s.bind((host, port))
         except OSError:
             return False
         finally:
@@ -165,13 +189,16 @@ def start_sim_controller(
     wait_s: float = 120.0,
     degrade: dict[str, float] | None = None,
     controller_version: str | None = None,
+    host: str | None = None,
 ) -> SimControllerHandle:
     """Start the simulator as a separate process and wait until it answers.
 
     The ur-rtde constructors hold the GIL, so the simulator must never run as a thread of
-    the process that uses the client.  The UR ports are fixed, so one simulator runs per
-    host: a host-wide lock (``/tmp/quickhealth-ur-ports.lock``) is taken first, waiting up to
-    ``wait_s`` seconds for another simulator started this way to stop (tests run serially).
+    the process that uses the client.  The UR ports are fixed, so each simulator takes its
+    own loopback address (``host``, or the first free one of 127.0.0.1 … 127.0.0.254, held
+    by a lock file until it stops): simulators started by different programs at once never
+    meet.  Connect the client to :attr:`SimControllerHandle.host`.  With ``host`` given,
+    wait up to ``wait_s`` seconds for that address to become free.
     ``controller_version`` (``"5.11.1"``) makes it report an e-Series controller, which
     streams at 500 Hz; the default is a CB3 (3.15.7, 125 Hz).
 
@@ -187,12 +214,7 @@ def start_sim_controller(
 
     if controller_version is not None:
         parse_version(controller_version)  # ValueError before anything starts
-    lock = _take_port_lock(wait_s)
-    if not ports_free():
-        os.close(lock)
-        raise HardwareError(
-            "UR ports 30004/29999/30003 on 127.0.0.1 are in use: another simulator runs; stop it first"
-        )
+    host, lock = _take_address(host, wait_s)
     cmd = [
         sys.executable,
         "-m",
@@ -207,6 +229,8 @@ def start_sim_controller(
         str(speed_factor),
         "--parent-pid",
         str(os.getpid()),
+        "--host",
+        host,
     ]
     if q0_deg is not None:
         cmd += ["--q0-deg", ",".join(f"{v:.9g}" for v in q0_deg)]
@@ -217,7 +241,7 @@ def start_sim_controller(
     if verbose:
         cmd.append("--verbose")
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
-    handle = SimControllerHandle(proc, control_port, lock)
+    handle = SimControllerHandle(proc, control_port, lock, host)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -241,6 +265,7 @@ def build_controller(
     verbose: bool = False,
     degrade: dict[str, float] | None = None,
     version: tuple[int, int, int, int] = CB3_VERSION,
+    host: str = HOST,
 ) -> Controller:
     """A controller whose arm is the digital twin of ``twin_seed`` placed in ``cell``.
 
@@ -252,7 +277,7 @@ def build_controller(
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
     q0 = np.radians(q0_deg if q0_deg is not None else HOME_Q_DEG)
     arm = Arm(world.twin.robot, q0, truth=world.T_instr_target0)
-    ctrl = Controller(arm, control_port=control_port, verbose=verbose, version=version)
+    ctrl = Controller(arm, control_port=control_port, verbose=verbose, version=version, host=host)
     ctrl.world = world
     return ctrl
 
@@ -278,6 +303,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=CONTROL_PORT,
         help="loopback port of the JSON control channel (default %(default)s)",
+    )
+    p.add_argument(
+        "--host",
+        default=HOST,
+        help="loopback address to serve on, 127.x.y.z (default %(default)s)",
     )
     p.add_argument("--q0-deg", default=None, help="start joints, comma-separated degrees")
     p.add_argument(
@@ -344,6 +374,11 @@ def run_from_args(args: argparse.Namespace) -> int:
     except ValueError as exc:
         sys.stderr.write(f"quickhealth: error: --controller-version: {exc}\n")
         return 2
+    try:
+        host = check_loopback(getattr(args, "host", HOST))
+    except ValueError as exc:
+        sys.stderr.write(f"quickhealth: error: --host: {exc}\n")
+        return 2
     from quickhealth.identify.errors import InputError
     from quickhealth.station.hardware.world import parse_degradation
 
@@ -357,6 +392,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             verbose=args.verbose,
             degrade=degrade,
             version=version,
+            host=host,
         )
     except InputError as exc:
         sys.stderr.write(f"quickhealth: error: {exc}\n")

@@ -39,7 +39,6 @@ from quickhealth.station.hardware.urtypes import RobotMode, RuntimeState, Safety
 from .controller import Controller, close_socket
 from .wire import (
     DASHBOARD_PORT,
-    HOST,
     P_DATA,
     P_GET_URCONTROL_VERSION,
     P_PAUSE,
@@ -51,6 +50,7 @@ from .wire import (
     RTDE_PORT,
     SCRIPT_PORT,
     Recipe,
+    check_loopback,
     packet,
     recv_exact,
     rtde_type,
@@ -437,10 +437,10 @@ def shutdown(ctrl: Controller) -> None:
         close_socket(s)
 
 
-def _listen(port: int) -> socket.socket:
+def _listen(host: str, port: int) -> socket.socket:
     s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    s.bind((HOST, port))  # loopback only, always
+    s.bind((check_loopback(host), port))  # loopback only, always
     s.listen(8)
     return s
 
@@ -459,11 +459,11 @@ def serve(ctrl: Controller, *, rtde_port: int = RTDE_PORT) -> None:
     listeners = []
     for port, _, _ in handlers:
         try:
-            listeners.append(_listen(port))
+            listeners.append(_listen(ctrl.host, port))
         except OSError as exc:
             for s in listeners:
                 close_socket(s)
-            raise OSError(f"cannot listen on {HOST}:{port}: {exc.strerror}") from exc
+            raise OSError(f"cannot listen on {ctrl.host}:{port}: {exc.strerror}") from exc
     ctrl.listeners = listeners
 
     def run(handler: Handler, conn: socket.socket, faultable: bool) -> None:
@@ -491,7 +491,7 @@ def serve(ctrl: Controller, *, rtde_port: int = RTDE_PORT) -> None:
     for t in threads:
         t.start()
     Streamer(ctrl).start()
-    ctrl.say("listening on 127.0.0.1")
+    ctrl.say(f"listening on {ctrl.host}")
     ctrl.stop_event.wait()
     ctrl.close()
     for s in listeners:

@@ -13,6 +13,24 @@ import struct
 from typing import Any
 
 HOST = "127.0.0.1"
+
+
+def check_loopback(host: str) -> str:
+    """``host`` when it is an IPv4 loopback address (127.0.0.0/8); the simulator serves
+    nowhere else.  Raises ValueError otherwise."""
+    import ipaddress
+
+    try:
+        ok = ipaddress.IPv4Address(host).is_loopback
+    except ValueError:
+        ok = False
+    if not ok:
+        raise ValueError(
+            f"the simulator serves on loopback addresses only (127.x.y.z), not {host!r}"
+        )
+    return host
+
+
 RTDE_PORT = 30004
 DASHBOARD_PORT = 29999
 SCRIPT_PORT = 30003

@@ -39,7 +39,7 @@ def sim():
 @pytest.fixture
 def robot(sim):
     sim.fault("clear")
-    r = UrRobot("127.0.0.1")
+    r = UrRobot(sim.host)
     try:
         yield r
     finally:
@@ -170,3 +170,19 @@ def test_link_drop_then_reconnect_without_a_new_robot_object(sim, robot):
     assert robot.status().ready
     robot.move(Q2, Leg.JOINT, speed=1.0, accel=1.4)
     assert np.allclose(robot.joints(), Q2, atol=3e-4)
+
+
+def test_two_simulators_at_once_each_on_its_own_loopback_address(sim, robot):
+    """The UR ports are fixed; a second simulator (another test run, a demo) takes another
+    127.x address, and each client drives its own arm."""
+    other = start_sim_controller(control_port=30099, speed_factor=3.0, wait_s=5.0)
+    try:
+        assert other.host != sim.host and other.host.startswith("127.")
+        with UrRobot(other.host) as r2:
+            q_before = np.asarray(sim.state()["q"])
+            r2.move(Q2, Leg.JOINT, speed=1.0, accel=1.4)
+            assert np.allclose(r2.joints(), Q2, atol=3e-4)
+            assert np.allclose(np.asarray(other.state()["q"]), Q2, atol=3e-4)
+            assert np.max(np.abs(np.asarray(sim.state()["q"]) - q_before)) < 1e-3
+    finally:
+        other.stop()

@@ -59,8 +59,8 @@ def test_stream_keeps_going_while_a_long_move_l_is_planned():
     sim = start_sim_controller(control_port=30092, speed_factor=4.0)
     r = c = None
     try:
-        r = rtde_receive.RTDEReceiveInterface("127.0.0.1", 125.0)
-        c = rtde_control.RTDEControlInterface("127.0.0.1", 125.0)
+        r = rtde_receive.RTDEReceiveInterface(sim.host, 125.0)
+        c = rtde_control.RTDEControlInterface(sim.host, 125.0)
         assert c.moveJ(Q_START.tolist(), 1.0, 1.4)
         goal = np.array(r.getActualTCPPose())
         goal[:3] += LINE
@@ -94,8 +94,8 @@ def test_e_series_version_streams_at_500_hz():
     sim = start_sim_controller(control_port=30093, controller_version="5.11.1")
     r = None
     try:
-        r = rtde_receive.RTDEReceiveInterface("127.0.0.1")  # the client picks 500 Hz itself
-        with socket.create_connection(("127.0.0.1", DASHBOARD_PORT), timeout=5) as s:
+        r = rtde_receive.RTDEReceiveInterface(sim.host)  # the client picks 500 Hz itself
+        with socket.create_connection((sim.host, DASHBOARD_PORT), timeout=5) as s:
             f = s.makefile("rwb", buffering=0)
             f.readline()
             f.write(b"PolyscopeVersion\n")
@@ -121,7 +121,7 @@ def test_cb3_version_streams_at_125_hz_whatever_the_client_asks():
     sim = start_sim_controller(control_port=30094)
     r = None
     try:
-        r = rtde_receive.RTDEReceiveInterface("127.0.0.1", 500.0)
+        r = rtde_receive.RTDEReceiveInterface(sim.host, 500.0)
         time.sleep(0.3)
         (st,) = sim.state()["streams"]
         assert st["hz"] == 125.0
@@ -138,8 +138,8 @@ def test_restart_drops_every_link_refuses_for_down_s_then_reconnects():
     sim = start_sim_controller(control_port=30095, speed_factor=4.0)
     r = c = None
     try:
-        r = rtde_receive.RTDEReceiveInterface("127.0.0.1", 125.0)
-        dash = socket.create_connection(("127.0.0.1", DASHBOARD_PORT), timeout=5)
+        r = rtde_receive.RTDEReceiveInterface(sim.host, 125.0)
+        dash = socket.create_connection((sim.host, DASHBOARD_PORT), timeout=5)
         dash.recv(100)
         sim.fault("restart", down_s=1.5)
         t0 = time.monotonic()
@@ -152,7 +152,7 @@ def test_restart_drops_every_link_refuses_for_down_s_then_reconnects():
             time.sleep(0.01)
         assert not r.isConnected()
         # refused while down: the socket is closed at once
-        with socket.create_connection(("127.0.0.1", RTDE_PORT), timeout=5) as s:
+        with socket.create_connection((sim.host, RTDE_PORT), timeout=5) as s:
             s.settimeout(2.0)
             assert s.recv(10) == b""
         r.disconnect()
@@ -160,8 +160,8 @@ def test_restart_drops_every_link_refuses_for_down_s_then_reconnects():
         while not sim.state()["accepting"]:
             assert time.monotonic() - t0 < 5.0
             time.sleep(0.05)
-        r = rtde_receive.RTDEReceiveInterface("127.0.0.1", 125.0)
-        c = rtde_control.RTDEControlInterface("127.0.0.1", 125.0)  # uploads, program runs
+        r = rtde_receive.RTDEReceiveInterface(sim.host, 125.0)
+        c = rtde_control.RTDEControlInterface(sim.host, 125.0)  # uploads, program runs
         assert c.isProgramRunning()
         q = np.radians([10.0, -80.0, 80.0, -90.0, -90.0, 10.0])
         assert c.moveJ(q.tolist(), 1.0, 1.4)
