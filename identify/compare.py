@@ -28,7 +28,6 @@ from numpy.typing import NDArray
 from .diagnose import (
     implied_channel,
     jitter_binary,
-    pose_residuals,
     regressor_values,
     sensitivities,
     state_from_fitted,
@@ -37,8 +36,8 @@ from .diagnose import (
 from .effects import Effect, EffectContext, parse_effects
 from .errors import InputError
 from .fit import FittedModel, fit_model
+from .linearize import measurement_context, pose_residuals
 from .measurements import Measurements
-from .robot import gravity_torques
 
 F = NDArray[np.float64]
 _MASK_SIGMA = 1e3  # m / rad: a row with this uncertainty does not inform the fit
@@ -181,9 +180,7 @@ class Comparison:
 
 
 def _context(fitted: FittedModel, meas: Measurements) -> EffectContext:
-    robot = fitted.robot
-    tau = gravity_torques(robot, meas.q) if robot.masses is not None else None
-    return EffectContext(robot, meas.q, meas.approach_sign(), tau, meas.time, meas.temp)
+    return measurement_context(fitted.robot, meas)
 
 
 def _predict_res(fitted: FittedModel, meas: Measurements, approach: F | None = None) -> F:

@@ -39,23 +39,29 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
-from .effects import Effect, EffectContext, Perturbation, parse_effect, total_perturbation
-from .effects._base import perturbed_loop_pose
+from .effects import Effect, EffectContext, parse_effect, total_perturbation
 from .effects.cyclic import Cyclic
 from .effects.depthscale import UNIFORM_SCALE_EXPLANATION
 from .errormodel import ErrorModelSpec, chebyshev_basis, chebyshev_u
+from .linearize import (
+    InstrumentNoise,
+    Sensitivities,
+    Whitening,
+    coefficient_columns,
+    effect_jacobian,
+    loop_pose,
+    measurement_context,
+    noise_covariance,
+    pose_residuals,
+)
+from .linearize import sensitivities as loop_sensitivities
 from .measurements import Measurements
 from .robot import RobotModel, gravity_torques
-from .transforms import log_so3
 
 F = NDArray[np.float64]
 
-#: Defaults used when neither the measurements nor the model give the noise.
-DEFAULT_SIGMA_POS = 3e-5
-DEFAULT_SIGMA_ROT = 1e-4
-_EPS = 1e-6
+_NOISE = InstrumentNoise()
 
 
 class Verdict(StrEnum):
@@ -69,7 +75,7 @@ class Verdict(StrEnum):
 class LoopState:
     """A fitted loop model as the diagnosis sees it (SI units).
 
-    ``T_instr_target = perturbed_loop_pose(robot, spec, coeffs, T_instr_base0,
+    ``T_instr_target = linearize.loop_pose(robot, spec, coeffs, T_instr_base0,
     T_flange_target0, q, Σ effect perturbations)``.
 
     Attributes
@@ -80,12 +86,9 @@ class LoopState:
     T_instr_base0, T_flange_target0 : ndarray, shape (4, 4)
     effects : tuple of Effect
     effect_params : tuple of ndarray
-    sigma_pos : float, m
-        Instrument position noise the model assumes (per axis).
-    sigma_rot : float, rad
-        Instrument rotation noise the model assumes (per axis).
-    sigma_q : float, rad
-        Encoder noise of the joint readings, propagated through the loop (0 = exact).
+    noise : InstrumentNoise
+        The instrument and encoder noise the model assumes (the fit's, for a fitted model):
+        the residuals are whitened with :func:`~.linearize.noise_covariance`, as in the fit.
     """
 
     robot: RobotModel
@@ -95,9 +98,7 @@ class LoopState:
     T_flange_target0: F
     effects: tuple[Effect, ...] = ()
     effect_params: tuple[F, ...] = ()
-    sigma_pos: float = DEFAULT_SIGMA_POS
-    sigma_rot: float = DEFAULT_SIGMA_ROT
-    sigma_q: float = 0.0
+    noise: InstrumentNoise = _NOISE
 
     @property
     def effect_names(self) -> tuple[str, ...]:
@@ -113,29 +114,16 @@ class LoopState:
 
 
 # --------------------------------------------------------------------------------------------
-# Loop, residuals and Jacobians
+# Loop, residuals and Jacobians: all from quickhealth.identify.linearize
 # --------------------------------------------------------------------------------------------
 
-
-def context_for(robot: RobotModel, meas: Measurements) -> EffectContext:
-    """The effects' context of a measurement set (approach from the execution order)."""
-    tau = None
-    if robot.masses is not None and robot.coms is not None:
-        tau = gravity_torques(robot, meas.q)
-    return EffectContext(
-        robot=robot,
-        q=meas.q,
-        approach=meas.approach_sign(),
-        gravity_torque=tau,
-        time=meas.time,
-        temp=meas.temp,
-    )
+context_for = measurement_context
 
 
 def model_pose(state: LoopState, ctx: EffectContext) -> F:
     """Model ``T_instr_target`` (n, 4, 4) of every pose, effects included."""
     pert = total_perturbation(state.effects, state.effect_params, ctx)
-    return perturbed_loop_pose(
+    return loop_pose(
         state.robot,
         state.spec,
         state.coeffs,
@@ -146,196 +134,29 @@ def model_pose(state: LoopState, ctx: EffectContext) -> F:
     )
 
 
-def pose_residuals(meas: Measurements, T_model: F) -> F:
-    """Measured minus model: ``(n, 6)`` = position (m), rotation vector (rad), instrument frame.
-
-    Position-only data give ``(n, 3)``.  The rotation residual is ``log(R_meas · R_modelᵀ)``.
-    """
-    dp = meas.pos - T_model[:, :3, 3]
-    if not meas.has_orientation:
-        return dp
-    dw = log_so3(meas.R @ np.swapaxes(T_model[:, :3, :3], -1, -2))
-    return np.concatenate([dp, dw], axis=1)
-
-
-def noise_sigmas(state: LoopState, meas: Measurements) -> F:
-    """Per-pose, per-component standard uncertainty ``(n, 6)`` or ``(n, 3)`` for whitening."""
-    n = meas.n_poses
-    sp = meas.sigma_pos if meas.sigma_pos is not None else np.full((n, 3), state.sigma_pos)
-    if not meas.has_orientation:
-        return np.asarray(sp, float)
-    sr = meas.sigma_rpy if meas.sigma_rpy is not None else np.full((n, 3), state.sigma_rot)
-    return np.concatenate([sp, sr], axis=1)
-
-
-@dataclass(frozen=True, eq=False)
-class Whitening:
-    """Per-pose whitening ``W_i = L_i⁻¹`` with ``L_i L_iᵀ = Σ_i`` (instrument + encoders).
-
-    ``Σ_i = diag(σ²) + σ_q² Σ_j g_ij g_ijᵀ`` with ``g_ij`` the pose's sensitivity to joint j:
-    encoder noise makes the noise pose-dependent, and a test that ignored it would see
-    structure in it.
-    """
-
-    W: F  # (n, c, c)
-    L: F  # (n, c, c)
-
-    def white(self, x: F) -> F:
-        """``W_i x_i`` for residual-like ``x`` (n, c) or Jacobian-like ``x`` (n, c, k)."""
-        if x.ndim == 2:
-            return np.einsum("nij,nj->ni", self.W, x)
-        return np.einsum("nij,njk->nik", self.W, x)
-
-    def unwhite(self, x: F) -> F:
-        """``L_i x_i`` for ``x`` (n, c): back to SI units."""
-        return np.einsum("nij,nj->ni", self.L, x)
-
-
 def whitening(state: LoopState, meas: Measurements, sens: Sensitivities) -> Whitening:
-    """The per-pose whitening of ``meas`` under ``state``'s noise model."""
-    sig = noise_sigmas(state, meas)
-    c = sig.shape[1]
-    cov = np.zeros((sig.shape[0], c, c))
-    idx = np.arange(c)
-    cov[:, idx, idx] = sig**2
-    if state.sigma_q > 0:
-        g = sens.dq[:, :, :c]
-        cov += state.sigma_q**2 * np.einsum("nji,njk->nik", g, g)
-    L = np.linalg.cholesky(cov)
-    return Whitening(W=np.linalg.inv(L), L=L)
+    """The per-pose whitening of ``meas`` under ``state``'s noise model (the fit's)."""
+    return Whitening.of(noise_covariance(meas, state.noise, sens.dq))
 
 
-@dataclass(frozen=True, eq=False)
-class Sensitivities:
-    """Derivatives of the model pose ``(n, 6)`` (position m, rotation rad) at the estimate.
-
-    Attributes
-    ----------
-    dq : ndarray, shape (n, nj, 6)
-        Per unit (rad) joint-angle perturbation.
-    link_scale : ndarray, shape (n, 6)
-        Per unit fractional link growth.
-    base_twist : ndarray, shape (n, 6, 6)
-        Per unit base motion component (δx δy δz εx εy εz).
-    instr_scale_z : ndarray, shape (n, 6)
-        Per unit instrument depth scale.
-    frame_motion : ndarray, shape (n, nj + 2, 6, 6)
-        Per unit constant error motion of each frame (base, joints, tool).
-    """
-
-    dq: F
-    link_scale: F
-    base_twist: F
-    instr_scale_z: F
-    frame_motion: F
-
-
-def _pose_delta(T1: F, T0: F, h: float) -> F:
-    dp = (T1[:, :3, 3] - T0[:, :3, 3]) / h
-    dw = log_so3(T1[:, :3, :3] @ np.swapaxes(T0[:, :3, :3], -1, -2)) / h
-    return np.concatenate([dp, dw], axis=1)
-
-
-def sensitivities(state: LoopState, ctx: EffectContext, h: float = _EPS) -> Sensitivities:
-    """Central-difference derivatives of the loop pose with respect to every channel."""
-    n, nj = ctx.q.shape
-    base = total_perturbation(state.effects, state.effect_params, ctx)
-    orders_full = np.maximum(state.spec.orders, 0)
-    spec_full = state.spec.with_orders(orders_full)
-    coeffs_full = _pad_coeffs(state.spec, spec_full, state.coeffs)
-
-    def pose(p: Perturbation, coeffs: F = coeffs_full) -> F:
-        return perturbed_loop_pose(
-            state.robot,
-            spec_full,
-            coeffs,
-            state.T_instr_base0,
-            state.T_flange_target0,
-            ctx.q,
-            base + p,
-        )
-
-    def diff(make: Any) -> F:
-        return _pose_delta(pose(make(h)), pose(make(-h)), 2 * h)
-
-    S_dq = np.empty((n, nj, 6))
-    for j in range(nj):
-        S_dq[:, j] = diff(lambda s, j=j: Perturbation(dq=_col(n, nj, j, s)))
-    S_ls = diff(lambda s: Perturbation(link_scale=np.full(n, s)))
-    S_bt = np.empty((n, 6, 6))
-    for c in range(6):
-        S_bt[:, c] = diff(lambda s, c=c: Perturbation(base_twist=_col(n, 6, c, s)))
-    S_iz = diff(lambda s: Perturbation(instr_scale_z=np.full(n, s)))
-    # frame motions: perturb each (frame, motion)'s c0 coefficient
-    idx = spec_full.index()
-    c0_pos = {(int(f), int(m)): i for i, (f, m, k) in enumerate(idx) if k == 0}
-    S_fm = np.empty((n, nj + 2, 6, 6))
-    zero = Perturbation()
-    for f in range(nj + 2):
-        for m in range(6):
-            cp = coeffs_full.copy()
-            cm = coeffs_full.copy()
-            cp[c0_pos[f, m]] += h
-            cm[c0_pos[f, m]] -= h
-            S_fm[:, f, m] = _pose_delta(pose(zero, cp), pose(zero, cm), 2 * h)
-    return Sensitivities(S_dq, S_ls, S_bt, S_iz, S_fm)
-
-
-def _col(n: int, width: int, c: int, v: float) -> F:
-    a = np.zeros((n, width))
-    a[:, c] = v
-    return a
-
-
-def _pad_coeffs(spec: ErrorModelSpec, spec_full: ErrorModelSpec, coeffs: F) -> F:
-    full = np.zeros(spec_full.n_params)
-    where = {tuple(r): i for i, r in enumerate(spec_full.index())}
-    for i, r in enumerate(spec.index()):
-        full[where[tuple(r)]] = coeffs[i]
-    return full
-
-
-def effect_jacobian(effect: Effect, ctx: EffectContext, sens: Sensitivities) -> F:
-    """Derivative of the model pose with respect to the effect's parameters, ``(n, 6, k)``.
-
-    Exact for the perturbation (the effect is linear in its parameters); the loop is
-    linearised at the estimate through :class:`Sensitivities`.
-    """
-    n = ctx.n_poses
-    out = np.zeros((n, 6, effect.n_params))
-    for i in range(effect.n_params):
-        unit = np.zeros(effect.n_params)
-        unit[i] = 1.0
-        p = effect.perturbation(ctx, unit)
-        col = np.zeros((n, 6))
-        if p.dq is not None:
-            col += np.einsum("nj,njc->nc", p.dq, sens.dq)
-        if p.link_scale is not None:
-            col += p.link_scale[:, None] * sens.link_scale
-        if p.base_twist is not None:
-            col += np.einsum("nk,nkc->nc", p.base_twist, sens.base_twist)
-        if p.instr_scale_z is not None:
-            col += p.instr_scale_z[:, None] * sens.instr_scale_z
-        out[:, :, i] = col
-    return out
+def sensitivities(state: LoopState, ctx: EffectContext) -> Sensitivities:
+    """Every channel's derivative of the loop at the estimate (:func:`~.linearize.sensitivities`)."""
+    pert = total_perturbation(state.effects, state.effect_params, ctx)
+    return loop_sensitivities(
+        state.robot,
+        state.spec,
+        state.coeffs,
+        state.T_instr_base0,
+        state.T_flange_target0,
+        ctx.q,
+        pert,
+    )
 
 
 def chebyshev_jacobian(state: LoopState, ctx: EffectContext, sens: Sensitivities) -> F:
     """Derivative of the model pose with respect to every Chebyshev coefficient ``(n, 6, p)``."""
-    spec = state.spec
-    idx = spec.index()
-    u = chebyshev_u(ctx.q, spec.q_lo, spec.q_hi)
-    kmax = int(max(spec.orders.max(), 0))
-    B = chebyshev_basis(u, kmax)  # (n, nj, K)
-    nj = spec.n_joints
-    out = np.empty((ctx.n_poses, 6, idx.shape[0]))
-    for i, (f, m, k) in enumerate(idx):
-        S = sens.frame_motion[:, f, m]
-        if 1 <= f <= nj:
-            out[:, :, i] = S * B[:, f - 1, k][:, None]
-        else:
-            out[:, :, i] = S
-    return out
+    Jmot = np.moveaxis(sens.frame_motion, 3, 1)  # (n, 6c, nf, 6m)
+    return coefficient_columns(state.spec, ctx.q, Jmot)
 
 
 @dataclass(frozen=True, eq=False)
@@ -833,6 +654,8 @@ def _scan(
     one-step (against the model alone) gives what adding the effect to *this* model would
     do, for the predicted RMS drop and the parameter estimate.
     """
+    from scipy import stats  # 1 s to import: only where it is used
+
     out: list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]] = []
     plain = bases[()]
     for effect in effects:
@@ -857,6 +680,8 @@ def _scan(
 
 def _order_hints(state: LoopState, wp: WhitenedProblem, bases: _Bases, alpha: float) -> list[str]:
     """Joints whose residuals still follow a smooth function of the joint angle."""
+    from scipy import stats
+
     base = bases[()]
     nj = state.robot.n_joints
     res_now = wp.whiten.unwhite(base.r_perp.reshape(-1, wp.n_comp))
@@ -988,8 +813,7 @@ def _evidence(
 
 
 def state_from_fitted(fitted: Any) -> LoopState:
-    """The diagnosis's view of a :class:`quickhealth.identify.fit.FittedModel`."""
-    noise = getattr(fitted, "noise", None)
+    """The diagnosis's view of a :class:`quickhealth.identify.fit.FittedModel` (its noise too)."""
     return LoopState(
         robot=fitted.robot,
         spec=fitted.spec,
@@ -998,9 +822,7 @@ def state_from_fitted(fitted: Any) -> LoopState:
         T_flange_target0=np.asarray(fitted.T_flange_target0, float),
         effects=tuple(fitted.effects),
         effect_params=tuple(np.asarray(p, float) for p in fitted.effect_params),
-        sigma_pos=float(getattr(noise, "sigma_pos", DEFAULT_SIGMA_POS)),
-        sigma_rot=float(getattr(noise, "sigma_rot", DEFAULT_SIGMA_ROT)),
-        sigma_q=float(getattr(noise, "sigma_q", 0.0)),
+        noise=fitted.noise,
     )
 
 
@@ -1164,6 +986,7 @@ def jitter_binary(x: F, width: float = 0.12) -> F:
 def plot_spectrum(diag: Diagnosis) -> Any:
     """Figure: the residual spectrum (cyclic score statistic per harmonic) of every joint."""
     from matplotlib.figure import Figure
+    from scipy import stats
 
     fig = Figure(figsize=(7.0, 4.2), layout="constrained")
     ax = fig.add_subplot()

@@ -16,7 +16,8 @@ instrument frame::
 
 ``T_instr_base0`` and ``T_flange_target0`` are the initial estimates of base and tool (the
 instrument may be metres away and rotated); ``E0`` and ``Etool`` are the small corrections
-the fit identifies.  See :mod:`quickhealth.identify.robot` for where ``E_i`` sits.
+the fit identifies.  See :mod:`quickhealth.identify.robot` for where ``E_i`` sits and
+:func:`quickhealth.identify.linearize.loop_pose` for the one implementation of the loop.
 """
 
 from __future__ import annotations
@@ -25,9 +26,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-from .robot import RobotModel, chain
-from .transforms import small_error_transform
 
 F = NDArray[np.float64]
 MOTIONS: tuple[str, ...] = ("dx", "dy", "dz", "ex", "ey", "ez")
@@ -191,44 +189,3 @@ def constant_motions(spec: ErrorModelSpec, coeffs: ArrayLike, frame: int) -> F:
     """The six constant motions of the base (``frame=0``) or tool (``frame=-1``), shape (6,)."""
     parts = split_coefficients(spec, coeffs)[frame]
     return np.array([p[0] if p.size else 0.0 for p in parts])
-
-
-def loop_pose(
-    robot: RobotModel,
-    spec: ErrorModelSpec,
-    coeffs: ArrayLike,
-    T_instr_base0: ArrayLike,
-    T_flange_target0: ArrayLike,
-    q: ArrayLike,
-    dq: F | None = None,
-    link_scale: F | None = None,
-    base_twist: F | None = None,
-) -> F:
-    """Model pose of the target in the instrument frame, ``T_instr_target`` (Eq. 4).
-
-    Parameters
-    ----------
-    q : array, shape (n, nj), rad
-        Joint readings.
-    dq, link_scale : optional
-        Physical-effect perturbations, passed to :func:`quickhealth.identify.robot.chain`
-        (``link_scale`` is the factor, e.g. ``1 + growth``).
-    base_twist : ndarray, shape (n, 6), optional
-        Small per-pose motion of the base, applied as ``E0 · E(δ, ε)``.
-
-    Returns
-    -------
-    ndarray, shape (n, 4, 4)
-    """
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    m = joint_error_motions(spec, coeffs, q)
-    E = small_error_transform(m[..., :3], m[..., 3:])
-    T_bf = chain(robot, q, E_joint=E, dq=dq, link_scale=link_scale)
-    assert isinstance(T_bf, np.ndarray)
-    b = constant_motions(spec, coeffs, 0)
-    t = constant_motions(spec, coeffs, -1)
-    E0 = np.asarray(T_instr_base0, float) @ small_error_transform(b[:3], b[3:])
-    if base_twist is not None:
-        E0 = E0 @ small_error_transform(base_twist[:, :3], base_twist[:, 3:])
-    Et = np.asarray(T_flange_target0, float) @ small_error_transform(t[:3], t[3:])
-    return E0 @ T_bf @ Et

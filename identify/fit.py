@@ -42,61 +42,44 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import cho_factor, cho_solve
 
 from .effects import Effect, EffectContext, Perturbation, effect_context, total_perturbation
-from .errormodel import (
-    MOTIONS,
-    ErrorModelSpec,
-    chebyshev_basis,
-    chebyshev_u,
-    constant_motions,
-    joint_error_motions,
-)
+from .errormodel import MOTIONS, ErrorModelSpec, chebyshev_u
 from .errors import InputError
+from .linearize import (
+    InstrumentNoise,
+    Whitening,
+    coefficient_columns,
+    forward,
+    joint_angle_jacobian,
+    loop_pose,
+    motion_jacobian,
+    noise_covariance,
+    pose_residuals,
+    rotation_noise_cov,
+)
 from .measurements import Measurements
 from .robot import RobotModel
-from .transforms import (
-    kabsch,
-    log_so3,
-    make_T,
-    rot_x,
-    rot_y,
-    rpy_to_R,
-    skew,
-    small_error_transform,
-)
+from .transforms import kabsch, log_so3, make_T, skew
+
+__all__ = [
+    "FittedModel",
+    "InstrumentNoise",
+    "ParameterPrior",
+    "Perturbation",
+    "bic_value",
+    "fit_model",
+    "initial_setup",
+    "parameter_labels",
+    "linearised",
+    "rotation_noise_cov",
+    "whitened_problem",
+]
 
 F = NDArray[np.float64]
 
 
 # --------------------------------------------------------------------------- configuration
-
-
-@dataclass(frozen=True)
-class InstrumentNoise:
-    """Default standard uncertainties of a measured pose, used where the file has no ``s…`` columns.
-
-    Attributes
-    ----------
-    sigma_pos : float, m
-        Per axis of the measured point.
-    sigma_rot : float, rad
-        Per axis of the measured orientation's rotation vector (isotropic; per-row
-        ``spitch, syaw, sroll`` columns are per-angle uncertainties instead).
-    sigma_q : float, rad
-        Joint encoder reading (propagated through the loop; 0 = exact readings).
-    """
-
-    sigma_pos: float = 3e-5
-    sigma_rot: float = 1e-4
-    sigma_q: float = 0.0
-
-    def scaled(self, factor: float) -> InstrumentNoise:
-        """The same instrument with every uncertainty multiplied by ``factor``."""
-        return InstrumentNoise(
-            self.sigma_pos * factor, self.sigma_rot * factor, self.sigma_q * factor
-        )
 
 
 @dataclass(frozen=True)
@@ -180,12 +163,13 @@ class FittedModel:
     prior: ParameterPrior = field(default_factory=ParameterPrior)
     n_poses: int = 0
     held: tuple[str, ...] = ()  # labels held at their start value (e.g. a known base)
+    reference_time: float | None = None  # s, ``time`` of the last pose fitted (drift's "now")
 
     # ---- parameter bookkeeping
     @property
     def labels(self) -> list[str]:
         """Names of all parameters, in the order of :attr:`cov`."""
-        return _labels(self.spec, self.effects)
+        return parameter_labels(self.spec, self.effects)
 
     @property
     def params(self) -> F:
@@ -235,7 +219,7 @@ class FittedModel:
         """
         q = np.atleast_2d(np.asarray(q, float))
         pert = self._perturbation(q, time, temp, approach)
-        T = _loop(
+        T = loop_pose(
             self.robot, self.spec, self.coeffs, self.T_instr_base0, self.T_flange_target0, q, pert
         )
         return T
@@ -253,7 +237,7 @@ class FittedModel:
         q = np.atleast_2d(np.asarray(q, float))
         pert = self._perturbation(q, kwargs.get("time"), kwargs.get("temp"), kwargs.get("approach"))
         robot_pert = Perturbation(dq=pert.dq, link_scale=pert.link_scale)
-        T = _loop(
+        T = loop_pose(
             self.robot,
             self.spec,
             self.coeffs,
@@ -272,7 +256,7 @@ class FittedModel:
         idx = self.spec.index()
         setup = (idx[:, 0] == 0) | (idx[:, 0] == self.spec.n_joints + 1)
         c[setup] = self.coeffs[setup]
-        return _loop(
+        return loop_pose(
             self.robot, self.spec, c, self.T_instr_base0, self.T_flange_target0, q, Perturbation()
         )
 
@@ -378,13 +362,63 @@ def fit_model(
         for col in e.requires():
             if getattr(meas, col, None) is None:
                 raise InputError(f"effect {e.name!r} needs the {col!r} column in the measurements")
-    labels = _labels(spec, effects)
+    labels = parameter_labels(spec, effects)
     unknown = sorted(set(hold) - set(labels))
     if unknown:
         raise InputError(f"cannot hold unknown parameters: {', '.join(unknown)}")
     prob = _Problem.build(robot, meas, spec, effects, noise, prior, init, setup)
     prob.held = prob._held() | np.array([lb in set(hold) for lb in labels], dtype=bool)
     return prob.solve(rank_tol=rank_tol, max_iter=max_iter, tol=tol)
+
+
+@dataclass(frozen=True, eq=False)
+class Linearisation:
+    """The whitened problem of a fitted model on data, linearised at its estimate.
+
+    Attributes
+    ----------
+    r : ndarray, shape (n·d,)
+        Whitened residual ``Σx^{-1/2} (measured − model)``, pose by pose.
+    J : ndarray, shape (n·d, n_all)
+        Jacobian of the whitened *model* w.r.t. every parameter of ``fitted.labels`` (SI).
+    J_motion : ndarray, shape (n, d, nj, 6)
+        Whitened model Jacobian of every joint's six error motions (for the order search).
+    u : ndarray, shape (n, nj)
+        Chebyshev argument of every joint reading.
+    sigma_p : ndarray, shape (n_all,)
+        Prior standard deviations of the parameters.
+    d : int
+        Residual components per pose (6 full pose, 3 position only).
+    W : ndarray, shape (n, d, d)
+        The whitening ``Σx,i^{-1/2}`` of every pose (:func:`~.linearize.noise_covariance`).
+    """
+
+    r: F
+    J: F
+    J_motion: F
+    u: F
+    sigma_p: F
+    d: int
+    W: F
+
+    @property
+    def cov(self) -> F:
+        """The measurement covariance ``Σx,i`` (n, d, d) the fit weights every pose with."""
+        L = np.linalg.inv(self.W)
+        return L @ np.swapaxes(L, -1, -2)
+
+
+def linearised(fitted: FittedModel, meas: Measurements) -> Linearisation:
+    """The fit's own whitened residual and Jacobians of ``fitted`` on ``meas`` (same noise model,
+    same loop), for the order search and anything else that scores changes of the model."""
+    prob = _Problem.build(
+        fitted.robot, meas, fitted.spec, fitted.effects, fitted.noise, fitted.prior, fitted
+    )
+    p = fitted.params
+    r, J = prob.residual_and_jacobian(p)
+    _, Jw, u = prob.whitened_motion_jacobian(p)
+    assert prob.W is not None
+    return Linearisation(r, J, Jw, u, prob.sigma_p, prob.d, prob.W)
 
 
 def whitened_problem(fitted: FittedModel, meas: Measurements) -> tuple[F, F, list[str]]:
@@ -449,7 +483,8 @@ def initial_setup(robot: RobotModel, meas: Measurements, n_iter: int = 30) -> tu
 # --------------------------------------------------------------------------- internals
 
 
-def _labels(spec: ErrorModelSpec, effects: Sequence[Effect]) -> list[str]:
+def parameter_labels(spec: ErrorModelSpec, effects: Sequence[Effect]) -> list[str]:
+    """Names of all parameters: the Chebyshev coefficients, then each effect's ``name.param``."""
     out = spec.labels()
     for e in effects:
         out += [f"{e.name}.{n}" for n in e.param_names]
@@ -458,121 +493,6 @@ def _labels(spec: ErrorModelSpec, effects: Sequence[Effect]) -> list[str]:
 
 def _context(robot: RobotModel, q: F, approach, time, temp) -> EffectContext:  # type: ignore[no-untyped-def]
     return effect_context(robot, q, approach, time, temp)
-
-
-def _joint_motion_matrices(spec: ErrorModelSpec, coeffs: F, q: F) -> tuple[F, F, F]:
-    """Motions (n, nf, 6) and error transforms E (n, nf, 4, 4) of all frames."""
-    n, nj = q.shape
-    m = np.zeros((n, nj + 2, 6))
-    m[:, 1:-1] = joint_error_motions(spec, coeffs, q)
-    m[:, 0] = constant_motions(spec, coeffs, 0)
-    m[:, -1] = constant_motions(spec, coeffs, -1)
-    E = small_error_transform(m[..., :3], m[..., 3:])
-    return m, E, m[..., 3:]
-
-
-def _loop(
-    robot: RobotModel,
-    spec: ErrorModelSpec,
-    coeffs: F,
-    T_ib0: F,
-    T_ft0: F,
-    q: F,
-    pert: Perturbation,
-) -> F:
-    """Forward loop with a perturbation (measured-point scale applied to the translation)."""
-    T, _, _ = _forward(robot, spec, coeffs, T_ib0, T_ft0, q, pert, frames=False)
-    return T
-
-
-def _forward(
-    robot: RobotModel,
-    spec: ErrorModelSpec,
-    coeffs: F,
-    T_ib0: F,
-    T_ft0: F,
-    q: F,
-    pert: Perturbation,
-    frames: bool = True,
-) -> tuple[F, F | None, F | None]:
-    """Loop pose and, with ``frames``, the prefix transform ``A_f`` before every ``E_f``.
-
-    Returns ``T`` (n, 4, 4) with the instrument's z scale applied to the translation,
-    ``A`` (n, nf, 4, 4) and the motions (n, nf, 6).
-    """
-    n, nj = q.shape
-    mot, E, _ = _joint_motion_matrices(spec, coeffs, q)
-    theta = q + robot.q_offset
-    if pert.dq is not None:
-        theta = theta + pert.dq
-    links = np.broadcast_to(robot.links, (n, nj + 1, 4, 4))
-    if pert.link_scale is not None:
-        links = links.copy()
-        links[..., :3, 3] *= (1.0 + np.asarray(pert.link_scale, float))[:, None, None]
-    c, s = np.cos(theta), np.sin(theta)
-    Rz = np.zeros((n, nj, 4, 4))
-    Rz[..., 0, 0] = c
-    Rz[..., 0, 1] = -s
-    Rz[..., 1, 0] = s
-    Rz[..., 1, 1] = c
-    Rz[..., 2, 2] = 1.0
-    Rz[..., 3, 3] = 1.0
-    A = np.empty((n, nj + 2, 4, 4)) if frames else None
-    P = np.broadcast_to(np.asarray(T_ib0, float), (n, 4, 4))
-    if A is not None:
-        A[:, 0] = P
-    P = P @ E[:, 0]
-    if pert.base_twist is not None:
-        bt = np.asarray(pert.base_twist, float)
-        P = P @ small_error_transform(bt[:, :3], bt[:, 3:])
-    P = P @ links[:, 0]
-    for i in range(nj):
-        P = P @ Rz[:, i]
-        if A is not None:
-            A[:, i + 1] = P
-        P = P @ E[:, i + 1] @ links[:, i + 1]
-    P = P @ np.asarray(T_ft0, float)
-    if A is not None:
-        A[:, nj + 1] = P
-    T = P @ E[:, nj + 1]
-    if pert.instr_scale_z is not None:
-        T = T.copy()
-        T[:, 2, 3] *= 1.0 + np.asarray(pert.instr_scale_z, float)
-    return T, A, mot
-
-
-def _motion_jacobian(T: F, A: F, mot: F, scale_z: F | None) -> F:
-    """∂(position, rotation)/∂(six motions of every frame), shape (n, 6, nf, 6).
-
-    With ``E = Trans(δ) · Rx(εx) Ry(εy) Rz(εz)`` after the prefix ``A`` and the rest ``B``:
-    ``∂p/∂δ_k = A_R e_k``, ``∂p/∂ε_k = A_R (w_k × E_R b)``, ``∂ω/∂ε_k = A_R w_k`` with
-    ``w_x = x̂``, ``w_y = Rx ŷ``, ``w_z = Rx Ry ẑ`` and ``b`` the target in the frame after E.
-    """
-    n, nf = A.shape[:2]
-    AR = A[..., :3, :3]
-    At = A[..., :3, 3]
-    p = T[:, :3, 3]
-    if scale_z is not None:  # undo the instrument scale to get the geometric point
-        p = p.copy()
-        p[:, 2] /= 1.0 + scale_z
-    e = mot[..., 3:]
-    # E_R b = A_Rᵀ (p - A_t) - δ
-    ERb = np.einsum("nfji,nfj->nfi", AR, p[:, None, :] - At) - mot[..., :3]
-    Rx = rot_x(e[..., 0])
-    Ry = rot_y(e[..., 1])
-    wx = np.broadcast_to(np.array([1.0, 0.0, 0.0]), (n, nf, 3))
-    wy = Rx[..., :, 1]
-    wz = (Rx @ Ry)[..., :, 2]
-    W = np.stack([wx, wy, wz], axis=-1)  # (n, nf, 3, 3) columns w_k
-    J = np.zeros((n, 6, nf, 6))
-    J[:, :3, :, :3] = np.moveaxis(AR, 2, 1)  # (n, 3, nf, 3)
-    cross = np.cross(np.moveaxis(W, -1, -2), ERb[:, :, None, :])  # (n, nf, 3k, 3)
-    dp_rot = np.einsum("nfij,nfkj->nfik", AR, cross)  # (n, nf, 3, 3k)
-    J[:, :3, :, 3:] = np.moveaxis(dp_rot, 2, 1)
-    J[:, 3:, :, 3:] = np.moveaxis(AR @ W, 2, 1)
-    if scale_z is not None:
-        J[:, 2] *= (1.0 + scale_z)[:, None, None]
-    return J
 
 
 @dataclass(eq=False)
@@ -607,7 +527,7 @@ class _Problem:
         init: FittedModel | None,
         setup: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> _Problem:
-        labels = _labels(spec, effects)
+        labels = parameter_labels(spec, effects)
         p0 = np.zeros(len(labels))
         held = np.zeros(len(labels), dtype=bool)
         if init is not None:
@@ -659,49 +579,27 @@ class _Problem:
 
     def _raw_residual(self, T: F) -> F:
         """Measured minus model, (n, d): position (m) then rotation vector (rad)."""
-        rp = self.meas.pos - T[:, :3, 3]
-        if self.Rm is None:
-            return rp
-        rr = log_so3(self.Rm @ np.swapaxes(T[:, :3, :3], -1, -2))
-        return np.concatenate([rp, rr], axis=1)
+        return pose_residuals(self.meas, T)
 
-    def _whitening(self, T: F, A: F) -> F:
-        """Per-pose ``L⁻¹`` with ``L Lᵀ = Σx,i`` (instrument plus propagated encoder noise)."""
-        n, d = self.meas.n_poses, self.d
-        cov = np.zeros((n, d, d))
-        sp = (
-            self.meas.sigma_pos
-            if self.meas.sigma_pos is not None
-            else np.full((n, 3), self.noise.sigma_pos)
-        )
-        cov[:, [0, 1, 2], [0, 1, 2]] = sp**2
-        if d == 6:
-            cov[:, 3:, 3:] = rotation_noise_cov(self.meas, self.noise.sigma_rot)
-        if self.noise.sigma_q > 0:
-            nj = self.robot.n_joints
-            z = A[:, 1 : nj + 1, :3, 2]
-            o = A[:, 1 : nj + 1, :3, 3]
-            p = T[:, None, :3, 3]
-            Jq = np.concatenate([np.cross(z, p - o), z], axis=-1)[..., :d]  # (n, nj, d)
-            cov += self.noise.sigma_q**2 * np.einsum("nji,njk->nik", Jq, Jq)
-        cov += np.eye(d) * 1e-30
-        L = np.linalg.cholesky(cov)
-        return np.linalg.inv(L)
+    def _whitening(self, T: F, A: F, scale_z: F | None) -> F:
+        """Per-pose ``L⁻¹`` with ``L Lᵀ = Σx,i`` (:func:`~.linearize.noise_covariance`)."""
+        Jq = joint_angle_jacobian(T, A, scale_z) if self.noise.sigma_q > 0 else None
+        return Whitening.of(noise_covariance(self.meas, self.noise, Jq)).W
 
     def residual_and_jacobian(self, p: F) -> tuple[F, F]:
         """Whitened residual (m,) and Jacobian of the whitened *model* (m, n_all), SI units."""
         coeffs, ep = self._split(p)
         pert = self._pert(ep)
-        T, A, mot = _forward(
+        T, A, mot = forward(
             self.robot, self.spec, coeffs, self.T_ib0, self.T_ft0, self.meas.q, pert
         )
         assert A is not None and mot is not None
         if self.W is None:
-            self.W = self._whitening(T, A)
+            self.W = self._whitening(T, A, pert.instr_scale_z)
         n, d = self.meas.n_poses, self.d
         raw = self._raw_residual(T)
         r = np.einsum("nij,nj->ni", self.W, raw).reshape(-1)
-        Jmot = _motion_jacobian(T, A, mot, pert.instr_scale_z)[:, :d]  # (n, d, nf, 6)
+        Jmot = motion_jacobian(T, A, mot, pert.instr_scale_z)[:, :d]  # (n, d, nf, 6)
         Jc = self._coeff_columns(Jmot)  # (n, d, nc)
         cols = [Jc]
         if self.effects:
@@ -717,32 +615,21 @@ class _Problem:
         (n, d, nj, 6) and Chebyshev ``u`` of every joint (n, nj), for order search."""
         coeffs, ep = self._split(p)
         pert = self._pert(ep)
-        T, A, mot = _forward(
+        T, A, mot = forward(
             self.robot, self.spec, coeffs, self.T_ib0, self.T_ft0, self.meas.q, pert
         )
         assert A is not None and mot is not None
         if self.W is None:
-            self.W = self._whitening(T, A)
+            self.W = self._whitening(T, A, pert.instr_scale_z)
         raw = self._raw_residual(T)
         r = np.einsum("nij,nj->ni", self.W, raw)
-        Jmot = _motion_jacobian(T, A, mot, pert.instr_scale_z)[:, : self.d, 1:-1]
+        Jmot = motion_jacobian(T, A, mot, pert.instr_scale_z)[:, : self.d, 1:-1]
         Jw = np.einsum("nij,njfm->nifm", self.W, Jmot)
         u = chebyshev_u(self.meas.q, self.spec.q_lo, self.spec.q_hi)
         return r, Jw, u
 
     def _coeff_columns(self, Jmot: F) -> F:
-        spec = self.spec
-        idx = spec.index()
-        q = self.meas.q
-        u = chebyshev_u(q, spec.q_lo, spec.q_hi)
-        kmax = int(max(spec.orders.max(), 0))
-        B = chebyshev_basis(u, kmax)  # (n, nj, K)
-        n = q.shape[0]
-        basis = np.ones((n, idx.shape[0]))
-        joint = (idx[:, 0] >= 1) & (idx[:, 0] <= spec.n_joints)
-        ji = idx[joint]
-        basis[:, joint] = B[:, ji[:, 0] - 1, ji[:, 2]]
-        return Jmot[:, :, idx[:, 0], idx[:, 1]] * basis[:, None, :]
+        return coefficient_columns(self.spec, self.meas.q, Jmot)
 
     def _effect_columns(self, coeffs: F, ep: list[F], T: F) -> F:
         """Central differences in each effect parameter (they enter linearly, nearly exactly)."""
@@ -754,7 +641,7 @@ class _Problem:
                 minus = [x.copy() for x in ep]
                 plus[k][j] += h_all[j]
                 minus[k][j] -= h_all[j]
-                Tp = _loop(
+                Tp = loop_pose(
                     self.robot,
                     self.spec,
                     coeffs,
@@ -763,7 +650,7 @@ class _Problem:
                     self.meas.q,
                     self._pert(plus),
                 )
-                Tm = _loop(
+                Tm = loop_pose(
                     self.robot,
                     self.spec,
                     coeffs,
@@ -811,7 +698,7 @@ class _Problem:
         Jq = J.copy()
         Jq[:, held] = 0.0  # held columns add no direction; they are not reported
         free = self.identifiable(Jq, rank_tol) & ~held
-        labels = _labels(self.spec, self.effects)
+        labels = parameter_labels(self.spec, self.effects)
         n_comp = r.size
         n_free = int(free.sum())
         need = n_free + max(2 * self.d, n_free // 4)
@@ -842,7 +729,7 @@ class _Problem:
             for _ in range(14):
                 Hd = H.copy()
                 Hd[np.diag_indices_from(Hd)] += lam * np.diag(H)
-                dz = cho_solve(cho_factor(Hd), g)
+                dz = _spd_solve(Hd, g)
                 p_try = p.copy()
                 p_try[free] += dz * D
                 r_try, J_try = self.residual_and_jacobian(p_try)
@@ -864,7 +751,7 @@ class _Problem:
         Jf = J[:, free] * D
         H = Jf.T @ Jf
         H[np.diag_indices_from(H)] += 1.0
-        Hinv = cho_solve(cho_factor(H), np.eye(H.shape[0]))
+        Hinv = _spd_solve(H, np.eye(H.shape[0]))
         cov = np.zeros((p.size, p.size))
         cov[np.ix_(free, free)] = D[:, None] * Hinv * D[None, :]
         return self._result(p, r, cov, free, labels, it, converged)
@@ -880,7 +767,7 @@ class _Problem:
         converged: bool,
     ) -> FittedModel:
         coeffs, ep = self._split(p)
-        T = _loop(
+        T = loop_pose(
             self.robot, self.spec, coeffs, self.T_ib0, self.T_ft0, self.meas.q, self._pert(ep)
         )
         raw = self._raw_residual(T)
@@ -915,7 +802,15 @@ class _Problem:
             noise=self.noise,
             prior=self.prior,
             n_poses=n,
+            reference_time=None if self.meas.time is None else float(self.meas.time[-1]),
         )
+
+
+def _spd_solve(H: F, b: F) -> F:
+    """``H⁻¹ b`` for a symmetric positive definite ``H`` by Cholesky (numpy only: scipy.linalg
+    costs 0.3–0.7 s to import, more than a fit)."""
+    L = np.linalg.cholesky(H)
+    return np.linalg.solve(L.T, np.linalg.solve(L, b))
 
 
 def sequential_independent(J: F, rank_tol: float) -> NDArray[np.bool_]:
@@ -945,28 +840,6 @@ def sequential_independent(J: F, rank_tol: float) -> NDArray[np.bool_]:
         resid[j:] -= col * col
         k += 1
     return keep
-
-
-def rotation_noise_cov(meas: Measurements, sigma_rot: float) -> F:
-    """Covariance (n, 3, 3) of the measured orientation as a rotation vector (instrument frame).
-
-    Per-row ``spitch, syaw, sroll`` (CONTRACTS.md: uncertainties of the *angles*) are mapped
-    through the roll-yaw-pitch rates, ``Σ = E diag(σ²) Eᵀ`` with
-    ``ω = Rz(r)Ry(y) x̂ ṗ + Rz(r) ŷ ẏ + ẑ ṙ``.  The instrument default ``sigma_rot`` is the
-    noise per axis of the rotation vector, ``Σ = σ² I``: an instrument's orientation noise
-    does not know about Euler angles (mapping it as per-angle noise made the weights wrong by
-    up to 3× at yaw ±75° and the reported covariance too small, χ²/dof 1.2 on pure noise).
-    """
-    n = meas.n_poses
-    if meas.sigma_rpy is None:
-        return np.broadcast_to(np.eye(3) * sigma_rot**2, (n, 3, 3)).copy()
-    rpy = meas.rpy
-    assert rpy is not None
-    sr = np.asarray(meas.sigma_rpy, float)
-    Rzr = rpy_to_R(np.zeros(n), np.zeros(n), rpy[:, 2])
-    Rzy = rpy_to_R(np.zeros(n), rpy[:, 1], rpy[:, 2])
-    Emap = np.stack([Rzy[:, :, 0], Rzr[:, :, 1], np.tile([0.0, 0.0, 1.0], (n, 1))], -1)
-    return Emap @ (sr[:, :, None] ** 2 * np.swapaxes(Emap, -1, -2))
 
 
 def bic_value(R: F, n_params: int, rss_si: float = 0.0) -> float:

@@ -37,18 +37,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2 as chi2_dist
 
+from .distributions import chi2_median
 from .effects import Effect
 from .errormodel import MOTIONS, ErrorModelSpec, chebyshev_basis
 from .fit import (
     FittedModel,
     InstrumentNoise,
     ParameterPrior,
-    _labels,
-    _Problem,
     bic_value,
     fit_model,
+    linearised,
+    parameter_labels,
 )
 from .measurements import Measurements
 from .robot import RobotModel
@@ -232,7 +232,7 @@ def chi2_check(
     sigmas are taken as the sign of a tight prior.
     """
     dof = max(fitted.dof, 1)
-    med = float(chi2_dist.median(dof))
+    med = chi2_median(dof)
     ratio = fitted.chi2_data / med
     if ratio <= factor:
         return Chi2Check(
@@ -307,16 +307,13 @@ class _Lin:
 
 
 def _linearise(fitted: FittedModel, meas: Measurements) -> _Lin:
-    prob = _Problem.build(
-        fitted.robot, meas, fitted.spec, fitted.effects, fitted.noise, fitted.prior, fitted
-    )
+    lin = linearised(fitted, meas)
     p = fitted.params
-    r, J = prob.residual_and_jacobian(p)
-    _, Jw, u = prob.whitened_motion_jacobian(p)
+    r, J, Jw, u = lin.r, lin.J, lin.J_motion, lin.u
     labels = fitted.labels
     fixed = set(fitted.unidentifiable) | set(fitted.held)
     free = np.array([lb not in fixed for lb in labels])
-    D = prob.sigma_p[free]
+    D = lin.sigma_p[free]
     Jf = J[:, free] * D
     P = Jf.shape[1]
     A = np.vstack([Jf, np.eye(P)])
@@ -325,9 +322,7 @@ def _linearise(fitted: FittedModel, meas: Measurements) -> _Lin:
     H = A.T @ A
     Hinv = np.linalg.inv(H)
     x = Hinv @ (A.T @ b)  # remaining step (≈ 0 at the optimum)
-    return _Lin(
-        meas.n_poses, prob.d, Q, b, Hinv, x, A, np.flatnonzero(free), Jw, u, int(free.sum())
-    )
+    return _Lin(meas.n_poses, lin.d, Q, b, Hinv, x, A, np.flatnonzero(free), Jw, u, int(free.sum()))
 
 
 def _score_raise(lin: _Lin, j: int, m: int, cur: int, new: int, sigma: float) -> float:
@@ -390,7 +385,7 @@ def _search(
     for _step in range(max_steps):
         lin = _linearise(fitted, meas)
         orders = fitted.spec.orders
-        labels = _labels(fitted.spec, effects)
+        labels = parameter_labels(fitted.spec, effects)
         pos_of = {lb: i for i, lb in enumerate(labels)}
         free_pos = {int(ix): k for k, ix in enumerate(lin.free_idx)}
         moves: list[tuple[float, str, int, int, int]] = []
@@ -450,7 +445,7 @@ def _search(
         )
         n_fits += k_fits
     loose = None
-    if fitted.chi2_data > chi2_factor * float(chi2_dist.median(max(fitted.dof, 1))):
+    if fitted.chi2_data > chi2_factor * chi2_median(max(fitted.dof, 1)):
         loose = fit_model(robot, meas, fitted.spec, effects, noise, _loosen(prior), init=fitted)
         n_fits += 1
     check = chi2_check(fitted, chi2_factor, loose)

@@ -39,8 +39,8 @@ from .effects import (
     parse_effect,
     total_perturbation,
 )
-from .effects._base import perturbed_loop_pose
 from .errormodel import ErrorModelSpec
+from .linearize import loop_pose
 from .measurements import Measurements
 from .robot import RobotModel, ur5
 from .transforms import R_to_rpy, exp_so3, inv_T, make_T, rot_x, rot_z
@@ -201,7 +201,7 @@ class Twin:
         ctx = self.context(q, time, temp, approach)
         self._check_columns(ctx)
         t = self.truth
-        return perturbed_loop_pose(
+        return loop_pose(
             self.robot,
             t.spec,
             t.coeffs,

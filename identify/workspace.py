@@ -8,6 +8,12 @@
   it runs), with its standard uncertainty and flags above a threshold or outside the range the
   model was identified on.
 
+Effects that depend on conditions are evaluated at stated reference conditions
+(:class:`Conditions`, :func:`reference_conditions`): ``thermal`` at 20 °C (the temperature its
+link lengths refer to), ``drift`` at the time of the last pose the model was fitted to (where
+the instrument-to-robot relation is at the end of the run; a drift moves the base in the
+instrument, it is no TCP error of the robot).  Every result names the conditions it used.
+
 The bands propagate the covariance of the estimate (sampling error).  They leave out model
 error (effects the model does not have) and coefficients the data could not identify (held
 at zero; see ``FittedModel.unidentifiable``).
@@ -19,12 +25,66 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2, norm
 
+from .distributions import chi2_ppf, norm_ppf
+from .effects import Perturbation
 from .errormodel import MOTIONS, chebyshev_basis, chebyshev_u
-from .fit import FittedModel, Perturbation, _forward, _motion_jacobian
+from .fit import FittedModel
+from .linearize import forward, motion_jacobian
 
 F = NDArray[np.float64]
+
+#: The temperature (°C) the thermal effect's link lengths refer to.
+REFERENCE_TEMP_C = 20.0
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """The conditions a model with condition-dependent effects is evaluated at.
+
+    ``temp_c`` (°C) is set when an effect needs ``temp``, ``time_s`` (s) when one needs
+    ``time``; ``None`` otherwise (the model does not depend on it).
+    """
+
+    temp_c: float | None = None
+    time_s: float | None = None
+    time_note: str = ""
+
+    def arrays(self, n: int) -> dict[str, F | None]:
+        """``time=``/``temp=`` keyword arguments for ``n`` commands."""
+        return {
+            "temp": None if self.temp_c is None else np.full(n, self.temp_c),
+            "time": None if self.time_s is None else np.full(n, self.time_s),
+        }
+
+    def describe(self) -> str:
+        """One phrase, e.g. ``at 20.0 °C, time 900.0 s (the run's last pose)``; '' if none."""
+        parts = []
+        if self.temp_c is not None:
+            parts.append(f"{self.temp_c:.1f} °C")
+        if self.time_s is not None:
+            parts.append(
+                f"time {self.time_s:.1f} s" + (f" ({self.time_note})" if self.time_note else "")
+            )
+        return "at " + ", ".join(parts) if parts else ""
+
+    def as_dict(self) -> dict[str, object]:
+        """For report.json: ``temp_c``, ``time_s`` (null when the model does not use them)."""
+        return {"temp_c": self.temp_c, "time_s": self.time_s, "text": self.describe()}
+
+
+def reference_conditions(fitted: FittedModel) -> Conditions:
+    """The stated reference conditions of ``fitted``: 20 °C for ``thermal``, the time of the
+    last fitted pose for ``drift`` (0 s if the model does not know it)."""
+    needs = {col for e in fitted.effects for col in e.requires()}
+    temp = REFERENCE_TEMP_C if "temp" in needs else None
+    time = note = None
+    if "time" in needs:
+        if fitted.reference_time is not None:
+            time, note = float(fitted.reference_time), "the run's last pose"
+        else:
+            time, note = 0.0, "the time origin; the model does not know its run's times"
+    return Conditions(temp, time, note or "")
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,10 +99,12 @@ class WorkspaceError:
     q_worst: F  # (nj,) rad, the sampled command with the largest error
     hist_counts: NDArray[np.int64]
     hist_edges: F  # m
+    conditions: Conditions = Conditions()
 
     def as_dict(self) -> dict[str, object]:
         """Numbers for report.json (mm)."""
         return {
+            "conditions": self.conditions.as_dict(),
             "n_samples": self.n_samples,
             "mean_mm": self.mean * 1e3,
             "std_mm": self.std * 1e3,
@@ -99,16 +161,23 @@ class CommandPrediction:
     over_threshold: NDArray[np.bool_]  # (n,)
     extrapolated: NDArray[np.bool_]  # (n,) some joint outside the identified range
     threshold: float | None
+    assumed: Conditions = Conditions()  # conditions assumed where the input had no column
 
 
 def workspace_error(
-    fitted: FittedModel, n_samples: int = 5000, seed: int = 0, bins: int = 40
+    fitted: FittedModel,
+    n_samples: int = 5000,
+    seed: int = 0,
+    bins: int = 40,
+    conditions: Conditions | None = None,
 ) -> WorkspaceError:
-    """TCP error from the model at ``n_samples`` joint commands uniform over the model's ranges."""
+    """TCP error from the model at ``n_samples`` joint commands uniform over the model's ranges,
+    at ``conditions`` (default :func:`reference_conditions`)."""
+    cond = reference_conditions(fitted) if conditions is None else conditions
     rng = np.random.default_rng(seed)
     spec = fitted.spec
     q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
-    err = fitted.tcp_error(q, approach=np.ones_like(q))
+    err = fitted.tcp_error(q, approach=np.ones_like(q), **cond.arrays(n_samples))
     counts, edges = np.histogram(err, bins=bins, range=(0.0, float(err.max()) * 1.0001 + 1e-12))
     return WorkspaceError(
         n_samples=n_samples,
@@ -119,6 +188,7 @@ def workspace_error(
         q_worst=q[int(np.argmax(err))],
         hist_counts=counts,
         hist_edges=edges,
+        conditions=cond,
     )
 
 
@@ -153,8 +223,8 @@ def joint_curves(
         C = fitted.cov[np.ix_(sel, sel)]
         sigma[m] = np.sqrt(np.clip(np.einsum("ki,ij,kj->k", B, C, B), 0.0, None))
         k_free[m] = max(int(np.sum(np.diag(C) > 0)), 1)
-    z = float(norm.ppf(0.5 + level / 2))
-    zs = np.sqrt(chi2.ppf(level, k_free))[:, None]
+    z = norm_ppf(0.5 + level / 2)
+    zs = np.sqrt([chi2_ppf(level, k) for k in k_free])[:, None]
     return JointCurves(joint, theta, values, sigma, level, zs * sigma, z * sigma)
 
 
@@ -177,9 +247,19 @@ def predict_commands(
 
     ``threshold`` (m) flags commands whose predicted error exceeds it.  Commands with a joint
     outside the range the model was identified on are flagged ``extrapolated``: the Chebyshev
-    series are not trusted there.
+    series are not trusted there.  Where the model needs ``time`` or ``temp`` and they are
+    not given, the reference conditions are used and returned in ``assumed``.
     """
     q = np.atleast_2d(np.asarray(q, float))
+    ref = reference_conditions(fitted)
+    assumed = Conditions(
+        ref.temp_c if temp is None else None,
+        ref.time_s if time is None else None,
+        ref.time_note if time is None else "",
+    )
+    fill = assumed.arrays(len(q))
+    temp = fill["temp"] if temp is None else temp
+    time = fill["time"] if time is None else time
     T = fitted.predict(q, time=time, temp=temp)
     ev = fitted.tcp_error_vector(q, time=time, temp=temp)
     err = np.linalg.norm(ev, axis=1)
@@ -192,7 +272,9 @@ def predict_commands(
     spec = fitted.spec
     extrap = np.any((q < spec.q_lo - 1e-9) | (q > spec.q_hi + 1e-9), axis=1)
     over = err > threshold if threshold is not None else np.zeros(len(q), bool)
-    return CommandPrediction(T, err, ev, np.sqrt(np.clip(var, 0, None)), over, extrap, threshold)
+    return CommandPrediction(
+        T, err, ev, np.sqrt(np.clip(var, 0, None)), over, extrap, threshold, assumed
+    )
 
 
 def _joint_coeff_index(fitted: FittedModel) -> NDArray[np.int64]:
@@ -203,7 +285,7 @@ def _joint_coeff_index(fitted: FittedModel) -> NDArray[np.int64]:
 def _joint_coeff_position_jacobian(fitted: FittedModel, q: F) -> F:
     """∂(target position)/∂(joint Chebyshev coefficients), shape (n, 3, n_joint_coeffs)."""
     spec = fitted.spec
-    T, A, mot = _forward(
+    T, A, mot = forward(
         fitted.robot,
         spec,
         fitted.coeffs,
@@ -213,7 +295,7 @@ def _joint_coeff_position_jacobian(fitted: FittedModel, q: F) -> F:
         Perturbation(),
     )
     assert A is not None and mot is not None
-    Jm = _motion_jacobian(T, A, mot, None)[:, :3]  # (n, 3, nf, 6)
+    Jm = motion_jacobian(T, A, mot, None)[:, :3]  # (n, 3, nf, 6)
     idx = spec.index()[_joint_coeff_index(fitted)]
     if idx.size == 0:
         return np.zeros((q.shape[0], 3, 0))

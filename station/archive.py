@@ -537,3 +537,19 @@ def _software_version() -> str:
         return version("quickhealth")
     except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
         return "unknown"
+
+
+def trend_for(arch: Archive, robot: str, **kwargs: Any) -> Any:
+    """:func:`~quickhealth.identify.trend.assess_trend` over a robot's archived runs (oldest
+    first), against its baseline run; ``kwargs`` go to ``assess_trend``."""
+    from quickhealth.identify.trend import assess_trend
+
+    recs = arch.runs(robot)
+    b = next((i for i, r in enumerate(recs) if r.baseline), None)
+    if b is None:
+        raise InputError(
+            f"robot {robot!r} has no healthy run to be its baseline: "
+            "quickhealth archive baseline ROBOT RUN_ID"
+        )
+    states = [arch.run_state(r, like=recs[b]) for r in recs]
+    return assess_trend(states, b, **kwargs)

@@ -33,16 +33,20 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full parser, with every command group found in ``station/commands``."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every command group found in ``station/commands``; with ``command``
+    (a top-level command name in ``commands.COMMAND_MODULES``) only the group that has it."""
     parser = _Parser(
         prog="quickhealth",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        mod = importlib.import_module(f"{commands.__name__}.{info.name}")
+    names = sorted(m.name for m in pkgutil.iter_modules(commands.__path__))
+    if command in commands.COMMAND_MODULES:
+        names = [commands.COMMAND_MODULES[command]]
+    for name in names:
+        mod = importlib.import_module(f"{commands.__name__}.{name}")
         register = getattr(mod, "register", None)
         if register is not None:
             register(sub)
@@ -51,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (never raises for known errors)."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     func = getattr(args, "func", None)
     if func is None:

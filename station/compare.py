@@ -16,6 +16,20 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``compare`` sub-command to ``subparsers`` (the top level and ``identify``'s:
+    one definition, two doors)."""
+    c = subparsers.add_parser(
+        "compare",
+        help="fit with and without an effect, held-out error before and after",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_arguments(c)
+    c.set_defaults(func=run)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

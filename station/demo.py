@@ -155,8 +155,7 @@ def run_demo(
     import shutil
 
     from quickhealth.identify.errors import HardwareError, QuickhealthError
-    from quickhealth.station.archive import Archive
-    from quickhealth.station.commands.trend import trend_for
+    from quickhealth.station.archive import Archive, trend_for
     from quickhealth.station.planning import load_plan
     from quickhealth.station.run import run_plan, sim_station
 

@@ -56,7 +56,8 @@ from quickhealth.identify.robot import RobotModel, from_dh, ur5
 F = NDArray[np.float64]
 
 MODEL_SCHEMA = "quickhealth.model/1"
-REPORT_SCHEMA = "quickhealth.report/1"
+REPORT_SCHEMA = "quickhealth.report/2"  # station/report_json.py; /1 files still read
+REPORT_SCHEMAS_READ = ("quickhealth.report/1", REPORT_SCHEMA)
 BUILTIN_ROBOTS = {"ur5": ur5}
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
@@ -572,6 +573,7 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
         },
         "unidentifiable": list(fitted.unidentifiable),
         "held": list(fitted.held),
+        "reference_time_s": getattr(fitted, "reference_time", None),
         "noise": {
             "sigma_pos": fitted.noise.sigma_pos,
             "sigma_rot": fitted.noise.sigma_rot,
@@ -628,6 +630,9 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
             prior=ParameterPrior(**doc["prior"]),
             n_poses=int(st["n_poses"]),
             held=tuple(doc.get("held", ())),
+            reference_time=(
+                None if doc.get("reference_time_s") is None else float(doc["reference_time_s"])
+            ),
         )
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, InputError):
@@ -689,7 +694,7 @@ def read_report(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise InputError(f"{p}: file not found") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
-    if doc.get("schema") != REPORT_SCHEMA:
+    if doc.get("schema") not in REPORT_SCHEMAS_READ:
         raise InputError(f"{p}: not a quickhealth report (schema {doc.get('schema')!r})")
     return doc
 

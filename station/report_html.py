@@ -2,6 +2,8 @@
 
 Sections, in the order a reader needs them:
 
+0. verdict          healthy, degraded or flagged; the one-line reason; mean and max TCP error
+                    against the baseline; the top missing effect, if any (the first screen)
 1. summary          robot, run, plan hash, cell, calibration, software; the fit's lines
 2. plan coverage    commanded joint angles over each joint's range and the TCP positions
                     (paper Fig. 6)
@@ -68,6 +70,8 @@ class Section:
     plots: tuple[Plot, ...] = ()
     missing: str = ""  # non-empty: the section could not be made, and why
     data: dict[str, Any] = field(default_factory=dict)
+    folded: tuple[tuple[str, ...], ...] = ()  # a second table, folded away (same header)
+    folded_title: str = ""
 
 
 @dataclass(frozen=True)
@@ -167,8 +171,12 @@ def _coverage_figure(robot: Any, q: F, q_lo: F, q_hi: F) -> Figure:
     return fig
 
 
-def _joint_figure(curves: Any) -> Figure:
-    """One joint's six error motions with bands, in one row (compact; no tight_layout)."""
+def _joint_figure(curves: Any, fitted: Any = None) -> Figure:
+    """One joint's six error motions with bands, in one row (compact; no tight_layout).
+
+    A motion the data cannot identify (every coefficient held at zero, no band) is labelled
+    "not identifiable" instead of drawn as a flat zero line, which would read as "no error";
+    one the model does not have says "not in the model"."""
     from quickhealth.identify.errormodel import MOTION_WORDS, MOTIONS
 
     fig = Figure(figsize=(12.0, 2.4))
@@ -178,14 +186,47 @@ def _joint_figure(curves: Any) -> Figure:
         ax = fig.add_subplot(1, 6, m + 1)
         v = curves.values[m] * 1e3
         h = curves.half_width[m] * 1e3
+        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=7)
+        state = _motion_state(fitted, curves.joint, m, v, h)
+        if state:
+            ax.set_facecolor("#f2f2f2")
+            ax.text(
+                0.5,
+                0.5,
+                state,
+                ha="center",
+                va="center",
+                fontsize=8,
+                color="0.3",
+                transform=ax.transAxes,
+            )
+            ax.set_yticks([])
+            ax.set_xlabel("deg", fontsize=7, labelpad=1)
+            ax.tick_params(labelsize=6, pad=1)
+            continue
         ax.fill_between(th, v - h, v + h, color="#88ccee", alpha=0.6, lw=0)
         ax.plot(th, v, color="#224488", lw=1.2)
-        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=7)
         ax.set_ylabel("mm" if m < 3 else "mrad", fontsize=7, labelpad=1)
         ax.set_xlabel("deg", fontsize=7, labelpad=1)
         ax.tick_params(labelsize=6, pad=1)
     fig.suptitle(f"Joint {curves.joint}: error motions with {curves.level:.0%} bands", fontsize=9)
     return fig
+
+
+def _motion_state(fitted: Any, joint: int, m: int, v: F, h: F) -> str:
+    """'' for a motion to draw; else why it is not drawn."""
+    if fitted is not None:
+        from quickhealth.identify.errormodel import MOTIONS
+
+        if fitted.spec.orders[joint, m] < 0:
+            return "not in the model"
+        prefix = f"j{joint}.{MOTIONS[m]}."
+        labels = [lb for lb in fitted.labels if lb.startswith(prefix)]
+        if labels and all(lb in set(fitted.unidentifiable) for lb in labels):
+            return "not identifiable"
+    if not np.any(v) and not np.any(h):
+        return "not identifiable"
+    return ""
 
 
 def _iso_figure(stats: list[PoseStats]) -> Figure:
@@ -217,8 +258,26 @@ def trend_figure(result: Any) -> Figure:
         ax.plot(t[b:], ch.ewma_mm, "-", color="#228833", lw=1, label="EWMA")
         ax.plot(t[b:], ch.ucl_mm, "--", color="#cc3311", lw=1, label="control limit")
         ax.axvline(t[b], color="0.5", ls=":", lw=1)
+        seen = [v for v in (*result.figures_mm[f], *ch.ewma_mm) if math.isfinite(v)]
         if result.threshold_mm is not None and f == result.threshold_figure:
             ax.axhline(result.threshold_mm, color="k", lw=1, label="threshold")
+            seen.append(result.threshold_mm)
+        # with 2-3 runs the limit's σ comes from the runs' own differences and can sit far
+        # above the data (8 mm over 1 mm figures): the axis follows the data, not the limit
+        top = max(seen) * 1.35 if seen else 1.0
+        ucl = [u for u in ch.ucl_mm if math.isfinite(u)]
+        if ucl and max(ucl) > top:
+            ax.text(
+                0.99,
+                0.97,
+                f"control limit up to {max(ucl):.2f} mm (few runs: σ not yet known)",
+                transform=ax.transAxes,
+                ha="right",
+                va="top",
+                fontsize=7,
+                color="#cc3311",
+            )
+        ax.set_ylim(0.0, top)
         ax.set_ylabel(f"{f} TCP error (mm)", fontsize=8)
         ax.legend(fontsize=7, loc="upper left")
         ax.tick_params(labelsize=7)
@@ -344,6 +403,7 @@ def build_report(
 
     # 3. workspace error
     ws = workspace_error(fitted, n_samples=workspace_samples)
+    cond = ws.conditions.describe()
     sections.append(
         Section(
             "workspace",
@@ -351,7 +411,8 @@ def build_report(
             (
                 f"mean {ws.mean * 1e3:.3f} mm, std {ws.std * 1e3:.3f} mm, "
                 f"95 % {ws.p95 * 1e3:.3f} mm, max {ws.max * 1e3:.3f} mm "
-                f"over {ws.n_samples} joint commands uniform in the modelled ranges",
+                f"over {ws.n_samples} joint commands uniform in the modelled ranges"
+                + (f", {cond}" if cond else ""),
             ),
             plots=(
                 Plot("workspace_hist", "Workspace error histogram", _png(workspace_histogram(ws))),
@@ -368,7 +429,7 @@ def build_report(
             "Error motions of every joint, 95 % bands (paper Fig. 8)",
             ("bands: sampling uncertainty of the estimate; model error is not in them",),
             plots=tuple(
-                Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(_joint_figure(c)))
+                Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(_joint_figure(c, fitted)))
                 for c in curves
             ),
             data={"joint_curves": [c.as_dict() for c in curves]},
@@ -399,16 +460,114 @@ def build_report(
     sections.append(_diagnosis_section(d, fitted, meas, diagnose_if_missing))
 
     # 7. trend
-    sections.append(_trend_section(archive, robot, rid, threshold_mm))
+    trend_sec, trend_res = _trend_section(archive, robot, rid, threshold_mm)
+    sections.append(trend_sec)
 
     # 8. ISO 9283
     sections.append(_iso_section(fitted, meas))
+
+    # 0. the verdict, first
+    diag_doc = next(s for s in sections if s.key == "diagnosis").data
+    sections.insert(0, _verdict_section(ws, trend_res, diag_doc, threshold_mm))
 
     return Report(
         title=f"quickhealth report: {fitted.robot.name}, run {rid}",
         run_dir=str(d),
         sections=tuple(sections),
     )
+
+
+VERDICTS = ("healthy", "degraded", "flagged")
+
+
+def _finite(v: float, default: float) -> float:
+    return float(v) if math.isfinite(v) else default
+
+
+def _verdict_section(
+    ws: Any, trend: Any, diag: dict[str, Any], threshold_mm: float | None
+) -> Section:
+    """Healthy, degraded or flagged, the one-line reason, the TCP error against the baseline
+    and the top missing effect.
+
+    flagged: the trend against the baseline raised a flag (a control-chart alarm, a
+    threshold crossed, an error curve changed).  degraded: no flag, but the mean or max TCP
+    error is more than 10 % above the baseline's, the run's figure is above the threshold,
+    or the diagnosis finds a physical effect the model misses.  healthy: none of these.
+    """
+    mean, mx = ws.mean * 1e3, ws.max * 1e3
+    data: dict[str, Any] = {"mean_mm": mean, "max_mm": mx, "conditions": ws.conditions.describe()}
+    base_mean = base_max = None
+    if trend is not None:  # both figures from the archive's index: like with like
+        b, i = trend.baseline_index, trend.latest
+        mean = _finite(trend.figures_mm["mean"][i], mean)
+        mx = _finite(trend.figures_mm["max"][i], mx)
+        data.update(mean_mm=mean, max_mm=mx)
+        base_mean = trend.figures_mm["mean"][b]
+        base_max = trend.figures_mm["max"][b]
+        data.update(baseline_run=trend.run_ids[b], baseline_mean_mm=base_mean)
+        data.update(baseline_max_mm=base_max, this_is_baseline=b == i)
+    top = None
+    if diag.get("verdict") == "missing-effect":
+        sugg = diag.get("suggested") or []
+        cands = {c.get("effect"): c for c in diag.get("candidates", [])}
+        name = sugg[0] if sugg else next(iter(cands), None)
+        if name is not None:
+            top = {
+                "effect": name,
+                **{k: cands.get(name, {}).get(k) for k in ("predicted_rms_drop_mm",)},
+            }
+    data["top_missing_effect"] = top
+    flags = trend.flags() if trend is not None else []
+    rose = [
+        f"{what} TCP error {now:.3f} mm is {now / base - 1:.0%} above the baseline's {base:.3f} mm"
+        for what, now, base in (("mean", mean, base_mean), ("max", mx, base_max))
+        if base is not None and base > 0 and now > 1.1 * base
+    ]
+    fig_now = {"mean": mean, "max": mx}.get(getattr(trend, "threshold_figure", "max"), mx)
+    if flags:
+        verdict, reason = (
+            "flagged",
+            flags[0] + (f" (and {len(flags) - 1} more)" if len(flags) > 1 else ""),
+        )
+    elif threshold_mm is not None and fig_now > threshold_mm:
+        verdict, reason = (
+            "degraded",
+            f"TCP error {fig_now:.3f} mm is above the threshold {threshold_mm:g} mm",
+        )
+    elif rose:
+        verdict, reason = "degraded", rose[0]
+    elif top is not None:
+        drop = top.get("predicted_rms_drop_mm")
+        verdict = "degraded"
+        reason = f"the error model misses a physical effect: {top['effect']}" + (
+            f" (adding it would lower the residual RMS by {drop:.3f} mm)"
+            if drop is not None
+            else ""
+        )
+    else:
+        verdict = "healthy"
+        reason = (
+            "no flag against the baseline and no missing effect"
+            if trend is not None
+            else "no missing effect (no baseline to compare with: the run is not archived)"
+        )
+    data.update(verdict=verdict, reason=reason)
+    if base_mean is not None and base_max is not None:
+        err = (
+            f"TCP error: mean {mean:.3f} mm (baseline {base_mean:.3f} mm, {mean - base_mean:+.3f}), "
+            f"max {mx:.3f} mm (baseline {base_max:.3f} mm, {mx - base_max:+.3f}) "
+            f"against baseline run {data['baseline_run']}"
+        )
+    else:
+        err = f"TCP error: mean {mean:.3f} mm, max {mx:.3f} mm (no baseline: run not archived)"
+    if data["conditions"]:
+        err += f"; {data['conditions']}"
+    lines = [f"{verdict.upper()}: {reason}", err]
+    lines.append(
+        f"top missing effect: {top['effect']}" if top is not None else "top missing effect: none"
+    )
+    return Section("verdict", "Verdict", tuple(lines), data=data)
 
 
 def _diagnosis_section(d: Path, fitted: Any, meas: Any, run_it: bool) -> Section:
@@ -420,43 +579,55 @@ def _diagnosis_section(d: Path, fitted: Any, meas: Any, run_it: bool) -> Section
         doc = diagnose(state_from_fitted(fitted), meas).to_dict(top=8)
     if doc is None:
         return Section("diagnosis", title, missing="no diagnosis.json (quickhealth diagnose …)")
-    rows = [("effect", "score", "predicted RMS drop (mm)", "evidence")]
+    head = ("effect", "score", "predicted RMS drop (mm)", "evidence")
+    rows, small = [head], [head]
     for c in doc.get("candidates", [])[:8]:
-        rows.append(
-            (
-                str(c.get("effect")),
-                f"{float(c.get('score', math.nan)):.2f}",
-                f"{float(c.get('predicted_rms_drop_mm', math.nan)):.4f}",
-                str(c.get("evidence", "")),
-            )
+        row = (
+            str(c.get("effect")),
+            f"{float(c.get('score', math.nan)):.2f}",
+            f"{float(c.get('predicted_rms_drop_mm', math.nan)):.4f}",
+            str(c.get("evidence", "")),
         )
+        # the candidates that matter stay in view; "too small to matter" and the
+        # not-significant rest fold away
+        (rows if c.get("significant", False) else small).append(row)
+    lines = [f"verdict: {doc.get('verdict')}"]
+    if len(rows) == 1:
+        lines.append("no candidate effect matters")
     return Section(
         "diagnosis",
         title,
-        (f"verdict: {doc.get('verdict')}",),
-        table=tuple(rows),
+        tuple(lines),
+        table=tuple(rows) if len(rows) > 1 else (),
         data=doc,
+        folded=tuple(small) if len(small) > 1 else (),
+        folded_title=f"{len(small) - 1} candidates too small to matter or not significant",
     )
 
 
 def _trend_section(
     archive: Any, robot: str | None, rid: str, threshold_mm: float | None
-) -> Section:
+) -> tuple[Section, Any]:
+    """The trend section and the trend result (None when there is no trend)."""
     title = "Trend against the baseline"
     if archive is None or robot is None:
         return Section(
             "trend", title, missing="run not archived: quickhealth archive add RUN_DIR --robot NAME"
-        )
+        ), None
     from quickhealth.identify.trend import assess_trend
 
     recs = archive.runs(robot)
     ids = [r.run_id for r in recs]
     if rid not in ids:
-        return Section("trend", title, missing=f"run {rid} is not in the archive of robot {robot}")
+        return Section(
+            "trend", title, missing=f"run {rid} is not in the archive of robot {robot}"
+        ), None
     recs = recs[: ids.index(rid) + 1]
     b = next((i for i, r in enumerate(recs) if r.baseline), None)
     if b is None:
-        return Section("trend", title, missing=f"robot {robot} has no baseline before this run")
+        return Section(
+            "trend", title, missing=f"robot {robot} has no baseline before this run"
+        ), None
     states = [archive.run_state(r, like=recs[b]) for r in recs]
     res = assess_trend(states, b, threshold_mm=threshold_mm)
     flags = res.flags()
@@ -484,7 +655,7 @@ def _trend_section(
         table=tuple(rows),
         plots=(Plot("trend", "Trend", _png(trend_figure(res))),),
         data=trend_json(res),
-    )
+    ), res
 
 
 def _iso_section(fitted: Any, meas: Any) -> Section:
@@ -581,6 +752,7 @@ def report_json(rep: Report) -> dict[str, Any]:
                 "plots": [p.key for p in s.plots],
                 "missing": s.missing or None,
                 "data": s.data,
+                "folded": [list(r) for r in s.folded],
             }
             for s in rep.sections
         },
@@ -610,7 +782,21 @@ h1{font-size:1.4em}h2{font-size:1.15em;border-bottom:1px solid #ccc;margin-top:1
 img.plot{max-width:100%;display:block;margin:.6em 0;border:1px solid #eee}
 table{border-collapse:collapse;font-size:.85em}td,th{border:1px solid #ccc;padding:2px 6px}
 .missing{color:#a60}.flag{color:#b00;font-weight:bold}pre{white-space:pre-wrap}
+.verdict{border:2px solid #888;border-radius:6px;padding:.4em 1em;margin:.6em 0}
+.verdict p{margin:.3em 0}.verdict-line{font-size:1.25em;font-weight:bold}
+.verdict.healthy{border-color:#2a7;background:#effaf3}
+.verdict.degraded{border-color:#d90;background:#fff8e6}
+.verdict.flagged{border-color:#c22;background:#fdeeee}
 """
+
+
+def _table(rows: tuple[tuple[str, ...], ...]) -> list[str]:
+    e = html.escape
+    head, *body = rows
+    out = ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr>"]
+    out += ["<tr>" + "".join(f"<td>{e(c)}</td>" for c in r) + "</tr>" for r in body]
+    out.append("</table>")
+    return out
 
 
 def render_html(rep: Report) -> str:
@@ -621,11 +807,26 @@ def render_html(rep: Report) -> str:
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{e(rep.title)}</title><style>{_CSS}</style></head><body>",
         f"<h1>{e(rep.title)}</h1>",
+    ]
+    nav = (
         "<nav>"
         + " · ".join(f'<a href="#{s.key}">{e(s.title)}</a>' for s in rep.sections)
-        + "</nav>",
-    ]
-    for s in rep.sections:
+        + "</nav>"
+    )
+    for k, s in enumerate(rep.sections):
+        if s.key == "verdict":
+            v = str(s.data.get("verdict", ""))
+            out.append(f'<section id="verdict" class="verdict {e(v)}">')
+            out += [
+                f'<p id="verdict-line" class="verdict-line">{e(s.lines[0])}</p>',
+                *(f'<p id="verdict-{i}">{e(x)}</p>' for i, x in enumerate(s.lines[1:], 1)),
+                "</section>",
+            ]
+            if k == 0:
+                out.append(nav)
+            continue
+        if k == 0:
+            out.append(nav)
         out.append(f'<section id="{s.key}"><h2>{e(s.title)}</h2>')
         if s.missing:
             out.append(f'<p class="missing">Not available: {e(s.missing)}</p>')
@@ -633,10 +834,11 @@ def render_html(rep: Report) -> str:
             cls = ' class="flag"' if line.startswith(("verdict: FLAGGED", "joint ")) else ""
             out.append(f"<p{cls}>{e(line)}</p>")
         if s.table:
-            head, *body = s.table
-            out.append("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr>")
-            out += ["<tr>" + "".join(f"<td>{e(c)}</td>" for c in r) + "</tr>" for r in body]
-            out.append("</table>")
+            out += _table(s.table)
+        if s.folded:
+            out.append(f"<details><summary>{e(s.folded_title)}</summary>")
+            out += _table(s.folded)
+            out.append("</details>")
         for p in s.plots:
             b64 = base64.b64encode(p.png).decode("ascii")
             out.append(

@@ -225,11 +225,9 @@ def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = Non
 
 
 def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
-    import numpy as np
-
-    from quickhealth.identify.fit import fit_model
-    from quickhealth.identify.workspace import all_joint_curves, workspace_error
+    from quickhealth.identify.assess import assess
     from quickhealth.station import formats
+    from quickhealth.station.report_json import write_report_json
 
     src = Path(job.run_dir)
     old = formats.read_model(src / "model.json")
@@ -238,34 +236,32 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
     else:
         meas = formats.read_measurements(src / "measurements.csv", old.robot.n_joints)
     if job.orders == "select":
-        from quickhealth.identify.select import select_orders
-
-        fitted = select_orders(
-            old.robot, meas, list(old.effects), noise=old.noise, max_order=job.max_order
-        ).fitted
+        a = assess(
+            meas,
+            old.robot,
+            old.effects,
+            noise=old.noise,
+            prior=old.prior,
+            max_order=job.max_order,
+            workspace_samples=job.workspace_samples,
+        )
     else:
-        fitted = fit_model(old.robot, meas, old.spec, old.effects, old.noise, old.prior)
-    ws = workspace_error(fitted, n_samples=job.workspace_samples)
-    report = {
-        "n_poses": fitted.n_poses,
-        "n_params": fitted.n_free,
-        "bic": fitted.bic,
-        "chi2": fitted.chi2_data,
-        "rms_pos_mm": fitted.rms_pos * 1e3,
-        "converged": fitted.converged,
-        "robot": fitted.robot.name,
-        "summary": fitted.summary(),
-        "workspace": ws.as_dict(),
-        "joint_curves": [c.as_dict() for c in all_joint_curves(fitted, n_points=61)],
-    }
-    if fitted.rms_rot is not None:
-        report["rms_rot_deg"] = float(np.degrees(fitted.rms_rot))
+        a = assess(
+            meas,
+            old.robot,
+            old.effects,
+            noise=old.noise,
+            prior=old.prior,
+            spec=old.spec,
+            workspace_samples=job.workspace_samples,
+        )
+    fitted, ws = a.fitted, a.workspace
     out = Path(job.out_dir)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".reprocess-", dir=out.parent))
     try:
         formats.write_model(tmp / "model.json", fitted)
-        formats.write_report(tmp / "report.json", report)
+        write_report_json(tmp / "report.json", a, source=str(src / "measurements.csv"))
         if job.calibration:
             formats.write_measurements(tmp / "measurements.csv", meas)
         formats.write_text_atomic(

@@ -95,22 +95,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     t.add_argument("--position-only", action="store_true", help="no orientation columns")
     t.set_defaults(func=run_twin)
 
-    from quickhealth.station import compare as compare_cmd  # light: heavy imports are in run
+    from quickhealth.station import compare  # light: heavy imports are in its run()
 
-    c = sub.add_parser(
-        "compare",
-        help="fit with and without an effect, held-out error before and after",
-        description=compare_cmd.__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    compare_cmd.add_arguments(c)
-    c.set_defaults(func=_run_compare)
-
-
-def _run_compare(args: argparse.Namespace) -> int:
-    from quickhealth.station.compare import run
-
-    return run(args)
+    compare.register(sub)
 
 
 def run_diagnose(args: argparse.Namespace) -> int:

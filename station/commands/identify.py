@@ -17,14 +17,16 @@ quickhealth identify compare DIR/model.json MEAS.csv --effects LIST [--heldout H
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import sys
 import tempfile
 from pathlib import Path
 from typing import Any
 
+# the library's InstrumentNoise defaults (0.03 mm, 0.1 mrad): every door assesses alike
 DEFAULT_SIGMA_POS_MM = 0.03
-DEFAULT_SIGMA_ROT_DEG = 0.0057  # 0.1 mrad
+DEFAULT_SIGMA_ROT_DEG = math.degrees(1e-4)  # 0.1 mrad
 
 
 def register(subparsers: Any) -> None:
@@ -53,7 +55,7 @@ def register(subparsers: Any) -> None:
         "--sigma-rot-deg",
         type=float,
         default=DEFAULT_SIGMA_ROT_DEG,
-        help=f"instrument orientation noise per rotation axis where the file has no spitch.. ({DEFAULT_SIGMA_ROT_DEG})",
+        help=f"instrument orientation noise per rotation axis where the file has no spitch.. ({DEFAULT_SIGMA_ROT_DEG:.4g})",
     )
     f.add_argument("--sigma-q-deg", type=float, default=0.0, help="joint encoder uncertainty (0)")
     f.add_argument("--margin", type=float, default=None, help="BIC drop a raise must reach")
@@ -84,22 +86,9 @@ def register(subparsers: Any) -> None:
     w.add_argument("--robot", default=None, help="robot file for --sign auto (WAM DH table)")
     w.set_defaults(func=_import_wam)
 
-    from quickhealth.station import compare as compare_cmd  # light: heavy imports are in run
+    from quickhealth.station import compare  # light: heavy imports are in its run()
 
-    c = sub.add_parser(
-        "compare",
-        help="fit with and without an effect, held-out error before and after",
-        description=compare_cmd.__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    compare_cmd.add_arguments(c)
-    c.set_defaults(func=_compare)
-
-
-def _compare(args: argparse.Namespace) -> int:
-    from quickhealth.station.compare import run
-
-    return run(args)
+    compare.register(sub)
 
 
 # --------------------------------------------------------------------------- fit
@@ -115,11 +104,11 @@ def _positive(name: str, v: float) -> None:
 def _fit(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from quickhealth.identify.effects import parse_effects
+    from quickhealth.identify.assess import assess
     from quickhealth.identify.errors import InputError
     from quickhealth.identify.fit import InstrumentNoise
-    from quickhealth.identify.select import select_orders
     from quickhealth.station import formats
+    from quickhealth.station.report_json import write_report_json
 
     _positive("--sigma-pos-mm", args.sigma_pos_mm)
     _positive("--sigma-rot-deg", args.sigma_rot_deg)
@@ -132,7 +121,6 @@ def _fit(args: argparse.Namespace) -> int:
         raise InputError(f"{out}: exists and is not a directory")
     robot = formats.load_robot(args.robot)
     meas = formats.read_measurements(args.meas, robot.n_joints)
-    effects = parse_effects(args.effects, robot)
     noise = InstrumentNoise(
         sigma_pos=args.sigma_pos_mm * 1e-3,
         sigma_rot=float(np.radians(args.sigma_rot_deg)),
@@ -142,11 +130,12 @@ def _fit(args: argparse.Namespace) -> int:
     say(
         f"{meas.n_poses} poses, {'full pose' if meas.has_orientation else 'position only'}; searching orders up to {args.max_order}"
     )
+    render = _FigureRenderer() if args.plots else None  # workers import matplotlib meanwhile
     try:
-        sel = select_orders(
-            robot,
+        a = assess(
             meas,
-            effects,
+            robot,
+            [] if args.effects is None else args.effects.split(","),
             noise=noise,
             max_order=args.max_order,
             margin=args.margin,
@@ -154,129 +143,30 @@ def _fit(args: argparse.Namespace) -> int:
             progress=say,
         )
     except InputError as exc:
+        if render is not None:
+            render.close()
         if "too few" not in str(exc):
             raise InputError(f"{args.meas}: {exc}") from None
         n_lines = len(Path(args.meas).read_text(encoding="utf-8").splitlines())
         raise InputError(f"{args.meas}:{n_lines}:1: {exc}") from None
-    report = build_report(sel, meas, args)
-    figs = None
-    if args.plots:
-        figs = _figures(sel, meas)
     # write everything into a temporary directory first: nothing half-written on failure
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".identify-", dir=out.parent))
     try:
-        formats.write_model(tmp / "model.json", sel.fitted)
-        formats.write_report(tmp / "report.json", report)
-        formats.write_text_atomic(tmp / "residuals.csv", residual_table(sel.fitted, meas))
-        if figs:
-            for name, fig in figs.items():
-                fig.savefig(tmp / f"{name}.png", dpi=110)
+        if render is not None:
+            render.run(a, tmp)
+        formats.write_model(tmp / "model.json", a.fitted)
+        write_report_json(tmp / "report.json", a, source=str(args.meas))
+        formats.write_text_atomic(tmp / "residuals.csv", residual_table(a.fitted, meas))
         out.mkdir(parents=True, exist_ok=True)
         for f in tmp.iterdir():
             shutil.move(str(f), out / f.name)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    for line in sel.fitted.summary() + sel.summary():
+    for line in a.summary():
         print(line)
-    ws = report["workspace"]
-    print(
-        f"workspace TCP error (model): mean {ws['mean_mm']:.3f} mm, std {ws['std_mm']:.3f} mm, "
-        f"max {ws['max_mm']:.3f} mm"
-    )
     print(f"wrote {out / 'model.json'}, {out / 'report.json'}, {out / 'residuals.csv'}")
     return 0
-
-
-def build_report(sel: Any, meas: Any, args: argparse.Namespace | None = None) -> dict[str, Any]:
-    """report.json content for a selection."""
-    import numpy as np
-
-    from quickhealth.identify.workspace import all_joint_curves, workspace_error
-
-    fm = sel.fitted
-    spec = fm.spec
-    ws = workspace_error(fm)
-    rep: dict[str, Any] = {
-        "n_poses": fm.n_poses,
-        "n_params": fm.n_free,
-        "n_params_total": int(fm.params.size),
-        "bic": fm.bic,
-        "chi2": fm.chi2_data,
-        "chi2_with_prior": fm.chi2,
-        "dof": fm.dof,
-        "rms_pos_mm": fm.rms_pos * 1e3,
-        "converged": fm.converged,
-        "robot": fm.robot.name,
-        "effects": [e.name for e in fm.effects],
-        "orders": {
-            spec.frame_name(f): dict(
-                zip(("dx", "dy", "dz", "ex", "ey", "ez"), spec.orders[f].tolist(), strict=True)
-            )
-            for f in range(spec.orders.shape[0])
-        },
-        "joint_range_deg": {
-            "lo": np.degrees(spec.q_lo).tolist(),
-            "hi": np.degrees(spec.q_hi).tolist(),
-        },
-        "unidentifiable": list(fm.unidentifiable),
-        "chi2_check": {
-            "verdict": sel.chi2_check.verdict,
-            "ratio_to_median": sel.chi2_check.ratio_to_median,
-            "message": sel.chi2_check.message,
-        },
-        "search": {
-            "margin": sel.margin,
-            "n_fits": sel.n_fits,
-            "n_scored": sel.n_scored,
-            "steps": [
-                {
-                    "kind": s.kind,
-                    "motion": s.motion,
-                    "from": s.from_order,
-                    "to": s.to_order,
-                    "bic_linear": s.bic_linear,
-                    "bic": s.bic,
-                    "accepted": s.accepted,
-                }
-                for s in sel.trace
-            ],
-            "rescaled": list(sel.rescaled),
-        },
-        "noise": {
-            "sigma_pos_mm": sel.noise.sigma_pos * 1e3,
-            "sigma_rot_deg": float(np.degrees(sel.noise.sigma_rot)),
-            "sigma_q_deg": float(np.degrees(sel.noise.sigma_q)),
-            "per_row": meas.sigma_pos is not None,
-        },
-        "summary": fm.summary() + sel.summary(),
-        "workspace": ws.as_dict(),
-        "joint_curves": [c.as_dict() for c in all_joint_curves(fm, n_points=61)],
-        "residuals": _residual_records(fm, meas),
-    }
-    if fm.rms_rot is not None:
-        rep["rms_rot_deg"] = float(np.degrees(fm.rms_rot))
-    if args is not None:
-        rep["input"] = str(args.meas)
-    return rep
-
-
-def _residual_records(fm: Any, meas: Any) -> list[dict[str, Any]]:
-    import numpy as np
-
-    rp = fm.residual_pos * 1e3
-    out = []
-    for i in range(fm.n_poses):
-        r: dict[str, Any] = {
-            "row": i + 1,
-            "pose_id": None if meas.pose_id is None else meas.pose_id[i],
-            "pos_mm": rp[i].tolist(),
-            "norm_mm": float(np.linalg.norm(rp[i])),
-        }
-        if fm.residual_rot is not None:
-            r["rot_deg"] = np.degrees(fm.residual_rot[i]).tolist()
-        out.append(r)
-    return out
 
 
 def residual_table(fm: Any, meas: Any) -> str:
@@ -300,18 +190,48 @@ def residual_table(fm: Any, meas: Any) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _figures(sel: Any, meas: Any) -> dict[str, Any]:
+def _render_figures(job: tuple[str, Any, Any, str]) -> str:
+    """One PNG of ``identify fit --plots`` (runs in a worker process)."""
     from quickhealth.identify import report
-    from quickhealth.identify.workspace import all_joint_curves, workspace_error
 
-    fm = sel.fitted
-    figs = {
-        "workspace_histogram": report.workspace_histogram(workspace_error(fm)),
-        "residuals": report.residual_plot(fm, meas),
-    }
-    for c in all_joint_curves(fm):
-        figs[f"joint{c.joint}_curves"] = report.joint_curve_figure(c)
-    return figs
+    kind, data, extra, path = job
+    if kind == "workspace":
+        fig = report.workspace_histogram(data)
+    elif kind == "residuals":
+        fig = report.residual_plot(data, extra)
+    else:
+        fig = report.joint_curve_figure(data)
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def _warm() -> None:
+    import quickhealth.identify.report  # noqa: F401  (matplotlib, while the parent fits)
+
+
+class _FigureRenderer:
+    """The PNGs of ``--plots`` drawn by two worker processes: they import matplotlib while
+    the fit runs, then draw one figure each at a time (8 figures, ~0.3 s each)."""
+
+    def __init__(self) -> None:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = multiprocessing.get_context("fork")
+        self.pool = ProcessPoolExecutor(max_workers=2, mp_context=ctx)
+        self.warm = [self.pool.submit(_warm) for _ in range(2)]
+
+    def run(self, a: Any, out: Path) -> None:
+        jobs = [("workspace", a.workspace, None, str(out / "workspace_histogram.png"))]
+        jobs += [("curves", c, None, str(out / f"joint{c.joint}_curves.png")) for c in a.curves]
+        jobs.insert(1, ("residuals", a.fitted, a.measurements, str(out / "residuals.png")))
+        try:
+            list(self.pool.map(_render_figures, jobs))
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 # --------------------------------------------------------------------------- predict
@@ -320,7 +240,6 @@ def _figures(sel: Any, meas: Any) -> dict[str, Any]:
 def _predict(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from quickhealth.identify.errors import InputError
     from quickhealth.identify.transforms import R_to_rpy
     from quickhealth.identify.workspace import predict_commands
     from quickhealth.station import formats
@@ -338,12 +257,6 @@ def _predict(args: argparse.Namespace) -> int:
         meas = formats.read_measurements(inp, nj, joints_only=True)
         q, time, temp = meas.q, meas.time, meas.temp
         src_lines = None
-    for e in fm.effects:
-        for col in e.requires():
-            if (time if col == "time" else temp if col == "temp" else 0) is None:
-                raise InputError(
-                    f"{inp}:1:1: the model's effect {e.name!r} needs the {col!r} column"
-                )
     thr = None if args.threshold_mm is None else args.threshold_mm * 1e-3
     pred = predict_commands(fm, q, thr, time=time, temp=temp)
     cols = ["row"]
@@ -399,11 +312,20 @@ def _predict(args: argparse.Namespace) -> int:
             f"; measured minus model: mean {d.mean():.3f} mm, rms {np.sqrt(np.mean(d**2)):.3f} mm"
         )
     print(msg)
+    if pred.assumed.describe():
+        print(
+            f"the input has no column for {', '.join(_missing(pred.assumed))}: predicted "
+            f"{pred.assumed.describe()} (the model's reference conditions)"
+        )
     print(f"wrote {args.out}")
     if thr is not None:
         print(f"{n_over} commands above {args.threshold_mm} mm")
         return 1 if n_over else 0
     return 0
+
+
+def _missing(c: Any) -> list[str]:
+    return [n for n, v in (("temp", c.temp_c), ("time", c.time_s)) if v is not None]
 
 
 # --------------------------------------------------------------------------- WAM import

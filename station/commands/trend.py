@@ -244,22 +244,6 @@ def _archive_list(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- trend
 
 
-def trend_for(arch: Any, robot: str, **kwargs: Any) -> Any:
-    """:func:`~quickhealth.identify.trend.assess_trend` over a robot's archived runs."""
-    from quickhealth.identify.errors import InputError
-    from quickhealth.identify.trend import assess_trend
-
-    recs = arch.runs(robot)
-    b = next((i for i, r in enumerate(recs) if r.baseline), None)
-    if b is None:
-        raise InputError(
-            f"robot {robot!r} has no healthy run to be its baseline: "
-            "quickhealth archive baseline ROBOT RUN_ID"
-        )
-    states = [arch.run_state(r, like=recs[b]) for r in recs]
-    return assess_trend(states, b, **kwargs)
-
-
 def _trend(args: argparse.Namespace) -> int:
     from quickhealth.identify.errors import InputError
     from quickhealth.station.report_html import trend_figure, trend_json
@@ -270,6 +254,8 @@ def _trend(args: argparse.Namespace) -> int:
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
+    from quickhealth.station.archive import trend_for
+
     arch = _open(args)
     res = trend_for(
         arch,

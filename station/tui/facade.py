@@ -60,9 +60,9 @@ MOTION_UNITS = {"dx": "mm", "dy": "mm", "dz": "mm", "ex": "mrad", "ey": "mrad", 
 
 @dataclass
 class _Model:
-    """The current fit of the current data (mutable session state, not a result)."""
+    """The current assessment of the current data (mutable session state, not a result)."""
 
-    fitted: object
+    assessment: Any
     effects: tuple[str, ...]
     n_poses: int
 
@@ -99,19 +99,24 @@ class Analysis:
         self.out_dir: Path | None = None
 
     # ----- fitting ---------------------------------------------------------------------------
-    def fit(self, effects: tuple[str, ...] | None = None):  # type: ignore[no-untyped-def]
-        """BIC order selection and ML fit with ``effects`` (default: the current ones)."""
+    def assess(self, effects: tuple[str, ...] | None = None) -> Any:
+        """The assessment (BIC order selection, ML fit, workspace, curves) with ``effects``
+        (default: the current ones): ``identify.assess.assess``, as ``identify fit`` runs it."""
         eff = self.effects if effects is None else effects
-        return offload(jobs.fit_job, self.robot, self.meas, eff, self.max_order)
+        return offload(jobs.assess_job, self.robot, self.meas, eff, self.max_order)
 
-    def model(self):  # type: ignore[no-untyped-def]
-        """The current model of all the data (fitted once, refitted when effects change)."""
+    def assessment(self) -> Any:
+        """The current assessment of all the data (once, again when effects or data change)."""
         with self._lock:
             m = self._model
             if m is None or m.effects != self.effects or m.n_poses != self.meas.n_poses:
-                m = _Model(self.fit(), self.effects, self.meas.n_poses)
+                m = _Model(self.assess(), self.effects, self.meas.n_poses)
                 self._model = m
-            return m.fitted
+            return m.assessment
+
+    def model(self):  # type: ignore[no-untyped-def]
+        """The current model of all the data (the assessment's fitted model)."""
+        return self.assessment().fitted
 
     # ----- screens ---------------------------------------------------------------------------
     def health(
@@ -123,9 +128,14 @@ class Analysis:
         threshold_figure: str = "max",
         baseline_mean_mm: float | None = None,
     ) -> tuple[Health, dict]:
-        """The health summary of the current model, and the numbers for report.json."""
-        fitted = self.model()
-        ws, jcs, worst = offload(jobs.workspace_job, fitted)
+        """The health summary of the current model, and report.json's content (the one writer's,
+        :func:`quickhealth.station.report_json.report_of`, with a ``run`` object)."""
+        from quickhealth.station.report_json import report_of
+
+        a = self.assessment()
+        fitted = a.fitted
+        ws, jcs = a.workspace, a.curves
+        worst = offload(jobs.regions_job, fitted)
         curves = []
         for jc in jcs:
             for m, motion in enumerate(MOTIONS):
@@ -162,21 +172,17 @@ class Analysis:
             n_poses=self.meas.n_poses,
             effects=tuple(e.name for e in fitted.effects),
         )
-        report = {
-            "n_poses": self.meas.n_poses,
-            "n_params": int(fitted.n_free),
-            "bic": float(fitted.bic),
-            "chi2": float(fitted.chi2),
-            "rms_pos_mm": float(fitted.rms_pos * 1e3),
-            "workspace": ws.as_dict(),
-            "verdict": verdict,
-            "threshold_mm": threshold_mm,
-            "threshold_figure": threshold_figure,
-            "effects": list(h.effects),
-            "curves": [jc.as_dict() for jc in jcs],
-        }
-        if fitted.rms_rot is not None:
-            report["rms_rot_deg"] = float(np.degrees(fitted.rms_rot))
+        report = report_of(
+            a,
+            run={
+                "run_id": run_id,
+                "robot_name": robot_name,
+                "verdict": verdict,
+                "healthy": verdict == "healthy",
+                "threshold_mm": threshold_mm,
+                "threshold_figure": threshold_figure,
+            },
+        )
         return h, report
 
     def diagnose(self) -> Diagnosis:
@@ -234,9 +240,10 @@ class Analysis:
             png,
             progress=progress,
         )
+        after = offload(jobs.evaluate_job, cmp.fitted_after, self.meas)
         with self._lock:
             self.effects = tuple(e.name for e in cmp.fitted_after.effects)
-            self._model = _Model(cmp.fitted_after, self.effects, self.meas.n_poses)
+            self._model = _Model(after, self.effects, self.meas.n_poses)
         step(total, total, "done")
         b, a = cmp.before, cmp.after
         return Refit(
@@ -614,9 +621,7 @@ class Station:
             h.curves,
             str(d),
         )
-        report["healthy"] = h.verdict == "healthy"
-        report["run_id"] = self.run_id
-        report["robot"] = self.robot_name
+        report["healthy"] = h.verdict == "healthy"  # the archive reads it at the top level
         write_model(d / "model.json", self.analysis.model())
         write_report(d / "report.json", report)
         if not (d / "measurements.csv").exists():

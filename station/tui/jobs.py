@@ -20,19 +20,25 @@ from .views import Region
 Progress = Callable[[str], None]
 
 
-def fit_job(
+def assess_job(
     robot: RobotModel,
     meas: Measurements,
     effects: Sequence[str],
     max_order: int,
     progress: Progress | None = None,
 ) -> Any:
-    """BIC order selection and ML fit with ``effects``: the FittedModel."""
-    from quickhealth.identify.effects import parse_effects
-    from quickhealth.identify.select import select_orders
+    """The assessment (``identify.assess.Assessment``) with ``effects``: the same function and
+    defaults as ``identify fit``, so the TUI's report.json equals the command line's."""
+    from quickhealth.identify.assess import assess
 
-    eff = parse_effects(list(effects), robot)
-    return select_orders(robot, meas, eff, max_order=max_order, progress=progress).fitted
+    return assess(meas, robot, list(effects), max_order=max_order, progress=progress)
+
+
+def evaluate_job(fitted: Any, meas: Measurements, progress: Progress | None = None) -> Any:
+    """``identify.assess.evaluate``: the assessment of an already fitted model."""
+    from quickhealth.identify.assess import evaluate
+
+    return evaluate(meas, fitted)
 
 
 def diagnose_job(fitted: Any, meas: Measurements, progress: Progress | None = None) -> Any:
@@ -95,13 +101,9 @@ def trend_png_job(
     return figures.trend_png(rows, threshold_mm, Path(png))
 
 
-def workspace_job(fitted: Any, progress: Progress | None = None) -> tuple[Any, Any, Any]:
-    """Workspace error, every joint's curves with bands, and the worst regions."""
-    from quickhealth.identify.workspace import all_joint_curves, workspace_error
-
-    ws = workspace_error(fitted, n_samples=4000)
-    curves = all_joint_curves(fitted, n_points=61)
-    return ws, curves, worst_regions(fitted)
+def regions_job(fitted: Any, progress: Progress | None = None) -> tuple[Region, ...]:
+    """Where in the workspace the model's TCP error is largest (:func:`worst_regions`)."""
+    return worst_regions(fitted)
 
 
 def worst_regions(
@@ -118,7 +120,10 @@ def worst_regions(
     rng = np.random.default_rng(seed)
     spec = fitted.spec
     q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
-    err = fitted.tcp_error(q, approach=np.ones_like(q)) * 1e3
+    from quickhealth.identify.workspace import reference_conditions
+
+    cond = reference_conditions(fitted).arrays(n_samples)  # thermal/drift at stated conditions
+    err = fitted.tcp_error(q, approach=np.ones_like(q), **cond) * 1e3
     p = (fitted.robot.fk(q) @ fitted.T_flange_target0)[:, :3, 3]
     az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
     side = np.digitize((az + 45.0) % 360.0, [90.0, 180.0, 270.0])

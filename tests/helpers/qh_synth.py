@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quickhealth.identify.errormodel import ErrorModelSpec, loop_pose
+from quickhealth.identify.errormodel import ErrorModelSpec
+from quickhealth.identify.linearize import loop_pose
 from quickhealth.identify.measurements import Measurements
 from quickhealth.identify.robot import RobotModel, ur5
 from quickhealth.identify.transforms import R_to_rpy, exp_so3, make_T, rpy_to_R

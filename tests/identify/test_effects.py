@@ -17,9 +17,9 @@ from quickhealth.identify.effects import (
     parse_effects,
     total_perturbation,
 )
-from quickhealth.identify.effects._base import perturbed_loop_pose
-from quickhealth.identify.errormodel import ErrorModelSpec, loop_pose
+from quickhealth.identify.errormodel import ErrorModelSpec
 from quickhealth.identify.errors import InputError
+from quickhealth.identify.linearize import loop_pose
 from quickhealth.identify.measurements import Measurements
 from quickhealth.identify.robot import gravity_torques, ur5
 from quickhealth.identify.transforms import log_so3
@@ -139,7 +139,7 @@ def test_effects_compose_with_each_other_and_the_chebyshev_model(setup) -> None:
     assert np.all(total.dq[:, 2] != 0)
     # to first order the pose changes add up (small effects: cross terms are second order)
     T0 = model_pose(state, ctx)
-    T_all = perturbed_loop_pose(
+    T_all = loop_pose(
         robot,
         state.spec,
         state.coeffs,
@@ -187,13 +187,13 @@ def test_perturbed_loop_applies_depth_scale_and_link_growth() -> None:
     from quickhealth.identify.effects import Perturbation
 
     T0 = loop_pose(robot, spec, coeffs, T_ib, np.eye(4), q)
-    Ts = perturbed_loop_pose(
+    Ts = loop_pose(
         robot, spec, coeffs, T_ib, np.eye(4), q, Perturbation(instr_scale_z=np.full(5, 1e-3))
     )
     np.testing.assert_allclose(Ts[:, 2, 3], 1.001 * T0[:, 2, 3])
     np.testing.assert_allclose(Ts[:, :2, 3], T0[:, :2, 3])
     # a uniform link growth of g scales the flange position in the base frame by 1 + g
-    Tg = perturbed_loop_pose(
+    Tg = loop_pose(
         robot, spec, coeffs, np.eye(4), np.eye(4), q, Perturbation(link_scale=np.full(5, 1e-3))
     )
     T1 = loop_pose(robot, spec, coeffs, np.eye(4), np.eye(4), q)

@@ -9,16 +9,21 @@ import pytest
 import qh_synth as S
 
 from quickhealth.identify.effects import EffectContext, Perturbation, parse_effects
-from quickhealth.identify.errormodel import ErrorModelSpec, loop_pose
+from quickhealth.identify.errormodel import (
+    ErrorModelSpec,
+    constant_motions,
+    joint_error_motions,
+)
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.fit import (
     InstrumentNoise,
-    _forward,
     fit_model,
     sequential_independent,
     whitened_problem,
 )
-from quickhealth.identify.transforms import R_to_rpy
+from quickhealth.identify.linearize import forward, loop_pose
+from quickhealth.identify.robot import chain
+from quickhealth.identify.transforms import R_to_rpy, small_error_transform
 from quickhealth.identify.twin import make_twin, random_joints, schedules
 from quickhealth.identify.workspace import joint_curves, predict_commands
 
@@ -48,7 +53,7 @@ def test_forward_matches_loop_pose_with_perturbations():
         base_twist=rng.normal(0, 1e-4, (20, 6)),
         instr_scale_z=np.full(20, 2e-4),
     )
-    T, _, _ = _forward(
+    T, _, _ = forward(
         truth.robot,
         truth.spec,
         truth.coeffs,
@@ -57,17 +62,21 @@ def test_forward_matches_loop_pose_with_perturbations():
         q,
         pert,
     )
-    ref = loop_pose(
+    # an independent reference: the robot's own chain with the error transforms inserted
+    m = joint_error_motions(truth.spec, truth.coeffs, q)
+    T_bf = chain(
         truth.robot,
-        truth.spec,
-        truth.coeffs,
-        truth.T_instr_base,
-        truth.T_flange_target,
         q,
+        E_joint=small_error_transform(m[..., :3], m[..., 3:]),
         dq=pert.dq,
         link_scale=1 + pert.link_scale,
-        base_twist=pert.base_twist,
     )
+    b = constant_motions(truth.spec, truth.coeffs, 0)
+    t = constant_motions(truth.spec, truth.coeffs, -1)
+    E0 = truth.T_instr_base @ small_error_transform(b[:3], b[3:])
+    E0 = E0 @ small_error_transform(pert.base_twist[:, :3], pert.base_twist[:, 3:])
+    Et = truth.T_flange_target @ small_error_transform(t[:3], t[3:])
+    ref = E0 @ T_bf @ Et
     ref[:, 2, 3] *= 1 + 2e-4
     np.testing.assert_allclose(T, ref, atol=1e-12)
 
@@ -248,7 +257,7 @@ def test_effect_parameters_are_fitted_with_their_prior():
         truth.T_instr_base,
         truth.T_flange_target,
         q,
-        dq=dq,
+        Perturbation(dq=dq),
     )
     rng = np.random.default_rng(13)
     pos = T[:, :3, 3] + rng.normal(0, 3e-5, (len(q), 3))

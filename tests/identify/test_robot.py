@@ -5,7 +5,8 @@ import pinocchio as pin
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from quickhealth.identify.errormodel import ErrorModelSpec, chebyshev_basis, loop_pose
+from quickhealth.identify.errormodel import ErrorModelSpec, chebyshev_basis
+from quickhealth.identify.linearize import loop_pose
 from quickhealth.identify.robot import chain, from_dh, gravity_torques, ur5
 from quickhealth.identify.transforms import (
     R_to_rpy,

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from quickhealth.identify.diagnose import pose_residuals
-from quickhealth.identify.errormodel import loop_pose
+from quickhealth.identify.effects import Perturbation
+from quickhealth.identify.linearize import loop_pose
 from quickhealth.identify.measurements import approach_from_order
 from quickhealth.identify.twin import (
     TwinTruth,
@@ -55,7 +56,13 @@ def test_geometry_is_the_same_with_and_without_effects_and_backlash_shifts_the_j
     shifted[:, 2] += 0.5 * b * app[:, 2]
     t = plain.truth
     expect = loop_pose(
-        plain.robot, t.spec, t.coeffs, t.T_instr_base, t.T_flange_target, q, dq=shifted - q
+        plain.robot,
+        t.spec,
+        t.coeffs,
+        t.T_instr_base,
+        t.T_flange_target,
+        q,
+        Perturbation(dq=shifted - q),
     )
     np.testing.assert_allclose(lash.true_pose(q), expect, atol=1e-14)
     assert np.abs(lash.true_pose(q) - plain.true_pose(q))[:, :3, 3].max() > 1e-4

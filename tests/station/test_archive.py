@@ -200,7 +200,7 @@ def test_runs_fitted_at_other_orders_are_refitted_like_the_baseline(tmp_path, ru
         like.spec.orders, a.run_state(base).spec.orders
     )
     assert (a.folder(rec) / "model.like-r0.json").is_file()
-    from quickhealth.station.commands.trend import trend_for
+    from quickhealth.station.archive import trend_for
 
     res = trend_for(a, "ur5-a")
     assert not res.flags(), res.flags()

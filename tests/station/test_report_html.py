@@ -24,8 +24,10 @@ FLAGS = [
     "--disable-background-networking",
     "--disable-component-update",
     "--disable-sync",
+    "--window-size=1280,800",  # the first screen a reader sees
 ]
 SECTIONS = [
+    "verdict",
     "summary",
     "coverage",
     "workspace",
@@ -66,6 +68,15 @@ def _browser_query(page: Path) -> dict:
           json: Object.keys(JSON.parse(document.getElementById('report-json').textContent).sections),
           external: Array.from(document.querySelectorAll('[src]')).filter(
               e => !e.getAttribute('src').startsWith('data:')).length,
+          first_screen: ['verdict-line', 'verdict-1', 'verdict-2'].map(id => {
+              const el = document.getElementById(id);
+              const r = el.getBoundingClientRect();
+              return {id: id, text: el.textContent, top: r.top, bottom: r.bottom,
+                      right: r.right, visible: r.height > 0};
+          }),
+          viewport: [window.innerWidth, window.innerHeight],
+          folded: Array.from(document.querySelectorAll('#diagnosis details')).map(
+              d => ({open: d.open, rows: d.querySelectorAll('tr').length})),
         });
     """
     profile = tempfile.mkdtemp(prefix="qh-chromium-")
@@ -81,7 +92,11 @@ def _browser_query(page: Path) -> dict:
             for f in [*FLAGS, f"--user-data-dir={profile}"]:
                 opts.add_argument(f)
             drv = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
-            try:
+            try:  # the viewport itself 1280x800 (the window size includes the browser's frame)
+                drv.execute_cdp_cmd(
+                    "Emulation.setDeviceMetricsOverride",
+                    {"width": 1280, "height": 800, "deviceScaleFactor": 1, "mobile": False},
+                )
                 drv.get(page.as_uri())
                 return json.loads(drv.execute_script(script))
             finally:
@@ -143,6 +158,17 @@ def test_report_renders_every_plot_in_chromium(reported):
     assert dom["missing"] == []
     assert dom["external"] == 0  # self-contained
     assert sorted(dom["json"]) == sorted(SECTIONS)
+    # the first 1280x800 screen holds the verdict line and the TCP error against the baseline
+    w, h = dom["viewport"]
+    assert (w, h) == (1280, 800), dom["viewport"]
+    line, err, top = dom["first_screen"]
+    for el in (line, err, top):
+        assert el["visible"] and 0 <= el["top"] and el["bottom"] <= h and el["right"] <= w, el
+    assert line["text"].startswith("FLAGGED: "), line
+    assert "baseline" in err["text"] and "mean" in err["text"] and "max" in err["text"], err
+    assert top["text"].startswith("top missing effect: "), top
+    # candidates too small to matter are folded away (closed <details>), if any
+    assert all(not d["open"] for d in dom["folded"])
     # coverage, histogram, 6 joints' curves, residuals, trend, ISO 9283
     want = {"plot-coverage", "plot-workspace_hist", "plot-residuals", "plot-trend", "plot-iso9283"}
     want |= {f"plot-curves_j{j}" for j in range(1, 7)}

@@ -1,0 +1,406 @@
+"""The loop model: one forward loop, its Jacobians and one noise model.
+
+Every part of the assessment that needs the model pose, its derivatives or the measurement
+covariance takes them from here: the fit (:mod:`.fit`), the order search (:mod:`.select`),
+the diagnosis (:mod:`.diagnose`), the held-out comparison (:mod:`.compare`), the digital twin
+(:mod:`.twin`) and the workspace map (:mod:`.workspace`).  Two copies of a loop or of a noise
+model drift apart (they did: per-row angle sigmas were mapped through the Euler-angle rates
+in the fit and used as a plain diagonal in the diagnosis).
+
+The loop (README conventions, METHOD.md Eq. 4)::
+
+    T_instr_target = T_instr_base0 · E0 · E(base_twist) · C0 · Π_i [Rz(θ_i + dq_i) · E_i(θ_i) · C_i]
+                     · T_flange_target0 · Etool
+    measured point = diag(1, 1, 1 + instr_scale_z) · position of T_instr_target
+
+with ``C_i`` translations × (1 + link_scale).  Residuals are measured minus model: position
+(m) and the rotation vector ``log(R_meas R_modelᵀ)`` (rad), both in the instrument frame.
+
+The noise model (:func:`noise_covariance`): per-row ``sx, sy, sz`` or the instrument default
+per axis; per-row ``spitch, syaw, sroll`` (uncertainties of the *angles*) mapped through the
+roll-yaw-pitch rates, or the instrument default isotropic on the rotation vector; plus the
+encoders' noise propagated through the loop (implicit-loop effective variance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .effects import Effect, EffectContext, Perturbation, effect_context
+from .errormodel import (
+    ErrorModelSpec,
+    chebyshev_basis,
+    chebyshev_u,
+    constant_motions,
+    joint_error_motions,
+)
+from .measurements import Measurements
+from .robot import RobotModel
+from .transforms import log_so3, rot_x, rot_y, rpy_to_R, small_error_transform
+
+F = NDArray[np.float64]
+
+_NO_PERTURBATION = Perturbation()
+
+
+@dataclass(frozen=True)
+class InstrumentNoise:
+    """Default standard uncertainties of a measured pose, used where the file has no ``s…`` columns.
+
+    Attributes
+    ----------
+    sigma_pos : float, m
+        Per axis of the measured point.
+    sigma_rot : float, rad
+        Per axis of the measured orientation's rotation vector (isotropic; per-row
+        ``spitch, syaw, sroll`` columns are per-angle uncertainties instead).
+    sigma_q : float, rad
+        Joint encoder reading (propagated through the loop; 0 = exact readings).
+    """
+
+    sigma_pos: float = 3e-5
+    sigma_rot: float = 1e-4
+    sigma_q: float = 0.0
+
+    def scaled(self, factor: float) -> InstrumentNoise:
+        """The same instrument with every uncertainty multiplied by ``factor``."""
+        return InstrumentNoise(
+            self.sigma_pos * factor, self.sigma_rot * factor, self.sigma_q * factor
+        )
+
+
+# --------------------------------------------------------------------------- the loop
+
+
+def measurement_context(robot: RobotModel, meas: Measurements) -> EffectContext:
+    """The effects' context of a measurement set (approach from the execution order)."""
+    return effect_context(robot, meas.q, meas.approach_sign(), meas.time, meas.temp)
+
+
+def joint_motion_matrices(spec: ErrorModelSpec, coeffs: F, q: F) -> tuple[F, F]:
+    """Motions (n, nf, 6) and error transforms E (n, nf, 4, 4) of all frames (base, joints, tool)."""
+    n, nj = q.shape
+    m = np.zeros((n, nj + 2, 6))
+    m[:, 1:-1] = joint_error_motions(spec, coeffs, q)
+    m[:, 0] = constant_motions(spec, coeffs, 0)
+    m[:, -1] = constant_motions(spec, coeffs, -1)
+    return m, small_error_transform(m[..., :3], m[..., 3:])
+
+
+def forward(
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    coeffs: F,
+    T_ib0: F,
+    T_ft0: F,
+    q: F,
+    pert: Perturbation = _NO_PERTURBATION,
+    frames: bool = True,
+) -> tuple[F, F | None, F]:
+    """Loop pose and, with ``frames``, the prefix transform ``A_f`` before every ``E_f``.
+
+    Returns ``T`` (n, 4, 4) with the instrument's z scale applied to the translation,
+    ``A`` (n, nf, 4, 4) or None, and the motions (n, nf, 6).  ``A[:, j + 1]`` is the frame
+    right after ``Rz(θ_j)``: its z axis is joint j's axis.
+    """
+    q = np.atleast_2d(np.asarray(q, float))
+    coeffs = np.asarray(coeffs, float)
+    n, nj = q.shape
+    mot, E = joint_motion_matrices(spec, coeffs, q)
+    theta = q + robot.q_offset
+    if pert.dq is not None:
+        theta = theta + pert.dq
+    links = np.broadcast_to(robot.links, (n, nj + 1, 4, 4))
+    if pert.link_scale is not None:
+        links = links.copy()
+        links[..., :3, 3] *= (1.0 + np.asarray(pert.link_scale, float))[:, None, None]
+    c, s = np.cos(theta), np.sin(theta)
+    Rz = np.zeros((n, nj, 4, 4))
+    Rz[..., 0, 0] = c
+    Rz[..., 0, 1] = -s
+    Rz[..., 1, 0] = s
+    Rz[..., 1, 1] = c
+    Rz[..., 2, 2] = 1.0
+    Rz[..., 3, 3] = 1.0
+    A = np.empty((n, nj + 2, 4, 4)) if frames else None
+    P = np.broadcast_to(np.asarray(T_ib0, float), (n, 4, 4))
+    if A is not None:
+        A[:, 0] = P
+    P = P @ E[:, 0]
+    if pert.base_twist is not None:
+        bt = np.asarray(pert.base_twist, float)
+        P = P @ small_error_transform(bt[:, :3], bt[:, 3:])
+    P = P @ links[:, 0]
+    for i in range(nj):
+        P = P @ Rz[:, i]
+        if A is not None:
+            A[:, i + 1] = P
+        P = P @ E[:, i + 1] @ links[:, i + 1]
+    P = P @ np.asarray(T_ft0, float)
+    if A is not None:
+        A[:, nj + 1] = P
+    T = P @ E[:, nj + 1]
+    if pert.instr_scale_z is not None:
+        T = T.copy()
+        T[:, 2, 3] *= 1.0 + np.asarray(pert.instr_scale_z, float)
+    return T, A, mot
+
+
+def loop_pose(
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    coeffs: F,
+    T_ib0: F,
+    T_ft0: F,
+    q: F,
+    pert: Perturbation = _NO_PERTURBATION,
+) -> F:
+    """Model pose of the target in the instrument frame, ``T_instr_target`` (n, 4, 4)."""
+    return forward(robot, spec, coeffs, T_ib0, T_ft0, q, pert, frames=False)[0]
+
+
+def pose_residuals(meas: Measurements, T_model: F) -> F:
+    """Measured minus model: ``(n, 6)`` = position (m), rotation vector (rad), instrument frame.
+
+    Position-only data give ``(n, 3)``.  The rotation residual is ``log(R_meas · R_modelᵀ)``.
+    """
+    dp = meas.pos - T_model[:, :3, 3]
+    if not meas.has_orientation:
+        return dp
+    dw = log_so3(meas.R @ np.swapaxes(T_model[:, :3, :3], -1, -2))
+    return np.concatenate([dp, dw], axis=1)
+
+
+# --------------------------------------------------------------------------- Jacobians
+
+
+def motion_jacobian(T: F, A: F, mot: F, scale_z: F | None = None) -> F:
+    """∂(position, rotation)/∂(six motions of every frame), shape (n, 6, nf, 6).
+
+    With ``E = Trans(δ) · Rx(εx) Ry(εy) Rz(εz)`` after the prefix ``A`` and the rest ``B``:
+    ``∂p/∂δ_k = A_R e_k``, ``∂p/∂ε_k = A_R (w_k × E_R b)``, ``∂ω/∂ε_k = A_R w_k`` with
+    ``w_x = x̂``, ``w_y = Rx ŷ``, ``w_z = Rx Ry ẑ`` and ``b`` the target in the frame after E.
+    """
+    n, nf = A.shape[:2]
+    AR = A[..., :3, :3]
+    At = A[..., :3, 3]
+    p = _geometric_point(T, scale_z)
+    e = mot[..., 3:]
+    # E_R b = A_Rᵀ (p - A_t) - δ
+    ERb = np.einsum("nfji,nfj->nfi", AR, p[:, None, :] - At) - mot[..., :3]
+    Rx = rot_x(e[..., 0])
+    Ry = rot_y(e[..., 1])
+    wx = np.broadcast_to(np.array([1.0, 0.0, 0.0]), (n, nf, 3))
+    wy = Rx[..., :, 1]
+    wz = (Rx @ Ry)[..., :, 2]
+    W = np.stack([wx, wy, wz], axis=-1)  # (n, nf, 3, 3) columns w_k
+    J = np.zeros((n, 6, nf, 6))
+    J[:, :3, :, :3] = np.moveaxis(AR, 2, 1)  # (n, 3, nf, 3)
+    cross = np.cross(np.moveaxis(W, -1, -2), ERb[:, :, None, :])  # (n, nf, 3k, 3)
+    dp_rot = np.einsum("nfij,nfkj->nfik", AR, cross)  # (n, nf, 3, 3k)
+    J[:, :3, :, 3:] = np.moveaxis(dp_rot, 2, 1)
+    J[:, 3:, :, 3:] = np.moveaxis(AR @ W, 2, 1)
+    if scale_z is not None:
+        J[:, 2] *= (1.0 + np.asarray(scale_z, float))[:, None, None]
+    return J
+
+
+def joint_angle_jacobian(T: F, A: F, scale_z: F | None = None) -> F:
+    """∂(position, rotation)/∂θ_j of every joint, shape (n, nj, 6): ``[z × (p − o), z]``."""
+    nj = A.shape[1] - 2
+    z = A[:, 1 : nj + 1, :3, 2]
+    o = A[:, 1 : nj + 1, :3, 3]
+    p = _geometric_point(T, scale_z)[:, None, :]
+    Jq = np.concatenate([np.cross(z, p - o), z], axis=-1)
+    if scale_z is not None:
+        Jq[:, :, 2] *= (1.0 + np.asarray(scale_z, float))[:, None]
+    return Jq
+
+
+def coefficient_columns(spec: ErrorModelSpec, q: F, Jmot: F) -> F:
+    """∂model/∂(every Chebyshev coefficient), (n, d, spec.n_params), from the motion
+    Jacobian ``Jmot`` (n, d, nf, 6) of :func:`motion_jacobian`."""
+    idx = spec.index()
+    u = chebyshev_u(q, spec.q_lo, spec.q_hi)
+    kmax = int(max(spec.orders.max(), 0))
+    B = chebyshev_basis(u, kmax)  # (n, nj, K)
+    basis = np.ones((q.shape[0], idx.shape[0]))
+    joint = (idx[:, 0] >= 1) & (idx[:, 0] <= spec.n_joints)
+    ji = idx[joint]
+    basis[:, joint] = B[:, ji[:, 0] - 1, ji[:, 2]]
+    return Jmot[:, :, idx[:, 0], idx[:, 1]] * basis[:, None, :]
+
+
+def _geometric_point(T: F, scale_z: F | None) -> F:
+    p = T[:, :3, 3]
+    if scale_z is None:
+        return p
+    p = p.copy()
+    p[:, 2] /= 1.0 + np.asarray(scale_z, float)
+    return p
+
+
+@dataclass(frozen=True, eq=False)
+class Sensitivities:
+    """Derivatives of the model pose ``(n, 6)`` (position m, rotation rad) at an estimate,
+    per unit of every channel an effect can perturb.
+
+    Attributes
+    ----------
+    dq : ndarray, shape (n, nj, 6)
+        Per unit (rad) joint-angle perturbation (analytic).
+    link_scale : ndarray, shape (n, 6)
+        Per unit fractional link growth.
+    base_twist : ndarray, shape (n, 6, 6)
+        Per unit base motion component (δx δy δz εx εy εz).
+    instr_scale_z : ndarray, shape (n, 6)
+        Per unit instrument depth scale.
+    frame_motion : ndarray, shape (n, nj + 2, 6, 6)
+        Per unit constant error motion of each frame (base, joints, tool) (analytic).
+    """
+
+    dq: F
+    link_scale: F
+    base_twist: F
+    instr_scale_z: F
+    frame_motion: F
+
+
+def sensitivities(
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    coeffs: F,
+    T_ib0: F,
+    T_ft0: F,
+    q: F,
+    pert: Perturbation = _NO_PERTURBATION,
+    h: float = 1e-6,
+) -> Sensitivities:
+    """Every channel's derivative of the loop at ``coeffs`` with the effects' ``pert`` applied.
+
+    Joint angles and frame motions analytically (:func:`joint_angle_jacobian`,
+    :func:`motion_jacobian`); the three effect-only channels (link growth, base motion,
+    depth scale) by central differences of :func:`loop_pose` (8 channels, 16 loops).
+    """
+    q = np.atleast_2d(np.asarray(q, float))
+    n = q.shape[0]
+    T, A, mot = forward(robot, spec, coeffs, T_ib0, T_ft0, q, pert)
+    assert A is not None
+    Jm = motion_jacobian(T, A, mot, pert.instr_scale_z)  # (n, 6c, nf, 6m)
+    S_fm = np.moveaxis(Jm, 1, 3)  # (n, nf, 6m, 6c)
+    S_dq = joint_angle_jacobian(T, A, pert.instr_scale_z)
+
+    def diff(make) -> F:  # type: ignore[no-untyped-def]
+        Tp = loop_pose(robot, spec, coeffs, T_ib0, T_ft0, q, pert + make(h))
+        Tm = loop_pose(robot, spec, coeffs, T_ib0, T_ft0, q, pert + make(-h))
+        dp = (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h)
+        dw = log_so3(Tp[:, :3, :3] @ np.swapaxes(Tm[:, :3, :3], -1, -2)) / (2 * h)
+        return np.concatenate([dp, dw], axis=1)
+
+    S_ls = diff(lambda s: Perturbation(link_scale=np.full(n, s)))
+    S_bt = np.empty((n, 6, 6))
+    for c in range(6):
+        unit = np.zeros((n, 6))
+        unit[:, c] = 1.0
+        S_bt[:, c] = diff(lambda s, u=unit: Perturbation(base_twist=u * s))
+    S_iz = diff(lambda s: Perturbation(instr_scale_z=np.full(n, s)))
+    return Sensitivities(S_dq, S_ls, S_bt, S_iz, S_fm)
+
+
+def effect_jacobian(effect: Effect, ctx: EffectContext, sens: Sensitivities) -> F:
+    """Derivative of the model pose with respect to the effect's parameters, ``(n, 6, k)``.
+
+    Exact for the perturbation (an effect is linear in its parameters); the loop is
+    linearised at the estimate through :class:`Sensitivities`.
+    """
+    n = ctx.n_poses
+    out = np.zeros((n, 6, effect.n_params))
+    for i in range(effect.n_params):
+        unit = np.zeros(effect.n_params)
+        unit[i] = 1.0
+        p = effect.perturbation(ctx, unit)
+        col = np.zeros((n, 6))
+        if p.dq is not None:
+            col += np.einsum("nj,njc->nc", p.dq, sens.dq)
+        if p.link_scale is not None:
+            col += p.link_scale[:, None] * sens.link_scale
+        if p.base_twist is not None:
+            col += np.einsum("nk,nkc->nc", p.base_twist, sens.base_twist)
+        if p.instr_scale_z is not None:
+            col += p.instr_scale_z[:, None] * sens.instr_scale_z
+        out[:, :, i] = col
+    return out
+
+
+# --------------------------------------------------------------------------- noise model
+
+
+def rotation_noise_cov(meas: Measurements, sigma_rot: float) -> F:
+    """Covariance (n, 3, 3) of the measured orientation as a rotation vector (instrument frame).
+
+    Per-row ``spitch, syaw, sroll`` (CONTRACTS.md: uncertainties of the *angles*) are mapped
+    through the roll-yaw-pitch rates, ``Σ = E diag(σ²) Eᵀ`` with
+    ``ω = Rz(r)Ry(y) x̂ ṗ + Rz(r) ŷ ẏ + ẑ ṙ``.  The instrument default ``sigma_rot`` is the
+    noise per axis of the rotation vector, ``Σ = σ² I``: an instrument's orientation noise
+    does not know about Euler angles (mapping it as per-angle noise made the weights wrong by
+    up to 3× at yaw ±75° and the reported covariance too small, χ²/dof 1.2 on pure noise).
+    """
+    n = meas.n_poses
+    if meas.sigma_rpy is None:
+        return np.broadcast_to(np.eye(3) * sigma_rot**2, (n, 3, 3)).copy()
+    rpy = meas.rpy
+    assert rpy is not None
+    sr = np.asarray(meas.sigma_rpy, float)
+    Rzr = rpy_to_R(np.zeros(n), np.zeros(n), rpy[:, 2])
+    Rzy = rpy_to_R(np.zeros(n), rpy[:, 1], rpy[:, 2])
+    Emap = np.stack([Rzy[:, :, 0], Rzr[:, :, 1], np.tile([0.0, 0.0, 1.0], (n, 1))], -1)
+    return Emap @ (sr[:, :, None] ** 2 * np.swapaxes(Emap, -1, -2))
+
+
+def noise_covariance(meas: Measurements, noise: InstrumentNoise, Jq: F | None = None) -> F:
+    """Covariance ``Σx,i`` (n, d, d) of every pose's residual, d = 6 (full pose) or 3.
+
+    Instrument: per-row ``sx…`` columns or ``noise.sigma_pos``; orientation by
+    :func:`rotation_noise_cov`.  Encoders: ``noise.sigma_q² Σ_j g_ij g_ijᵀ`` with ``Jq``
+    (n, nj, ≥d) the pose's sensitivity to each joint angle (:func:`joint_angle_jacobian`).
+    """
+    n = meas.n_poses
+    d = 6 if meas.has_orientation else 3
+    cov = np.zeros((n, d, d))
+    sp = meas.sigma_pos if meas.sigma_pos is not None else np.full((n, 3), noise.sigma_pos)
+    cov[:, [0, 1, 2], [0, 1, 2]] = np.asarray(sp, float) ** 2
+    if d == 6:
+        cov[:, 3:, 3:] = rotation_noise_cov(meas, noise.sigma_rot)
+    if noise.sigma_q > 0:
+        if Jq is None:
+            raise ValueError("noise_covariance: encoder noise needs the joint-angle Jacobian")
+        g = Jq[..., :d]
+        cov += noise.sigma_q**2 * np.einsum("nji,njk->nik", g, g)
+    return cov
+
+
+@dataclass(frozen=True, eq=False)
+class Whitening:
+    """Per-pose whitening ``W_i = L_i⁻¹`` with ``L_i L_iᵀ = Σx,i`` (:func:`noise_covariance`)."""
+
+    W: F  # (n, d, d)
+    L: F  # (n, d, d)
+
+    @classmethod
+    def of(cls, cov: F) -> Whitening:
+        """The whitening of covariances ``cov`` (n, d, d)."""
+        L = np.linalg.cholesky(cov + np.eye(cov.shape[-1]) * 1e-30)
+        return cls(W=np.linalg.inv(L), L=L)
+
+    def white(self, x: F) -> F:
+        """``W_i x_i`` for residual-like ``x`` (n, d) or Jacobian-like ``x`` (n, d, k)."""
+        if x.ndim == 2:
+            return np.einsum("nij,nj->ni", self.W, x)
+        return np.einsum("nij,njk->nik", self.W, x)
+
+    def unwhite(self, x: F) -> F:
+        """``L_i x_i`` for ``x`` (n, d): back to SI units."""
+        return np.einsum("nij,nj->ni", self.L, x)
