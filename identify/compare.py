@@ -333,7 +333,7 @@ def _panels(
         p = fitted_after.effect_params[names.index(e.name)]
         y0, _, label = implied_channel(e, p, ctx, sens, T, res0, wh)
         y1, _, _ = implied_channel(e, p, ctx, sens, T, res1, wh)
-        x, xlabel = regressor_values(e, ctx, T)
+        x, xlabel = regressor_values(e, ctx, T, p)
         out.append(EffectPanel(e.name, np.asarray(x, float), xlabel, y0, y1, y0 - y1, label))
     return tuple(out)
 

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..measurements import approach_from_order
-from ..robot import RobotModel, gravity_torques
+from ..robot import RobotModel, gravity_regressor, gravity_torques
 
 F = NDArray[np.float64]
 
@@ -59,6 +59,15 @@ class EffectContext:
     def n_poses(self) -> int:
         """Number of poses."""
         return int(self.q.shape[0])
+
+    def gravity_regressor(self, joint: int) -> F:
+        """Gravity torque on ``joint`` (0-based) per unit first moment of each link beyond it,
+        ``(n, nj − joint, 3)`` (:func:`~quickhealth.identify.robot.gravity_regressor`; kinematics
+        only, no masses).  Computed on first use and kept with the context."""
+        cache = self.__dict__.setdefault("_gravity_regressor", {})
+        if joint not in cache:
+            cache[joint] = gravity_regressor(self.robot, self.q, joint)
+        return cache[joint]
 
 
 @dataclass(frozen=True, eq=False)
