@@ -189,11 +189,24 @@ def parse_effects(spec: str | Sequence[str] | None, robot: RobotModel) -> list[E
     names = spec.split(",") if isinstance(spec, str) else list(spec)
     out = [parse_effect(n, robot) for n in names if n.strip() and n.strip() != "chebyshev"]
     seen: set[str] = set()
+    same: dict[str, str] = {}
     for e in out:
         if e.name in seen:
             raise InputError(f"effect {e.name!r} given twice")
         seen.add(e.name)
+        key = same_effect_key(e)
+        if key in same:
+            raise InputError(
+                f"effects {same[key]!r} and {e.name!r} are two forms of {key}: keep one"
+            )
+        same[key] = e.name
     return out
+
+
+def same_effect_key(effect: Effect) -> str:
+    """The physical effect an effect object is a form of (``compliance:j2`` for both the mass
+    and the lumped form): a model holds each at most once."""
+    return str(getattr(effect, "physical", effect.name))
 
 
 def total_perturbation(

@@ -88,6 +88,11 @@ class Compliance:
         """One compliance."""
         return 1
 
+    @property
+    def physical(self) -> str:
+        """The contract name of the effect (both forms share it)."""
+        return f"compliance:j{self.joint + 1}"
+
     def regressor(self, ctx: EffectContext) -> F:
         """Gravity torque of the joint, shape (n,), N·m."""
         if ctx.gravity_torque is None:
@@ -246,6 +251,11 @@ class LumpedCompliance:
     def n_params(self) -> int:
         """Size of the base set."""
         return len(self.basis.keep)
+
+    @property
+    def physical(self) -> str:
+        """The contract name of the effect (both forms share it)."""
+        return f"compliance:j{self.joint + 1}"
 
     def columns(self, ctx: EffectContext) -> F:
         """The base set's regressor ``Y_b(q)`` (n, n_params), dimensionless."""

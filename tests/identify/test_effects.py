@@ -303,3 +303,6 @@ def test_lumped_base_set_names_its_combinations() -> None:
         parse_effect("compliance:j1:lumped", robot)
     with pytest.raises(InputError, match="j7 does not exist"):
         parse_effect("compliance:j7:lumped", robot)
+    with pytest.raises(InputError, match="two forms of compliance:j2"):
+        parse_effects("compliance:j2,compliance:j2:lumped", robot)
+    assert len(parse_effects("compliance:j2,compliance:j3:lumped", robot)) == 2
