@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .effects import Effect, EffectContext, parse_effect, total_perturbation
+from .effects import Effect, EffectContext, parse_effect, same_effect_key, total_perturbation
 from .effects.cyclic import Cyclic
 from .effects.depthscale import UNIFORM_SCALE_EXPLANATION
 from .errormodel import ErrorModelSpec, chebyshev_basis, chebyshev_u
@@ -471,7 +471,7 @@ def diagnose(
     names = (
         list(candidates)
         if candidates is not None
-        else candidate_names(state.robot, meas, state.effect_names, max_harmonic)
+        else candidate_names(state.robot, meas, _in_model(state), max_harmonic)
     )
     notes: list[str] = []
     not_ident: list[str] = []
@@ -580,6 +580,12 @@ def diagnose(
         suggested=suggested,
         order_hints=tuple(hints),
     )
+
+
+def _in_model(state: LoopState) -> tuple[str, ...]:
+    """Names the model already has, with the physical effect each is a form of (a model with
+    ``compliance:j2:lumped`` has ``compliance:j2``)."""
+    return state.effect_names + tuple(same_effect_key(e) for e in state.effects)
 
 
 ORDER_BLOCK = 6  # Chebyshev orders a joint candidate must beat (see _nuisance_joints)
