@@ -33,7 +33,7 @@ from .diagnose import (
     state_from_fitted,
     whitening,
 )
-from .effects import Effect, EffectContext, parse_effects
+from .effects import Effect, EffectContext, parse_effects, same_effect_key
 from .errors import InputError
 from .fit import FittedModel, fit_model
 from .linearize import measurement_context, pose_residuals
@@ -231,10 +231,10 @@ def compare_effect(
     new = parse_effects(effects, robot)
     if not new:
         raise InputError("name at least one effect to add (e.g. --effects backlash:j2)")
-    have = {e.name for e in fitted.effects}
+    have = {same_effect_key(e): e.name for e in fitted.effects}
     for e in new:
-        if e.name in have:
-            raise InputError(f"the model already has {e.name}")
+        if same_effect_key(e) in have:
+            raise InputError(f"the model already has {have[same_effect_key(e)]}")
         for data, what in ((train, "training"), (heldout, "held-out")):
             for col in e.requires():
                 if data is not None and getattr(data, col) is None:
@@ -320,7 +320,7 @@ def _panels(
         p = fitted_after.effect_params[names.index(e.name)]
         y0, _, label = implied_channel(e, p, ctx, sens, T, res0, wh)
         y1, _, _ = implied_channel(e, p, ctx, sens, T, res1, wh)
-        x, xlabel = regressor_values(e, ctx, T)
+        x, xlabel = regressor_values(e, ctx, T, p)
         out.append(EffectPanel(e.name, np.asarray(x, float), xlabel, y0, y1, y0 - y1, label))
     return tuple(out)
 

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .effects import Effect, EffectContext, parse_effect, total_perturbation
+from .effects import Effect, EffectContext, parse_effect, same_effect_key, total_perturbation
 from .effects.cyclic import Cyclic
 from .effects.depthscale import UNIFORM_SCALE_EXPLANATION
 from .errormodel import ErrorModelSpec, chebyshev_basis, chebyshev_u
@@ -226,6 +226,8 @@ def candidate_names(
     if robot.masses is not None and robot.coms is not None:
         tau = gravity_torques(robot, meas.q)
         out += [f"compliance:j{k + 1}" for k in range(nj) if np.ptp(tau[:, k]) > 1e-6]
+    else:
+        out += _lumped_compliance_candidates(robot, meas)
     app = meas.approach_sign()
     out += [f"backlash:j{k + 1}" for k in range(nj) if np.unique(app[:, k]).size > 1]
     out += [f"cyclic:j{k + 1}:h{m}" for k in range(nj) for m in range(1, max_harmonic + 1)]
@@ -235,6 +237,21 @@ def candidate_names(
         out.append("drift")
     out.append("depthscale")
     return [c for c in out if c not in ex]
+
+
+def _lumped_compliance_candidates(robot: RobotModel, meas: Measurements) -> list[str]:
+    """``compliance:jK:lumped`` for every joint gravity loads and the data move the load of:
+    a robot without link masses still gets its gravity compliance tested (lumped form)."""
+    from .effects.compliance import lumped_joints, structural_basis
+    from .robot import gravity_regressor
+
+    out = []
+    for k in lumped_joints(robot):
+        keep = list(structural_basis(robot, k).keep)
+        Y = gravity_regressor(robot, meas.q, k).reshape(meas.n_poses, -1)[:, keep]
+        if np.ptp(Y, axis=0).max() > 1e-6:
+            out.append(f"compliance:j{k + 1}:lumped")
+    return out
 
 
 @dataclass(frozen=True)
@@ -454,7 +471,7 @@ def diagnose(
     names = (
         list(candidates)
         if candidates is not None
-        else candidate_names(state.robot, meas, state.effect_names, max_harmonic)
+        else candidate_names(state.robot, meas, _in_model(state), max_harmonic)
     )
     notes: list[str] = []
     not_ident: list[str] = []
@@ -565,6 +582,12 @@ def diagnose(
     )
 
 
+def _in_model(state: LoopState) -> tuple[str, ...]:
+    """Names the model already has, with the physical effect each is a form of (a model with
+    ``compliance:j2:lumped`` has ``compliance:j2``)."""
+    return state.effect_names + tuple(same_effect_key(e) for e in state.effects)
+
+
 ORDER_BLOCK = 6  # Chebyshev orders a joint candidate must beat (see _nuisance_joints)
 
 
@@ -606,11 +629,11 @@ def _nuisance_joints(effect: Effect, nj: int) -> tuple[int, ...]:
     q_K + q_K+1), which no per-joint polynomial expresses.
     """
     from .effects.backlash import Backlash
-    from .effects.compliance import Compliance
+    from .effects.compliance import Compliance, LumpedCompliance
 
     if isinstance(effect, Cyclic | Backlash):
         return (effect.joint,)
-    if isinstance(effect, Compliance):
+    if isinstance(effect, Compliance | LumpedCompliance):
         return tuple(j for j in (effect.joint, effect.joint + 1) if j < nj)
     return ()
 
@@ -866,10 +889,20 @@ class EffectView:
     params: F
 
 
-def regressor_values(effect: Effect, ctx: EffectContext, T_model: F) -> tuple[F, str]:
-    """The effect's regressor per pose and its label (depth from the model for depthscale)."""
+def regressor_values(
+    effect: Effect, ctx: EffectContext, T_model: F, params: F | None = None
+) -> tuple[F, str]:
+    """The effect's regressor per pose and its label (depth from the model for depthscale).
+
+    An effect whose single regressor needs its parameters (the lumped compliance: many
+    columns, one modelled deflection) gives it through ``regressor_at`` when ``params`` are
+    known."""
     if effect.name == "depthscale":
         return T_model[:, 2, 3], effect.regressor_name
+    at = getattr(effect, "regressor_at", None)
+    if at is not None and params is not None:
+        x, label = at(ctx, np.asarray(params, float))
+        return np.asarray(x, float), str(label)
     return effect.regressor(ctx), effect.regressor_name
 
 
@@ -932,7 +965,6 @@ def effect_view(state: LoopState, meas: Measurements, effect_name: str) -> Effec
     effect = parse_effect(effect_name, state.robot)
     wp = whitened(state, meas)
     res = wp.whiten.unwhite(wp.r.reshape(-1, wp.n_comp))
-    x, xlabel = regressor_values(effect, wp.ctx, wp.T_model)
     if effect.name in state.effect_names:  # in the model: show it with what is left around it
         theta = np.asarray(state.effect_params[state.effect_names.index(effect.name)], float)
         y, pred, ylabel = implied_channel(
@@ -950,6 +982,7 @@ def effect_view(state: LoopState, meas: Measurements, effect_name: str) -> Effec
         pred, _, _ = implied_channel(
             effect, theta, wp.ctx, wp.sens, wp.T_model, explained, wp.whiten
         )
+    x, xlabel = regressor_values(effect, wp.ctx, wp.T_model, theta)
     return EffectView(effect.name, np.asarray(x, float), xlabel, y, pred, ylabel, theta)
 
 

@@ -284,6 +284,9 @@ class FittedModel:
         ]
         if self.effects:
             lines.append("effects: " + ", ".join(e.name for e in self.effects))
+            for e in self.effects:  # an effect may say which form it took and what it identified
+                describe = getattr(e, "describe_fit", None)
+                lines += describe(self) if describe is not None else []
         if self.held:
             lines.append(f"held at their known values: {len(self.held)} parameters")
         if self.unidentifiable:

@@ -228,3 +228,41 @@ def gravity_torques(robot: RobotModel, q: ArrayLike, g: ArrayLike = GRAVITY) -> 
         m = np.cross(c[:, i:] - o[:, None, :], np.broadcast_to(f[:, i:], c[:, i:].shape)).sum(1)
         tau[:, i] = np.einsum("ni,ni->n", z, m)
     return tau
+
+
+def gravity_regressor(robot: RobotModel, q: ArrayLike, joint: int, g: ArrayLike = GRAVITY) -> F:
+    """Gravity torque on ``joint`` (0-based) per unit first mass moment of every link beyond it.
+
+    ``Y[:, j, a] = z_kᵀ ((R_j e_a) × ĝ)`` for links ``j = joint … n−1`` and axes ``a = x, y,
+    z`` of the frame right after ``Rz(θ_j)`` (joint j's frame: its z axis is the joint axis),
+    with ``ĝ = g / |g|``.  Shape ``(n, nj − joint, 3)``, dimensionless.  With the first moments
+    ``h_j`` of :func:`first_moments` (kg·m) the static torque is ``τ_k = |g| Σ_j Y[:, j] · h_j``:
+    it depends on the joint rotations alone, linearly in the moments, so the masses need not
+    be known to express the *shape* of the gravity load (:mod:`.effects.compliance`).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    g = np.asarray(g, dtype=float)
+    ghat = g / np.linalg.norm(g)
+    _, frames = chain(robot, q, return_frames=True)
+    R = frames[:, joint:, :3, :3]  # (n, m, 3, 3): columns e_a of joint j's frame in the base
+    z = frames[:, joint, :3, 2]  # (n, 3)
+    # zᵀ (v × ĝ) = v · (ĝ × z)
+    w = np.cross(ghat[None, :], z)  # (n, 3)
+    return np.einsum("nmia,ni->nma", R, w)
+
+
+def first_moments(robot: RobotModel) -> F:
+    """First mass moment of every link in its joint frame, ``h_j`` (kg·m), shape ``(nj, 3)``.
+
+    ``h_j = m_j · (R_Cj c_j + t_Cj) + (Σ_{i > j} m_i) · t_Cj`` with ``C_j`` the constant
+    transform after joint j (``robot.links[j + 1]``) and ``c_j`` the centre of mass in the frame
+    after it: the links beyond j hang at the origin of the next joint, which is fixed in joint
+    j's frame.  Then :func:`gravity_torques` ``= |g| Σ_{j ≥ k} gravity_regressor · h_j``.
+    """
+    if robot.masses is None or robot.coms is None:
+        raise ValueError(f"robot {robot.name!r} has no link masses and centres of mass")
+    m = np.asarray(robot.masses, dtype=float)
+    C = robot.links[1:]
+    beyond = np.concatenate([np.cumsum(m[::-1])[::-1][1:], [0.0]])
+    local = (C[:, :3, :3] @ robot.coms[:, :, None])[..., 0] + C[:, :3, 3]
+    return m[:, None] * local + beyond[:, None] * C[:, :3, 3]

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..measurements import approach_from_order
-from ..robot import RobotModel, gravity_torques
+from ..robot import RobotModel, gravity_regressor, gravity_torques
 
 F = NDArray[np.float64]
 
@@ -59,6 +59,15 @@ class EffectContext:
     def n_poses(self) -> int:
         """Number of poses."""
         return int(self.q.shape[0])
+
+    def gravity_regressor(self, joint: int) -> F:
+        """Gravity torque on ``joint`` (0-based) per unit first moment of each link beyond it,
+        ``(n, nj − joint, 3)`` (:func:`~quickhealth.identify.robot.gravity_regressor`; kinematics
+        only, no masses).  Computed on first use and kept with the context."""
+        cache = self.__dict__.setdefault("_gravity_regressor", {})
+        if joint not in cache:
+            cache[joint] = gravity_regressor(self.robot, self.q, joint)
+        return cache[joint]
 
 
 @dataclass(frozen=True, eq=False)
@@ -180,11 +189,24 @@ def parse_effects(spec: str | Sequence[str] | None, robot: RobotModel) -> list[E
     names = spec.split(",") if isinstance(spec, str) else list(spec)
     out = [parse_effect(n, robot) for n in names if n.strip() and n.strip() != "chebyshev"]
     seen: set[str] = set()
+    same: dict[str, str] = {}
     for e in out:
         if e.name in seen:
             raise InputError(f"effect {e.name!r} given twice")
         seen.add(e.name)
+        key = same_effect_key(e)
+        if key in same:
+            raise InputError(
+                f"effects {same[key]!r} and {e.name!r} are two forms of {key}: keep one"
+            )
+        same[key] = e.name
     return out
+
+
+def same_effect_key(effect: Effect) -> str:
+    """The physical effect an effect object is a form of (``compliance:j2`` for both the mass
+    and the lumped form): a model holds each at most once."""
+    return str(getattr(effect, "physical", effect.name))
 
 
 def total_perturbation(

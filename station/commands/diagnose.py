@@ -175,6 +175,11 @@ def parse_twin_effects(text: str, robot: object) -> dict[str, float]:
         if not np.isfinite(size):
             raise InputError(f"--effects: size of {name!r} must be finite")
         e = parse_effect(name.strip(), robot)  # type: ignore[arg-type]
+        if getattr(e, "form", None) == "lumped":
+            raise InputError(
+                f"--effects: {e.name} has {e.n_params} parameters, not one size; hide "
+                f"compliance as compliance:j{e.joint + 1}=SIZE (deg/(N·m), with the twin's masses)"
+            )
         unit = SIZE_UNITS[e.name.split(":")[0]][1]
         factor = {"deg": np.pi / 180.0, "mm": 1e-3, "1": 1.0}[unit]
         out[e.name] = size * factor

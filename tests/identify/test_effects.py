@@ -1,5 +1,7 @@
 """Effects library: physics of each perturbation, Jacobians against finite differences."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -21,13 +23,22 @@ from quickhealth.identify.errormodel import ErrorModelSpec
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.linearize import loop_pose
 from quickhealth.identify.measurements import Measurements
-from quickhealth.identify.robot import gravity_torques, ur5
+from quickhealth.identify.robot import (
+    GRAVITY,
+    first_moments,
+    from_dh,
+    gravity_regressor,
+    gravity_torques,
+    ur5,
+)
 from quickhealth.identify.transforms import log_so3
 from quickhealth.identify.twin import camera_pose, random_joints
 
 ALL = [
     "compliance:j2",
     "compliance:j3",
+    "compliance:j2:lumped",
+    "compliance:j5:lumped",
     "backlash:j1",
     "cyclic:j3:h7",
     "thermal",
@@ -216,3 +227,82 @@ def test_names_are_checked_and_uniform_scale_is_explained() -> None:
         parse_effect("thermal", robot).perturbation(ctx, np.array([1e-5]))
     with pytest.raises(InputError, match="time"):
         parse_effect("drift", robot).regressor(ctx)
+
+
+def _bare(robot):
+    """The same robot with its inertial data withheld."""
+    return dataclasses.replace(robot, masses=None, coms=None)
+
+
+def _wam():
+    """The WAM's DH table (fixtures/robots/wam.toml) with made-up masses, for the algebra."""
+    return from_dh(
+        "wam",
+        a=[0, 0, 0.045, -0.045, 0, 0, 0],
+        d=[0, 0, 0.55, 0, 0.3, 0, 0.06],
+        alpha=np.array([-1, 1, -1, 1, -1, 1, 0]) * np.pi / 2,
+        q_min=np.radians([-150, -113, -157, -50, -275, -90, -172]),
+        q_max=np.radians([150, 113, 157, 180, 75, 90, 172]),
+        masses=[10.0, 3.9, 1.7, 2.4, 0.3, 0.4, 0.07],
+        coms=np.random.default_rng(5).normal(0, 0.05, (7, 3)),
+    )
+
+
+@pytest.mark.parametrize("make", [ur5, _wam])
+def test_gravity_torque_is_linear_in_the_first_moments(make) -> None:
+    """τ_k = |g| Σ_j Y_kj · h_j exactly, for every joint, from kinematics and moments alone."""
+    robot = make()
+    q = np.random.default_rng(4).uniform(-3, 3, (60, robot.n_joints))
+    tau = gravity_torques(robot, q)
+    h = first_moments(robot)
+    for k in range(robot.n_joints):
+        Y = gravity_regressor(robot, q, k)
+        np.testing.assert_allclose(
+            np.linalg.norm(GRAVITY) * np.einsum("nja,ja->n", Y, h[k:]),
+            tau[:, k],
+            atol=1e-12 * max(np.abs(tau).max(), 1.0),
+        )
+
+
+@pytest.mark.parametrize("make", [ur5, _wam])
+def test_lumped_form_expresses_the_mass_form_exactly(make) -> None:
+    """The mass form's deflection c·τ_K lies in the span of the lumped base set, for every
+    joint gravity loads: the base set loses nothing (its parameters are c·|g|·M·h)."""
+    robot = make()
+    bare = _bare(robot)
+    q = random_joints(robot, 50, seed=8)
+    ctx_m = context_for(robot, Measurements(q=q, pos=np.zeros((50, 3))))
+    ctx_b = context_for(bare, Measurements(q=q, pos=np.zeros((50, 3))))
+    h = first_moments(robot)
+    for k in range(1, robot.n_joints):
+        mass = parse_effect(f"compliance:j{k + 1}", robot)
+        lump = parse_effect(f"compliance:j{k + 1}", bare)  # falls back to the lumped form
+        assert (mass.form, lump.form) == ("masses", "lumped")
+        assert lump.name == f"compliance:j{k + 1}:lumped" and "no link masses" in lump.reason
+        c = 3e-5
+        theta = lump.basis.M @ (c * np.linalg.norm(GRAVITY) * h[k:].reshape(-1))
+        np.testing.assert_allclose(
+            lump.perturbation(ctx_b, theta).dq,
+            mass.perturbation(ctx_m, np.array([c])).dq,
+            atol=1e-12,
+        )
+
+
+def test_lumped_base_set_names_its_combinations() -> None:
+    robot = ur5()
+    e = parse_effect("compliance:j2:lumped", robot)  # available with masses too
+    assert e.form == "lumped" and e.reason == ""
+    # UR5 joint 2: every link's moment along its own axis is lumped into the one before it or
+    # loads nothing (axes 2, 3, 4 are parallel)
+    assert e.param_names == ("h2x", "h2y", "h3x", "h3y", "h4x", "h4y", "h5x", "h5y", "h6x", "h6y")
+    assert set(e.basis.zero) == {"h2z", "h3z", "h4z"}
+    combos = e.basis.combinations()
+    assert "h4y = h4y − 1·h5z" in combos and "h5y = h5y + 1·h6z" in combos
+    assert e.param_units == ("rad",) * 10 and e.info()["form"] == "lumped"
+    with pytest.raises(InputError, match="vertical"):
+        parse_effect("compliance:j1:lumped", robot)
+    with pytest.raises(InputError, match="j7 does not exist"):
+        parse_effect("compliance:j7:lumped", robot)
+    with pytest.raises(InputError, match="two forms of compliance:j2"):
+        parse_effects("compliance:j2,compliance:j2:lumped", robot)
+    assert len(parse_effects("compliance:j2,compliance:j3:lumped", robot)) == 2
