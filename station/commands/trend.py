@@ -224,10 +224,8 @@ def _archive_baseline(args: argparse.Namespace) -> int:
 def _archive_list(args: argparse.Namespace) -> int:
     arch = _open(args)
     if args.robot is None:
-        for r in arch.robots():
-            runs = arch.runs(r)
-            b = next((x.run_id for x in runs if x.baseline), "-")
-            print(f"{r}: {len(runs)} runs, baseline {b}, latest {runs[-1].run_id}")
+        for last, n, b in arch.fleet():  # three index queries, however large the fleet
+            print(f"{last.robot}: {n} runs, baseline {b or '-'}, latest {last.run_id}")
         return 0
     print(
         f"{'run':<24} {'time (UTC)':<21} {'mean':>7} {'std':>7} {'max':>7}  plan / cell / calibration"
