@@ -526,39 +526,41 @@ class Archive:
     def fleet(self) -> list[tuple[RunRecord, int, str | None]]:
         """Every robot's latest run, its number of runs and its baseline run id, sorted by robot.
 
-        Three queries whatever the size of the fleet (window functions over the
-        ``(robot, time_utc, run_id)`` index), one snapshot.
+        One query whatever the size of the fleet: per robot, the latest and the first healthy
+        run are one probe each of the ``(robot, time_utc, run_id)`` index.
         """
         sa = self._sa
         t, rb = self.t_runs, self.t_robots
+        r2 = t.alias("r2")  # the inner scans, correlated to the robot only
 
-        def ranked(order: Any, where: Any = None) -> Any:
-            rn = sa.func.row_number().over(partition_by=t.c.robot, order_by=order)
-            q = sa.select(t, rn.label("rn"))
-            return (q if where is None else q.where(where)).subquery()
+        def probe(desc: bool, healthy_only: bool) -> Any:
+            order = (r2.c.time_utc, r2.c.run_id)
+            q = sa.select(r2.c.run_id).where(r2.c.robot == rb.c.robot)
+            if healthy_only:
+                q = q.where(sa.or_(r2.c.healthy.is_(None), r2.c.healthy))
+            order = tuple(c.desc() for c in order) if desc else order
+            return q.order_by(*order).limit(1).correlate(rb).scalar_subquery()
 
-        last = ranked((t.c.time_utc.desc(), t.c.run_id.desc()))
-        first_ok = ranked((t.c.time_utc, t.c.run_id), sa.or_(t.c.healthy.is_(None), t.c.healthy))
-        cols = [c for c in last.c if c.name != "rn"]
-        with self._read() as con:
-            latest = {
-                r["robot"]: self._record(r)
-                for r in con.execute(sa.select(*cols).where(last.c.rn == 1)).mappings()
-            }
-            counts = dict(
-                con.execute(sa.select(t.c.robot, sa.func.count()).group_by(t.c.robot)).all()
+        count = sa.select(sa.func.count()).where(r2.c.robot == rb.c.robot).correlate(rb)
+        q = (
+            sa.select(
+                t,
+                rb.c.baseline_run_id.label("qh_explicit"),
+                probe(False, True).label("qh_first_ok"),
+                count.scalar_subquery().label("qh_n"),
             )
-            first = dict(
-                con.execute(
-                    sa.select(first_ok.c.robot, first_ok.c.run_id).where(first_ok.c.rn == 1)
-                ).all()
-            )
-            explicit = dict(con.execute(sa.select(rb.c.robot, rb.c.baseline_run_id)).all())
+            .select_from(rb)  # robots drive: one index probe each, then the run by its key
+            .join(t, (t.c.robot == rb.c.robot) & (t.c.run_id == probe(True, False)))
+            .order_by(rb.c.robot)
+        )
         out = []
-        for robot in sorted(latest):
-            b = explicit.get(robot) or first.get(robot)
-            rec = latest[robot]
-            out.append((replace(rec, baseline=rec.run_id == b), int(counts[robot]), b))
+        with self._read() as con:
+            for r in con.execute(q).mappings():
+                d = dict(r)
+                explicit, first_ok, n = d.pop("qh_explicit"), d.pop("qh_first_ok"), d.pop("qh_n")
+                b = explicit or first_ok
+                rec = self._record(d)
+                out.append((replace(rec, baseline=rec.run_id == b), int(n), b))
         return out
 
     def orphans(self) -> list[Path]:
