@@ -276,12 +276,23 @@ class Archive:
             sa.Column("robot", sa.String(100), primary_key=True),
             sa.Column("baseline_run_id", sa.String(100), nullable=True),
         )
+        if self._schema_current():
+            return
         with self._write() as con:  # one station creates or migrates the schema at a time
             if self._pg:
                 con.execute(sa.text("select pg_advisory_xact_lock(7243411)"))
             md.create_all(con)
             for ix in self.t_runs.indexes:  # indexes added since the archive was made
                 ix.create(con, checkfirst=True)
+
+    def _schema_current(self) -> bool:
+        """Both tables and every index there (a read: works on a read-only archive too)."""
+        with self._read() as con:
+            ins = self._sa.inspect(con)
+            if not (ins.has_table("runs") and ins.has_table("robots")):
+                return False
+            have = {ix["name"] for ix in ins.get_indexes("runs")}
+        return all(ix.name in have for ix in self.t_runs.indexes)
 
     @contextmanager
     def _write(self) -> Iterator[Any]:

@@ -52,7 +52,9 @@ def _fleet(tmp_path, url, sources):
     root = tmp_path / "shared-archive"
     Archive.open(root, url)  # the schema exists before the stations start (they race too)
     figures = {s: report_figures(_read_json(Path(s) / "report.json"))[0]["max"] for s in sources}
-    ctx = mp.get_context("fork")
+    # children fork from a clean single-threaded server that imported the code once
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(["qh_fleet", "quickhealth.station.commands.trend"])
     procs = {}
     for k in range(N_STATIONS):
         args = (url, str(root), f"ur5-{k % 4}", k, sources, figures, N_RUNS,
