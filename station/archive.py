@@ -412,7 +412,9 @@ class Archive:
         try:
             with self._write() as con:
                 if con.execute(sa.select(t.c.run_id).where(key)).first() is not None:
-                    if not replace_existing:
+                    # a run folder that already is the archive's (the TUI fits in place and
+                    # registers again after each refit) updates its row
+                    if not (replace_existing or in_place):
                         raise InputError(
                             f"run {robot}/{rid} is already archived (use another run id)"
                         )

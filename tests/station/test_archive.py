@@ -126,6 +126,10 @@ def test_duplicate_and_bad_inputs(tmp_path, run_dirs, index_url):
     a.add_run("ur5-a", run_dirs[1], run_id="ghost")
     assert not (a.root / "robots" / "ur5-a" / "ghost" / "half.png").exists() and not a.orphans()
     assert not list((a.root / "robots" / "ur5-a").glob(".incoming-*"))
+    # a run folder that is the archive's own registers again in place (refit): row updated
+    own = a.folder(a.get("ur5-a", "ghost"))
+    a.add_run("ur5-a", own, run_id="ghost", healthy=False)
+    assert a.get("ur5-a", "ghost").healthy is False and (own / "report.json").is_file()
 
 
 def _trend(capsys, *argv):
