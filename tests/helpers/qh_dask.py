@@ -4,8 +4,9 @@
 (the port the scheduler picked, read from its scheduler file) and ``n_workers``
 ``dask worker`` processes (one thread each, no nanny: the worker is the process a test may
 kill), each in its own process group with its output in a log file.  ``stop()`` ends every
-process group (SIGTERM, then SIGKILL after a few seconds) and is registered with atexit, and
-the workers die by themselves 30 s after losing the scheduler: nothing outlives a test run.
+process group (SIGTERM, then SIGKILL after a few seconds) and is registered with atexit; a
+detached watchdog kills the scheduler if the test process dies without them, and the workers
+die by themselves 30 s after losing the scheduler: nothing outlives a test run.
 Imported as ``qh_dask`` (tests/helpers is on the test path).
 """
 
@@ -60,10 +61,23 @@ class DaskCluster:
                 self.address = json.loads(sfile.read_text())["address"]
             except (OSError, ValueError, KeyError):
                 time.sleep(0.1)
+        self._watchdog()
         for i in range(self.n_workers):
             self.start_worker(f"w{i}")
         self.wait_for_workers(self.n_workers, t_end - time.monotonic())
         return self
+
+    def _watchdog(self) -> None:
+        """A detached shell that kills the scheduler once this process is gone, even when it
+        dies without running atexit (the workers follow within their 30 s death timeout)."""
+        script = (
+            f"while kill -0 {os.getpid()} 2>/dev/null; do sleep 2; done; "
+            f"kill -KILL -{self.scheduler.pid} 2>/dev/null; rm -rf {self.dir}"
+        )
+        subprocess.Popen(
+            ["sh", "-c", script], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL, start_new_session=True,
+        )  # fmt: skip
 
     def start_worker(self, name: str) -> None:
         self.workers[name] = self._spawn(

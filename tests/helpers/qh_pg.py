@@ -4,7 +4,8 @@
 127.0.0.1 at a free port, trust authentication, superuser ``qh``.  PostgreSQL refuses to run
 as root: when we are root the server runs as the ``postgres`` user (created by Debian's
 ``postgresql`` package) through ``runuser``.  ``new_database()`` gives each test its own
-database; ``stop()`` stops the server (immediate mode) and removes its folder.  Imported as
+database; ``stop()`` stops the server (immediate mode) and removes its folder, as does a
+detached watchdog once the test process is gone however it died.  Imported as
 ``qh_pg`` (tests/helpers is on the test path).
 """
 
@@ -131,7 +132,28 @@ class PgServer:
             )
         self._running = True
         atexit.register(self.stop)
+        self._watchdog()
         return self
+
+    def _watchdog(self) -> None:
+        """A detached shell that stops the server once this process is gone, even when it
+        dies without running atexit (a segfault, SIGKILL): no server outlives its test run."""
+        stop = " ".join(
+            self._cmd(
+                str(self.bin / "pg_ctl"), "-D", str(self.base / "data"), "-m", "immediate", "stop"
+            )
+        )
+        script = (
+            f"while kill -0 {os.getpid()} 2>/dev/null; do sleep 2; done; "
+            f"[ -d {self.base} ] && {{ {stop}; rm -rf {self.base}; }}"
+        )
+        subprocess.Popen(
+            ["sh", "-c", script],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
 
     def url(self, database: str = "postgres") -> str:
         """SQLAlchemy URL of a database on this server."""
