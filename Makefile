@@ -8,7 +8,7 @@ UV     := $(VENV)/bin/uv
 STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
 
-.PHONY: demo test check lint format bench clean chromium lock upgrade lockcheck
+.PHONY: demo test check lint format bench clean chromium postgres lock upgrade lockcheck
 
 # The environment is exactly requirements.lock (every version pinned, every file checked by
 # sha256): pip bootstraps the locked uv, uv makes .venv equal to the lock (from its cache after
@@ -49,7 +49,15 @@ chromium:
 	  (apt-get update -qq >/dev/null 2>&1; DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1) \
 	  && echo "installed chromium for the report test"; } || echo "chromium not available: the HTML report test will skip"
 
-test: $(STAMP) chromium
+# The PostgreSQL server (Debian package) runs the shared-index tests with the system's pg_ctl.
+# Installed when we are root and it is missing; without it those tests fail in CI (CI=true or
+# root) and skip only on a developer's machine.
+postgres:
+	@ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  (apt-get update -qq >/dev/null 2>&1; DEBIAN_FRONTEND=noninteractive apt-get install -y -qq postgresql >/dev/null 2>&1) \
+	  && ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1 && echo "installed postgresql for the archive tests"; } || echo "postgresql not available: the PostgreSQL archive tests will fail in CI, skip elsewhere"
+
+test: $(STAMP) chromium postgres
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(VENV)/bin/pytest -q -p no:cacheprovider

@@ -32,7 +32,9 @@ import math
 import os
 import re
 import shutil
+import tempfile
 from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -224,7 +226,15 @@ def model_arrays(
 
 
 class Archive:
-    """Run folders under ``root`` plus an index (SQLite by default, any SQLAlchemy URL)."""
+    """Run folders under ``root`` plus an index (SQLite by default, any SQLAlchemy URL).
+
+    Safe for many stations at once (processes on one machine or a fleet on one PostgreSQL
+    index): a run is copied to a hidden staging folder first, and its folder is renamed into
+    place inside the index transaction that inserts its row, so a reader never sees a row
+    without its complete folder, and a writer killed at any moment leaves the run either fully
+    archived or not in the index at all (a leftover folder without a row is replaced by the
+    next ``add_run`` of that run).  A read (``runs``) is one snapshot of the index.
+    """
 
     def __init__(self, root: Path, url: str | None = None) -> None:
         import sqlalchemy as sa
@@ -233,7 +243,16 @@ class Archive:
         self.root.mkdir(parents=True, exist_ok=True)
         self.url = url or f"sqlite:///{self.root / 'index.sqlite'}"
         self._sa = sa
-        self.engine = sa.create_engine(self.url)
+        self.engine = _make_engine(self.url)
+        self._pg = self.engine.dialect.name == "postgresql"
+        # writers: BEGIN IMMEDIATE on SQLite (no lock upgrade deadlocks between stations);
+        # readers: one snapshot per read (REPEATABLE READ on PostgreSQL, BEGIN on SQLite)
+        self._writer = self.engine.execution_options(qh_write=True)
+        self._reader = (
+            self.engine.execution_options(isolation_level="REPEATABLE READ")
+            if self._pg
+            else self.engine
+        )
         md = sa.MetaData()
         self.t_runs = sa.Table(
             "runs",
@@ -247,6 +266,8 @@ class Archive:
             sa.Column("std_mm", sa.Float),
             sa.Column("max_mm", sa.Float),
             sa.Column("healthy", sa.Boolean, nullable=True),
+            # a robot's runs in time order straight from the index (trend, latest run)
+            sa.Index("ix_runs_robot_time", "robot", "time_utc", "run_id"),
         )
         self.t_robots = sa.Table(
             "robots",
@@ -254,7 +275,33 @@ class Archive:
             sa.Column("robot", sa.String(100), primary_key=True),
             sa.Column("baseline_run_id", sa.String(100), nullable=True),
         )
-        md.create_all(self.engine)
+        if self._schema_current():
+            return
+        with self._write() as con:  # one station creates or migrates the schema at a time
+            if self._pg:
+                con.execute(sa.text("select pg_advisory_xact_lock(7243411)"))
+            md.create_all(con)
+            for ix in self.t_runs.indexes:  # indexes added since the archive was made
+                ix.create(con, checkfirst=True)
+
+    def _schema_current(self) -> bool:
+        """Both tables and every index there (a read: works on a read-only archive too)."""
+        with self._read() as con:
+            ins = self._sa.inspect(con)
+            if not (ins.has_table("runs") and ins.has_table("robots")):
+                return False
+            have = {ix["name"] for ix in ins.get_indexes("runs")}
+        return all(ix.name in have for ix in self.t_runs.indexes)
+
+    @contextmanager
+    def _write(self) -> Iterator[Any]:
+        with self._writer.begin() as con:
+            yield con
+
+    @contextmanager
+    def _read(self) -> Iterator[Any]:
+        with self._reader.connect() as con, con.begin():
+            yield con
 
     @classmethod
     def open(cls, root: str | Path | None = None, url: str | None = None) -> Archive:
@@ -336,13 +383,7 @@ class Archive:
         if healthy is None and isinstance(report.get("healthy"), bool):
             healthy = report["healthy"]
         dst = self.run_path(robot, rid)
-        if dst.exists() and dst.resolve() != src.resolve():
-            if not replace_existing:
-                raise InputError(f"run {robot}/{rid} is already archived (use another run id)")
-            shutil.rmtree(dst)
-        if dst.resolve() != src.resolve():
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copytree(src, dst)
+        in_place = dst.exists() and dst.resolve() == src.resolve()
         rec = RunRecord(
             robot=robot,
             run_id=rid,
@@ -354,28 +395,79 @@ class Archive:
             max_mm=figs.get("max", math.nan),
             healthy=healthy,
         )
-        sa = self._sa
         row = {k: v for k, v in rec.__dict__.items() if k != "baseline"}
         row = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
-        with self.engine.begin() as con:
-            con.execute(
-                sa.delete(self.t_runs).where(
-                    (self.t_runs.c.robot == robot) & (self.t_runs.c.run_id == rid)
-                )
-            )
-            con.execute(sa.insert(self.t_runs).values(**row))
-            exists = con.execute(
-                sa.select(self.t_robots.c.robot).where(self.t_robots.c.robot == robot)
-            ).first()
-            if exists is None:
-                con.execute(sa.insert(self.t_robots).values(robot=robot, baseline_run_id=None))
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".incoming-{rid}-", dir=dst.parent))
+        try:
+            if not in_place:  # the slow part, outside any lock
+                shutil.copytree(src, stage / "run")
+            self._index_and_place(row, stage, dst, replace_existing, in_place)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
         return self.get(robot, rid)
+
+    def _index_and_place(
+        self, row: dict[str, Any], stage: Path, dst: Path, replace_existing: bool, in_place: bool
+    ) -> None:
+        """Insert the run's row and rename its staged folder into place, in one transaction."""
+        sa = self._sa
+        t = self.t_runs
+        robot, rid = row["robot"], row["run_id"]
+        key = (t.c.robot == robot) & (t.c.run_id == rid)
+        moved: list[tuple[Path, Path]] = []  # renames to undo if the transaction fails
+        try:
+            with self._write() as con:
+                if con.execute(sa.select(t.c.run_id).where(key)).first() is not None:
+                    # a run folder that already is the archive's (the TUI fits in place and
+                    # registers again after each refit) updates its row
+                    if not (replace_existing or in_place):
+                        raise InputError(
+                            f"run {robot}/{rid} is already archived (use another run id)"
+                        )
+                    con.execute(sa.delete(t).where(key))
+                try:
+                    # the row is the run's lock: a second station adding the same run waits
+                    # here and then fails on the primary key
+                    con.execute(sa.insert(t).values(**row))
+                except sa.exc.IntegrityError:
+                    raise InputError(
+                        f"run {robot}/{rid} is already archived (use another run id)"
+                    ) from None
+                con.execute(self._insert_robot(robot))
+                if not in_place:
+                    if dst.exists():  # the old copy (replace) or a leftover of a killed writer
+                        dst.rename(stage / "old")
+                        moved.append((stage / "old", dst))
+                    (stage / "run").rename(dst)
+                    moved.append((dst, stage / "run"))
+        except BaseException:
+            for a, b in reversed(moved):
+                if a.exists() and not b.exists():
+                    a.rename(b)
+            raise
+
+    def _insert_robot(self, robot: str) -> Any:
+        """``INSERT robot … ON CONFLICT DO NOTHING`` (two stations may add its first run)."""
+        name = self.engine.dialect.name
+        if name in ("postgresql", "sqlite"):
+            mod = __import__(f"sqlalchemy.dialects.{name}", fromlist=["insert"])
+            return (
+                mod.insert(self.t_robots)
+                .values(robot=robot, baseline_run_id=None)
+                .on_conflict_do_nothing(index_elements=["robot"])
+            )
+        sa = self._sa  # other databases: insert unless present (single-writer use)
+        sel = sa.select(sa.literal(robot), sa.null()).where(
+            ~sa.exists().where(self.t_robots.c.robot == robot)
+        )
+        return sa.insert(self.t_robots).from_select(["robot", "baseline_run_id"], sel)
 
     def update_figures(self, robot: str, run_id: str, figures_mm: Mapping[str, float]) -> None:
         """Replace a run's indexed figures (after reprocessing)."""
         sa = self._sa
         vals = {f"{f}_mm": float(v) for f, v in figures_mm.items() if f in FIGURES}
-        with self.engine.begin() as con:
+        with self._write() as con:
             con.execute(
                 sa.update(self.t_runs)
                 .where((self.t_runs.c.robot == robot) & (self.t_runs.c.run_id == run_id))
@@ -387,7 +479,7 @@ class Archive:
         if run_id is not None:
             self.get(robot, run_id)  # must exist
         sa = self._sa
-        with self.engine.begin() as con:
+        with self._write() as con:
             con.execute(
                 sa.update(self.t_robots)
                 .where(self.t_robots.c.robot == safe_name(robot, "robot"))
@@ -398,7 +490,7 @@ class Archive:
         """Mark a run healthy or not (used to choose the first healthy baseline)."""
         self.get(robot, run_id)
         sa = self._sa
-        with self.engine.begin() as con:
+        with self._write() as con:
             con.execute(
                 sa.update(self.t_runs)
                 .where((self.t_runs.c.robot == robot) & (self.t_runs.c.run_id == run_id))
@@ -409,50 +501,103 @@ class Archive:
     def robots(self) -> list[str]:
         """Every robot in the archive, sorted."""
         sa = self._sa
-        with self.engine.connect() as con:
+        with self._read() as con:
             return sorted(r[0] for r in con.execute(sa.select(self.t_robots.c.robot)))
 
-    def _records(self, robot: str) -> Iterator[RunRecord]:
-        sa = self._sa
-        t = self.t_runs
-        with self.engine.connect() as con:
-            rows = con.execute(
-                sa.select(t).where(t.c.robot == robot).order_by(t.c.time_utc, t.c.run_id)
-            ).mappings()
-            for r in rows:
-                d = dict(r)
-                for f in FIGURES:
-                    if d[f"{f}_mm"] is None:
-                        d[f"{f}_mm"] = math.nan
-                yield RunRecord(**d)
+    @staticmethod
+    def _record(r: Mapping[str, Any], baseline: bool = False) -> RunRecord:
+        d = dict(r)
+        for f in FIGURES:
+            if d[f"{f}_mm"] is None:
+                d[f"{f}_mm"] = math.nan
+        return RunRecord(**d, baseline=baseline)
 
     def runs(self, robot: str) -> list[RunRecord]:
-        """The robot's runs in time order, the baseline marked.
+        """The robot's runs in time order, the baseline marked (one snapshot of the index).
 
         Raises
         ------
         InputError
             Unknown robot.
         """
+        sa = self._sa
+        t = self.t_runs
         robot = safe_name(robot, "robot")
-        recs = list(self._records(robot))
+        with self._read() as con:
+            rows = con.execute(
+                sa.select(t).where(t.c.robot == robot).order_by(t.c.time_utc, t.c.run_id)
+            ).mappings()
+            recs = [self._record(r) for r in rows]
+            explicit = con.execute(
+                sa.select(self.t_robots.c.baseline_run_id).where(self.t_robots.c.robot == robot)
+            ).scalar()
         if not recs:
             known = ", ".join(self.robots()) or "none"
             raise InputError(
                 f"robot {robot!r} has no runs in the archive {self.root} (robots: {known})"
             )
-        b = self._baseline_id(robot, recs)
+        b = (
+            str(explicit)
+            if explicit is not None
+            else next((r.run_id for r in recs if r.healthy is not False), None)
+        )
         return [replace(r, baseline=r.run_id == b) for r in recs]
 
-    def _baseline_id(self, robot: str, recs: list[RunRecord]) -> str | None:
+    def fleet(self) -> list[tuple[RunRecord, int, str | None]]:
+        """Every robot's latest run, its number of runs and its baseline run id, sorted by robot.
+
+        One query whatever the size of the fleet: per robot, the latest and the first healthy
+        run are one probe each of the ``(robot, time_utc, run_id)`` index.
+        """
         sa = self._sa
-        with self.engine.connect() as con:
-            row = con.execute(
-                sa.select(self.t_robots.c.baseline_run_id).where(self.t_robots.c.robot == robot)
-            ).first()
-        if row is not None and row[0] is not None:
-            return str(row[0])
-        return next((r.run_id for r in recs if r.healthy is not False), None)
+        t, rb = self.t_runs, self.t_robots
+        r2 = t.alias("r2")  # the inner scans, correlated to the robot only
+
+        def probe(desc: bool, healthy_only: bool) -> Any:
+            order = (r2.c.time_utc, r2.c.run_id)
+            q = sa.select(r2.c.run_id).where(r2.c.robot == rb.c.robot)
+            if healthy_only:
+                q = q.where(sa.or_(r2.c.healthy.is_(None), r2.c.healthy))
+            order = tuple(c.desc() for c in order) if desc else order
+            return q.order_by(*order).limit(1).correlate(rb).scalar_subquery()
+
+        count = sa.select(sa.func.count()).where(r2.c.robot == rb.c.robot).correlate(rb)
+        q = (
+            sa.select(
+                t,
+                rb.c.baseline_run_id.label("qh_explicit"),
+                probe(False, True).label("qh_first_ok"),
+                count.scalar_subquery().label("qh_n"),
+            )
+            .select_from(rb)  # robots drive: one index probe each, then the run by its key
+            .join(t, (t.c.robot == rb.c.robot) & (t.c.run_id == probe(True, False)))
+            .order_by(rb.c.robot)
+        )
+        out = []
+        with self._read() as con:
+            for r in con.execute(q).mappings():
+                d = dict(r)
+                explicit, first_ok, n = d.pop("qh_explicit"), d.pop("qh_first_ok"), d.pop("qh_n")
+                b = explicit or first_ok
+                rec = self._record(d)
+                out.append((replace(rec, baseline=rec.run_id == b), int(n), b))
+        return out
+
+    def orphans(self) -> list[Path]:
+        """Run folders with no row in the index: left by a writer killed before its commit
+        (or staging folders ``.incoming-*``).  ``add_run`` of that run replaces them."""
+        sa = self._sa
+        with self._read() as con:
+            indexed = {
+                (r, i) for r, i in con.execute(sa.select(self.t_runs.c.robot, self.t_runs.c.run_id))
+            }
+        out = []
+        base = self.root / "robots"
+        for rd in sorted(base.iterdir()) if base.is_dir() else []:
+            for d in sorted(rd.iterdir()):
+                if d.is_dir() and (rd.name, d.name) not in indexed:
+                    out.append(d)
+        return out
 
     def baseline(self, robot: str) -> RunRecord | None:
         """The explicit baseline, else the first healthy run, else None."""
@@ -535,6 +680,32 @@ class Archive:
             refit = fit_model(own.robot, meas, bspec, own.effects, own.noise, own.prior)
             formats.write_model(cache, refit)
         return model_arrays(_read_json(cache), str(cache))
+
+
+def _make_engine(url: str) -> Any:
+    """An SQLAlchemy engine for the index; SQLite made safe for many writing processes.
+
+    SQLite: each connection waits up to 60 s for another station's lock; transactions start
+    with ``BEGIN`` (readers: one snapshot) or ``BEGIN IMMEDIATE`` (writers: the write lock up
+    front, so two writers never deadlock upgrading their locks).  The rollback journal (not
+    WAL) keeps the index usable on a shared network folder.
+    """
+    import sqlalchemy as sa
+
+    if not url.startswith("sqlite"):
+        return sa.create_engine(url, pool_pre_ping=True)
+    eng = sa.create_engine(url, connect_args={"timeout": 60.0})
+
+    @sa.event.listens_for(eng, "connect")
+    def _connect(dbapi_con: Any, _rec: Any) -> None:
+        dbapi_con.isolation_level = None  # we issue BEGIN ourselves
+
+    @sa.event.listens_for(eng, "begin")
+    def _begin(con: Any) -> None:
+        write = con.get_execution_options().get("qh_write", False)
+        con.exec_driver_sql("BEGIN IMMEDIATE" if write else "BEGIN")
+
+    return eng
 
 
 def _software_version() -> str:

@@ -292,6 +292,7 @@ def reprocess(
     scheduler: Any = None,
     workers: int | None = None,
     progress: Callable[[int, int, ReprocessResult], None] | None = None,
+    scheduler_timeout_s: float = 10.0,
 ) -> list[ReprocessResult]:
     """Run the jobs in parallel; results in job order.
 
@@ -305,6 +306,14 @@ def reprocess(
         Local processes (default: the CPU count, at most the number of jobs; 1 = in this
         process, no pool).
     progress : callable(done, total, result), optional
+        Called as each job finishes (in the order they finish).
+    scheduler_timeout_s : float
+        How long to try to reach the scheduler, and to wait for its first worker (s).
+
+    On a cluster, a job whose worker dies (killed, out of memory, machine lost) is run again
+    on another worker by the scheduler; each job is deterministic and writes its output
+    folder by a rename, so a retried job leaves one result, as if it had run once.  A job
+    that kills three workers comes back as a failed result.
 
     Returns
     -------
@@ -313,7 +322,7 @@ def reprocess(
     Raises
     ------
     HardwareError
-        The Dask scheduler cannot be reached.
+        The Dask scheduler cannot be reached, or has no worker.
     """
     jobs = list(jobs)
     n = len(jobs)
@@ -327,7 +336,7 @@ def reprocess(
     if not jobs:
         return []
     if scheduler is not None:
-        _run_dask(jobs, scheduler, done)
+        _run_dask(jobs, scheduler, done, scheduler_timeout_s)
     else:
         w = max(1, min(workers or os.cpu_count() or 1, n))
         if w == 1:
@@ -343,21 +352,44 @@ def reprocess(
     return [r for r in results if r is not None]
 
 
-def _run_dask(jobs: list[ReprocessJob], scheduler: Any, done: Callable[..., None]) -> None:
+def _run_dask(
+    jobs: list[ReprocessJob], scheduler: Any, done: Callable[..., None], timeout_s: float
+) -> None:
     from distributed import Client, as_completed
+    from distributed.scheduler import KilledWorker
 
     from quickhealth.identify.errors import HardwareError
 
     own = not isinstance(scheduler, Client)
     try:
-        client = Client(scheduler, timeout="10s") if own else scheduler
+        client = Client(scheduler, timeout=f"{timeout_s}s") if own else scheduler
     except (OSError, TimeoutError) as exc:
-        raise HardwareError(f"cannot reach the Dask scheduler {scheduler}: {exc}") from None
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise HardwareError(
+            f"cannot reach the Dask scheduler {scheduler}: {msg} "
+            "(is `dask scheduler` running there, and the address right?)"
+        ) from None
     try:
+        try:
+            client.wait_for_workers(1, timeout=timeout_s)
+        except (OSError, TimeoutError):
+            raise HardwareError(
+                f"the Dask scheduler {scheduler} has no worker after {timeout_s:g} s "
+                "(start one: dask worker ADDRESS)"
+            ) from None
         futs = client.map(reprocess_run, jobs, pure=False)
         index = {f.key: i for i, f in enumerate(futs)}
         for k, f in enumerate(as_completed(futs), 1):
-            done(index[f.key], f.result(), k)
+            i = index[f.key]
+            try:
+                r = f.result()
+            except KilledWorker:
+                j = jobs[i]
+                r = ReprocessResult(
+                    j.robot, j.run_id, j.out_dir, ok=False,
+                    error="the job killed three Dask workers (out of memory?)",
+                )  # fmt: skip
+            done(i, r, k)
     finally:
         if own:
             client.close()

@@ -176,6 +176,12 @@ def register(subparsers: Any) -> None:
     rp.add_argument("--max-order", type=int, default=6)
     rp.add_argument("--tag", default="reprocessed", help="output folder name in each run")
     rp.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)")
+    rp.add_argument(
+        "--scheduler-timeout",
+        type=float,
+        default=10.0,
+        help="seconds to reach the scheduler and find a worker (10)",
+    )
     rp.add_argument("--workers", type=int, default=None, help="local processes (CPU count)")
     rp.add_argument("--workspace-samples", type=int, default=5000)
     rp.add_argument(
@@ -230,10 +236,8 @@ def _archive_baseline(args: argparse.Namespace) -> int:
 def _archive_list(args: argparse.Namespace) -> int:
     arch = _open(args)
     if args.robot is None:
-        for r in arch.robots():
-            runs = arch.runs(r)
-            b = next((x.run_id for x in runs if x.baseline), "-")
-            print(f"{r}: {len(runs)} runs, baseline {b}, latest {runs[-1].run_id}")
+        for last, n, b in arch.fleet():  # three index queries, however large the fleet
+            print(f"{last.robot}: {n} runs, baseline {b or '-'}, latest {last.run_id}")
         return 0
     print(
         f"{'run':<24} {'time (UTC)':<21} {'mean':>7} {'std':>7} {'max':>7}  plan / cell / calibration"
@@ -522,6 +526,9 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _reprocess(args: argparse.Namespace) -> int:
+    import time
+
+    from quickhealth.identify.errors import InputError
     from quickhealth.station.reprocess import jobs_for_archive, reprocess
 
     arch = _open(args)
@@ -536,13 +543,29 @@ def _reprocess(args: argparse.Namespace) -> int:
         max_order=args.max_order,
         workspace_samples=args.workspace_samples,
     )
+    if args.scheduler_timeout <= 0:
+        raise InputError(f"--scheduler-timeout must be > 0, got {args.scheduler_timeout}")
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else "local processes"
-    print(f"reprocessing {len(jobs)} runs on {where}", file=sys.stderr)
+    print(f"reprocessing {len(jobs)} runs on {where}", file=sys.stderr, flush=True)
+    t0 = time.monotonic()
 
     def progress(k: int, n: int, r: Any) -> None:
-        print(f"  [{k}/{n}] {r.robot}/{r.run_id} {'ok' if r.ok else 'FAILED'}", file=sys.stderr)
+        el = time.monotonic() - t0
+        left = el / k * (n - k)
+        print(
+            f"  [{k}/{n}] {r.robot}/{r.run_id} {'ok' if r.ok else 'FAILED'} "
+            f"({el:.0f} s, about {left:.0f} s left)",
+            file=sys.stderr,
+            flush=True,
+        )
 
-    results = reprocess(jobs, scheduler=args.scheduler, workers=args.workers, progress=progress)
+    results = reprocess(
+        jobs,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        progress=progress,
+        scheduler_timeout_s=args.scheduler_timeout,
+    )
     for r in results:
         print(r.line())
         if r.ok and args.update_index:

@@ -1,7 +1,6 @@
 """The run archive: folders plus index, many robots, baselines, names that cannot escape."""
 
 import json
-import os
 import sqlite3
 
 import numpy as np
@@ -28,8 +27,8 @@ def run_dirs(tmp_path_factory):
     return runs
 
 
-def test_runs_of_many_robots_with_metadata(tmp_path, run_dirs):
-    a = Archive.open(tmp_path / "arch")
+def test_runs_of_many_robots_with_metadata(tmp_path, run_dirs, index_url):
+    a = Archive.open(tmp_path / "arch", url=index_url)
     for d in run_dirs[:3]:
         a.add_run("ur5-a", d)
     a.add_run("ur5-b", run_dirs[0], run_id="first", meta={"cell": "cell-7"})
@@ -41,17 +40,24 @@ def test_runs_of_many_robots_with_metadata(tmp_path, run_dirs):
     assert a.runs("ur5-b")[0].cell == "cell-7"
     assert 0.05 < recs[0].mean_mm < recs[0].max_mm < 5.0
     assert (tmp_path / "arch" / "robots" / "ur5-a" / "r1" / "model.json").is_file()
-    # the index is a plain SQLite file other tools can read
-    con = sqlite3.connect(tmp_path / "arch" / "index.sqlite")
-    assert con.execute("select count(*) from runs").fetchone()[0] == 4
+    if index_url is None:  # the index is a plain SQLite file other tools can read
+        con = sqlite3.connect(tmp_path / "arch" / "index.sqlite")
+        assert con.execute("select count(*) from runs").fetchone()[0] == 4
+    else:
+        assert not (tmp_path / "arch" / "index.sqlite").exists()
+    # the fleet view: every robot's latest run, its count and baseline, in three queries
+    assert [(r.robot, r.run_id, n, b) for r, n, b in a.fleet()] == [
+        ("ur5-a", "r2", 3, "r0"),
+        ("ur5-b", "first", 1, "first"),
+    ]
     # the trend's view of a run: figures, model with covariance, metadata
     st = a.run_state(recs[1])
     assert st.spec is not None and st.cov.shape == (st.spec.n_params,) * 2
     assert np.isfinite(st.figures_mm["max"]) and st.meta["plan_hash"] == "plan-a"
 
 
-def test_baseline_explicit_or_first_healthy(tmp_path, run_dirs):
-    a = Archive.open(tmp_path / "arch")
+def test_baseline_explicit_or_first_healthy(tmp_path, run_dirs, index_url):
+    a = Archive.open(tmp_path / "arch", url=index_url)
     for d in run_dirs[:3]:
         a.add_run("ur5-a", d)
     assert a.baseline("ur5-a").run_id == "r0"
@@ -60,8 +66,10 @@ def test_baseline_explicit_or_first_healthy(tmp_path, run_dirs):
     a.set_baseline("ur5-a", "r2")
     assert a.baseline("ur5-a").run_id == "r2"
     assert [r.baseline for r in a.runs("ur5-a")] == [False, False, True]
+    assert a.fleet()[0][2] == "r2"
     a.set_baseline("ur5-a", None)
     assert a.baseline("ur5-a").run_id == "r1"
+    assert a.fleet()[0][2] == "r1"  # first healthy, r0 is not
     with pytest.raises(InputError, match="not in the archive"):
         a.set_baseline("ur5-a", "nope")
 
@@ -96,8 +104,8 @@ def test_sqlalchemy_url_selects_the_index(tmp_path, run_dirs):
     assert not (tmp_path / "arch" / "index.sqlite").exists()
 
 
-def test_duplicate_and_bad_inputs(tmp_path, run_dirs):
-    a = Archive.open(tmp_path / "arch")
+def test_duplicate_and_bad_inputs(tmp_path, run_dirs, index_url):
+    a = Archive.open(tmp_path / "arch", url=index_url)
     a.add_run("ur5-a", run_dirs[0])
     with pytest.raises(InputError, match="already archived"):
         a.add_run("ur5-a", run_dirs[0])
@@ -107,6 +115,21 @@ def test_duplicate_and_bad_inputs(tmp_path, run_dirs):
         a.runs("unknown")
     with pytest.raises(InputError, match="ISO 8601"):
         a.add_run("ur5-a", run_dirs[1], time_utc="yesterday")
+    # replacing a run swaps its folder and row in one go
+    rec = a.add_run("ur5-a", run_dirs[2], run_id="r0", replace_existing=True)
+    assert [r.run_id for r in a.runs("ur5-a")] == ["r0"] and rec.time_utc.startswith("2026-03")
+    assert json.loads((a.folder(rec) / "run.json").read_text())["time_utc"].startswith("2026-03")
+    # a folder without a row (a writer killed before its commit) is replaced by the next add
+    (a.root / "robots" / "ur5-a" / "ghost").mkdir()
+    (a.root / "robots" / "ur5-a" / "ghost" / "half.png").write_bytes(b"x")
+    assert a.orphans() == [a.root / "robots" / "ur5-a" / "ghost"]
+    a.add_run("ur5-a", run_dirs[1], run_id="ghost")
+    assert not (a.root / "robots" / "ur5-a" / "ghost" / "half.png").exists() and not a.orphans()
+    assert not list((a.root / "robots" / "ur5-a").glob(".incoming-*"))
+    # a run folder that is the archive's own registers again in place (refit): row updated
+    own = a.folder(a.get("ur5-a", "ghost"))
+    a.add_run("ur5-a", own, run_id="ghost", healthy=False)
+    assert a.get("ur5-a", "ghost").healthy is False and (own / "report.json").is_file()
 
 
 def _trend(capsys, *argv):
@@ -115,16 +138,19 @@ def _trend(capsys, *argv):
     return rc, cap.out, cap.err
 
 
-def test_trend_command_flags_the_degraded_joint_not_the_healthy_repeat(tmp_path, run_dirs, capsys):
+def test_trend_command_flags_the_degraded_joint_not_the_healthy_repeat(
+    tmp_path, run_dirs, capsys, index_url
+):
     arch = str(tmp_path / "arch")
+    db = ["--db", index_url] if index_url else []
     for d in run_dirs[:2]:
-        assert main(["archive", "add", str(d), "--robot", "ur5-a", "--archive", arch]) == 0
-    rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch)
+        assert main(["archive", "add", str(d), "--robot", "ur5-a", "--archive", arch, *db]) == 0
+    rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch, *db)
     assert rc == 0, out
     assert "latest run r1: healthy" in out
-    main(["archive", "add", str(run_dirs[3]), "--robot", "ur5-a", "--archive", arch])
+    main(["archive", "add", str(run_dirs[3]), "--robot", "ur5-a", "--archive", arch, *db])
     capsys.readouterr()
-    rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch, "--json", str(tmp_path / "t.json"))
+    rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch, *db, "--json", str(tmp_path / "t.json"))
     assert rc == 1
     assert "latest run r3: FLAGGED" in out
     assert "joint 2 tilt about x grew by" in out
@@ -134,11 +160,11 @@ def test_trend_command_flags_the_degraded_joint_not_the_healthy_repeat(tmp_path,
     assert doc["flagged"] and doc["baseline"] == "r0"
     # only the threshold counts: the max error is well below 5 mm
     rc, _, _ = _trend(
-        capsys, "ur5-a", "--archive", arch, "--fail-on", "threshold", "--threshold-mm", "5"
+        capsys, "ur5-a", "--archive", arch, *db, "--fail-on", "threshold", "--threshold-mm", "5"
     )
     assert rc == 0
     rc, out, _ = _trend(
-        capsys, "ur5-a", "--archive", arch, "--fail-on", "threshold", "--threshold-mm", "0.1"
+        capsys, "ur5-a", "--archive", arch, *db, "--fail-on", "threshold", "--threshold-mm", "0.1"
     )
     assert rc == 1 and "above the threshold 0.1 mm" in out
 
@@ -186,11 +212,11 @@ def test_cli_errors_are_one_line_with_status_2(tmp_path, run_dirs, capsys):
     assert "ok: 1 runs, baseline r0" in out
 
 
-def test_runs_fitted_at_other_orders_are_refitted_like_the_baseline(tmp_path, run_dirs):
+def test_runs_fitted_at_other_orders_are_refitted_like_the_baseline(tmp_path, run_dirs, index_url):
     """A term one fit selected and the other did not is not a change: the later run is
     refitted at the baseline's orders (cached next to it) before the curves are compared."""
     other = _runs.make_run(tmp_path / "o2", 5, n_poses=30, order=2, time_utc="2026-05-01T08:00:00Z")
-    a = Archive.open(tmp_path / "arch")
+    a = Archive.open(tmp_path / "arch", url=index_url)
     a.add_run("ur5-a", run_dirs[0])
     a.add_run("ur5-a", other, run_id="o2")
     base, rec = a.runs("ur5-a")
@@ -206,19 +232,9 @@ def test_runs_fitted_at_other_orders_are_refitted_like_the_baseline(tmp_path, ru
     assert not res.flags(), res.flags()
 
 
-@pytest.mark.skipif(
-    not os.environ.get("QUICKHEALTH_TEST_PG_URL"),
-    reason="no PostgreSQL to test against: set QUICKHEALTH_TEST_PG_URL "
-    "(e.g. postgresql+psycopg://user@/db?host=/tmp) to run the shared-index test",
-)
-def test_postgresql_index_shared_by_two_stations(tmp_path, run_dirs):
-    import sqlalchemy as sa
-
-    url = os.environ["QUICKHEALTH_TEST_PG_URL"]
-    eng = sa.create_engine(url)
-    with eng.begin() as con:  # a clean index
-        con.execute(sa.text("drop table if exists runs"))
-        con.execute(sa.text("drop table if exists robots"))
+def test_postgresql_index_shared_by_two_stations(tmp_path, run_dirs, pg_server):
+    """Two stations (two Archive objects, two connection pools) on one PostgreSQL index."""
+    url = pg_server.new_database()
     a = Archive.open(tmp_path / "shared", url=url)
     b = Archive.open(tmp_path / "shared", url=url)
     a.add_run("ur5-a", run_dirs[0])
@@ -226,3 +242,19 @@ def test_postgresql_index_shared_by_two_stations(tmp_path, run_dirs):
     b.set_baseline("ur5-a", "r1")
     assert [(r.run_id, r.baseline) for r in a.runs("ur5-a")] == [("r0", False), ("r1", True)]
     assert a.run_state(a.runs("ur5-a")[0]).spec is not None
+    with pytest.raises(InputError, match="already archived"):
+        b.add_run("ur5-a", run_dirs[0], run_id="r0")
+
+
+def test_old_archives_gain_the_new_index(tmp_path, run_dirs, index_url):
+    """An index made before ix_runs_robot_time existed is migrated when opened."""
+    import sqlalchemy as sa
+
+    a = Archive.open(tmp_path / "arch", url=index_url)
+    a.add_run("ur5-a", run_dirs[0])
+    with a.engine.begin() as con:
+        con.execute(sa.text("drop index ix_runs_robot_time"))
+    assert "ix_runs_robot_time" not in {i["name"] for i in sa.inspect(a.engine).get_indexes("runs")}
+    b = Archive.open(tmp_path / "arch", url=index_url)
+    assert "ix_runs_robot_time" in {i["name"] for i in sa.inspect(b.engine).get_indexes("runs")}
+    assert [r.run_id for r in b.runs("ur5-a")] == ["r0"]

@@ -1,4 +1,6 @@
-"""Fleet reprocessing: 20 archived runs on a Dask LocalCluster give what the local path gives."""
+"""Fleet reprocessing: 20 archived runs on a real Dask cluster (`dask scheduler` and two
+`dask worker` processes on loopback) give what the local path gives, survive a killed
+worker, and an unreachable scheduler is one line and exit 3."""
 
 import pickle
 import time
@@ -35,44 +37,123 @@ def _same(a, b):
             assert x.figures_mm[f] == pytest.approx(y.figures_mm[f], abs=1e-12)
 
 
-@pytest.mark.slow
-def test_localcluster_equals_local_path(fleet):
-    from distributed import Client, LocalCluster
+@pytest.fixture(scope="module")
+def cluster():
+    """`dask scheduler` and two `dask worker` processes on 127.0.0.1, stopped afterwards."""
+    import qh_dask
 
-    jobs = jobs_for_archive(fleet, tag="t1", workspace_samples=1000)
+    try:
+        cl = qh_dask.DaskCluster(n_workers=2).start()
+    except RuntimeError as exc:
+        pytest.fail(str(exc), pytrace=False)
+    yield cl
+    cl.stop()
+
+
+def _written(results, tag):
+    from quickhealth.station import formats
+
+    out = {}
+    for r in results:
+        d = Path(r.out_dir).parent / tag
+        rep = formats.read_report(d / "report.json")
+        out[(r.robot, r.run_id)] = (formats.read_model(d / "model.json").coeffs, rep["workspace"])
+    return out
+
+
+@pytest.mark.slow
+def test_dask_cluster_equals_local_path(fleet, cluster, capsys):
+    """The command line on a real cluster writes what the local processes compute."""
+    jobs = jobs_for_archive(fleet, tag="local", workspace_samples=1000)
     assert len(jobs) == 20
     t0 = time.perf_counter()
     local = reprocess(jobs, workers=2)
     t1 = time.perf_counter()
-    # threads keep the test fast; the jobs and results must still pickle for remote workers
     assert pickle.loads(pickle.dumps(jobs)) == jobs
-    assert pickle.loads(pickle.dumps(local)) == local
-    with LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
-    ) as cl:
-        with Client(cl) as client:
-            seen = []
-            dask = reprocess(jobs, scheduler=client, progress=lambda k, n, r: seen.append(k))
-        t2 = time.perf_counter()
-        # the command line reaches the same cluster by its address
-        rc = main(["reprocess", "ur5-0", "--archive", str(fleet.root), "--runs", "run00,run02",
-                   "--tag", "addr", "--workspace-samples", "1000", "--scheduler", cl.scheduler_address])  # fmt: skip
-        assert rc == 0
-    from quickhealth.station import formats
-
+    rc = main(["reprocess", "--archive", str(fleet.root), "--tag", "dask",
+               "--workspace-samples", "1000", "--scheduler", cluster.address])  # fmt: skip
+    t2 = time.perf_counter()
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    print(f"local {t1 - t0:.1f} s, Dask cluster {t2 - t1:.1f} s for {len(jobs)} runs")
+    # progress: one line per finished run, counting up to 20, with the time left
+    prog = [line for line in cap.err.splitlines() if line.strip().startswith("[")]
+    assert len(prog) == 20 and prog[-1].strip().startswith("[20/20]") and "left)" in prog[-1]
+    assert f"on Dask scheduler {cluster.address}" in cap.err
+    on_dask = _written(local, "dask")
     for r in local:
-        if r.robot == "ur5-0" and r.run_id in ("run00", "run02"):  # written by the CLI run
-            written = formats.read_model(Path(r.out_dir).parent / "addr" / "model.json").coeffs
-            np.testing.assert_allclose(written, r.coeffs, rtol=0, atol=1e-12)
-    print(f"local {t1 - t0:.1f} s, LocalCluster {t2 - t1:.1f} s for {len(jobs)} runs")
-    _same(local, dask)
-    assert sorted(seen) == list(range(1, 21))
-    # and both equal a plain in-process loop, and the original fits (same data, same orders)
-    serial = [reprocess_run(j) for j in jobs[:3]]
-    _same(serial, local[:3])
+        assert r.ok, r.error
+        coeffs, ws = on_dask[(r.robot, r.run_id)]
+        np.testing.assert_allclose(coeffs, r.coeffs, rtol=0, atol=1e-12)
+        for f in ("mean", "std", "max"):
+            assert ws[f"{f}_mm"] == pytest.approx(r.figures_mm[f], abs=1e-12)
+    # and the local path equals a plain in-process loop and the original fit
+    _same([reprocess_run(j) for j in jobs[:2]], local[:2])
     orig = fleet.run_state(fleet.runs("ur5-0")[0])
     np.testing.assert_allclose(local[0].coeffs, orig.coeffs, atol=1e-9)
-    assert Path(local[0].out_dir, "model.json").is_file()
+
+
+@pytest.mark.slow
+def test_dask_survives_a_worker_killed_mid_job(fleet, cluster, capsys):
+    """SIGKILL a worker while it runs a job: the scheduler runs the job again on the other
+    worker; every run is reprocessed once, the index keeps one row per run."""
+    import threading
+
+    from distributed import Client
+
+    n_rows = sum(len(fleet.runs(r)) for r in fleet.robots())
+    out: dict[str, int] = {}
+    argv = ["reprocess", "--archive", str(fleet.root), "--tag", "killed",
+            "--workspace-samples", "4000", "--scheduler", cluster.address, "--update-index"]  # fmt: skip
+    th = threading.Thread(target=lambda: out.setdefault("rc", main(argv)))
+    killed = None
+    with Client(cluster.address, timeout="20s") as c:
+        th.start()
+        t_end = time.monotonic() + 120
+        while killed is None and time.monotonic() < t_end and th.is_alive():
+            busy = {
+                w: ks for w, ks in c.processing().items() if ks and "w1" in c.scheduler_info()["workers"].get(w, {}).get("name", "")
+            }  # fmt: skip
+            if busy:
+                time.sleep(0.05)  # into the job
+                cluster.kill_worker("w1")
+                killed = busy
+            time.sleep(0.01)
+        th.join(timeout=240)
+    cap = capsys.readouterr()
+    try:
+        assert killed, "worker w1 never got a job"
+        assert not th.is_alive() and out["rc"] == 0, cap.err
+        lines = [x for x in cap.out.splitlines() if "poses, rms" in x]
+        assert len(lines) == 20 and len(set(lines)) == 20  # every run once
+        assert sum(len(fleet.runs(r)) for r in fleet.robots()) == n_rows  # no row doubled
+        local = {(r.robot, r.run_id): r for r in reprocess(jobs_for_archive(fleet, tag="kref", workspace_samples=4000), workers=2)}  # fmt: skip
+        for rb in fleet.robots():
+            for rec in fleet.runs(rb):
+                folder = fleet.folder(rec) / "reprocessed"
+                assert (folder / "killed" / "model.json").is_file()
+                assert rec.max_mm == pytest.approx(
+                    local[(rb, rec.run_id)].figures_mm["max"], abs=1e-12
+                )
+        print(f"killed w1 while it ran {list(killed.values())[0]}; 20 of 20 runs done once")
+    finally:
+        cluster.start_worker("w1")  # the cluster as it was, for the next test
+        cluster.wait_for_workers(2, 90)
+
+
+def test_unreachable_scheduler_is_one_line_and_exit_3(fleet, capsys):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # nothing listens there once closed
+    rc = main(["reprocess", "--archive", str(fleet.root), "--runs", "run00", "ur5-0",
+               "--scheduler", f"tcp://127.0.0.1:{port}", "--scheduler-timeout", "2"])  # fmt: skip
+    err = capsys.readouterr().err
+    errors = [x for x in err.splitlines() if "error" in x.lower()]
+    assert rc == 3
+    assert len(errors) == 1 and "Traceback" not in err, err
+    assert f"cannot reach the Dask scheduler tcp://127.0.0.1:{port}" in errors[0]
 
 
 def test_reprocess_command_local_and_failures(fleet, capsys):

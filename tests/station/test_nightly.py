@@ -1,0 +1,97 @@
+"""The nightly, unattended run: the shipped systemd units verify, the script's exit status."""
+
+import os
+import shutil
+import stat
+import subprocess
+from pathlib import Path
+
+import pytest
+
+UNITS = Path(__file__).resolve().parents[2] / "station" / "data" / "systemd"
+
+
+def _units(tmp_path, exec_start=None):
+    """The shipped units, pointed at the shipped script and example settings in tmp_path."""
+    for f in UNITS.iterdir():
+        shutil.copy2(f, tmp_path / f.name)
+    svc = tmp_path / "quickhealth-nightly.service"
+    text = svc.read_text()
+    text = text.replace(
+        "/usr/local/lib/quickhealth/quickhealth-nightly.sh",
+        exec_start or str(tmp_path / "quickhealth-nightly.sh"),
+    ).replace("/etc/quickhealth/nightly.env", str(tmp_path / "nightly.env.example"))
+    svc.write_text(text)
+    return svc, tmp_path / "quickhealth-nightly.timer"
+
+
+@pytest.mark.skipif(
+    shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed here"
+)
+def test_systemd_units_verify(tmp_path):
+    svc, timer = _units(tmp_path)
+    r = subprocess.run(
+        ["systemd-analyze", "verify", str(svc), str(timer)], capture_output=True, text=True
+    )
+    assert r.returncode == 0 and not r.stderr.strip(), r.stderr
+    # and verify does catch a broken unit: a script that is not there
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    svc, timer = _units(bad, exec_start=str(bad / "missing.sh"))
+    r = subprocess.run(["systemd-analyze", "verify", str(svc)], capture_output=True, text=True)
+    assert r.returncode != 0 and "missing.sh" in r.stderr
+    r = subprocess.run(
+        ["systemd-analyze", "calendar", "*-*-* 02:00:00"], capture_output=True, text=True
+    )
+    assert r.returncode == 0 and "02:00:00" in r.stdout
+
+
+STUB = """#!/bin/sh
+echo "$*" >> "$STUB_LOG"
+case "$1" in run) exit ${STUB_RUN:-0};; trend) exit ${STUB_TREND:-0};; esac
+exit 0
+"""
+
+
+def _nightly(tmp_path, **env):
+    stub = tmp_path / "quickhealth"
+    stub.write_text(STUB)
+    stub.chmod(stub.stat().st_mode | stat.S_IXUSR)
+    log = tmp_path / "calls.log"
+    log.unlink(missing_ok=True)
+    settings = {
+        "QH_ROBOT": "ur5-cell3", "QH_CELL": "cell.toml", "QH_PLAN": "plan.json",
+        "QH_ROBOT_IP": "192.168.1.10", "QH_CALIBRATION": "CAL.json",
+        "QH_RUNS": str(tmp_path / "runs"), "QH_ARCHIVE": str(tmp_path / "arch"),
+        "QH_BIN": str(stub), "STUB_LOG": str(log),
+    }  # fmt: skip
+    full = {"PATH": os.environ["PATH"], **settings, **env}
+    full = {k: v for k, v in full.items() if v is not None}
+    r = subprocess.run(
+        [str(UNITS / "quickhealth-nightly.sh")], env=full, capture_output=True, text=True
+    )
+    calls = log.read_text().splitlines() if log.is_file() else []
+    return r, calls
+
+
+def test_nightly_script_steps_and_exit_status(tmp_path):
+    r, calls = _nightly(tmp_path, QH_DB="postgresql+psycopg://qh@db/qh", QH_THRESHOLD_MM="0.5")
+    assert r.returncode == 0, r.stderr
+    assert [c.split()[0] for c in calls] == ["run", "identify", "archive", "trend"]
+    assert "--unattended" in calls[0] and "--robot-ip 192.168.1.10" in calls[0]
+    run_dir = calls[0].split("--out ")[1].split()[0]
+    assert run_dir.startswith(str(tmp_path / "runs")) and f"--out {run_dir}" in calls[1]
+    assert calls[2].endswith("--db postgresql+psycopg://qh@db/qh")
+    assert "--threshold-mm 0.5" in calls[3] and f"--json {run_dir}/trend.json" in calls[3]
+    # the trend flags the robot: exit 1, for the timer's unit to fail and alert
+    r, calls = _nightly(tmp_path, STUB_TREND="1")
+    assert r.returncode == 1 and len(calls) == 4 and "--db" not in calls[2]
+    # the cell fails: exit 3, nothing fitted or archived
+    r, calls = _nightly(tmp_path, STUB_RUN="3")
+    assert r.returncode == 3 and len(calls) == 1
+    # a setting missing: exit 2 with one line, nothing run
+    r, calls = _nightly(tmp_path, QH_ROBOT_IP=None)
+    assert r.returncode == 2 and calls == []
+    assert r.stderr.strip().splitlines() == [
+        "quickhealth-nightly: error: not set: QH_ROBOT_IP (see nightly.env.example)"
+    ]
