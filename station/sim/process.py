@@ -142,12 +142,19 @@ def _try_address(host: str) -> int:
     return fd
 
 
-def _take_address(host: str | None, wait_s: float) -> tuple[str, int]:
+def _take_address(
+    host: str | None, wait_s: float, skip: set[str] | frozenset[str] = frozenset()
+) -> tuple[str, int]:
     """A loopback address whose UR ports are free, and its lock (held until the simulator
-    stops).  ``host`` given: wait up to ``wait_s`` for that one; else the first free one."""
+    stops).  ``host`` given: wait up to ``wait_s`` for that one; else the first free one
+    not in ``skip``."""
     from quickhealth.identify.errors import HardwareError
 
-    pool = (check_loopback(host),) if host is not None else LOOPBACK_POOL
+    pool = (
+        (check_loopback(host),)
+        if host is not None
+        else tuple(h for h in LOOPBACK_POOL if h not in skip)
+    )
     deadline = time.monotonic() + wait_s
     while True:
         for h in pool:
@@ -214,11 +221,7 @@ def start_sim_controller(
 
     if controller_version is not None:
         parse_version(controller_version)  # ValueError before anything starts
-    host, lock = _take_address(host, wait_s)
-    cmd = [
-        sys.executable,
-        "-m",
-        "quickhealth.station.sim",
+    args = [
         "--control-port",
         str(control_port),
         "--twin-seed",
@@ -229,31 +232,40 @@ def start_sim_controller(
         str(speed_factor),
         "--parent-pid",
         str(os.getpid()),
-        "--host",
-        host,
     ]
     if q0_deg is not None:
-        cmd += ["--q0-deg", ",".join(f"{v:.9g}" for v in q0_deg)]
+        args += ["--q0-deg", ",".join(f"{v:.9g}" for v in q0_deg)]
     if degrade:
-        cmd += ["--degrade", ",".join(f"{k}={v:.12g}" for k, v in degrade.items())]
+        args += ["--degrade", ",".join(f"{k}={v:.12g}" for k, v in degrade.items())]
     if controller_version is not None:
-        cmd += ["--controller-version", controller_version]
+        args += ["--controller-version", controller_version]
     if verbose:
-        cmd.append("--verbose")
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
-    handle = SimControllerHandle(proc, control_port, lock, host)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            handle.stop()
-            raise HardwareError(f"controller simulator exited at start (status {proc.returncode})")
-        try:
-            handle.request("ping")
-            return handle
-        except OSError:
-            time.sleep(0.05)
-    handle.stop(timeout=1.0)
-    raise HardwareError(f"controller simulator did not answer within {timeout:.0f} s")
+        args.append("--verbose")
+    tried: set[str] = set()
+    while True:
+        addr, lock = _take_address(host, wait_s, skip=tried)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "quickhealth.station.sim", *args, "--host", addr],
+            stdin=subprocess.DEVNULL,
+        )
+        handle = SimControllerHandle(proc, control_port, lock, addr)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                handle.request("ping")
+                return handle
+            except OSError:
+                time.sleep(0.05)
+        code = proc.poll()
+        handle.stop(timeout=1.0)
+        if code == 3 and host is None:
+            # It could not listen: something that does not take our lock files (another
+            # tool's simulator) holds that address.  Try the next one.
+            tried.add(addr)
+            continue
+        if code is not None:
+            raise HardwareError(f"controller simulator exited at start (status {code})")
+        raise HardwareError(f"controller simulator did not answer within {timeout:.0f} s")
 
 
 def build_controller(
