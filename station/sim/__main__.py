@@ -1,5 +1,9 @@
-"""``python -m quickhealth.station.sim``: run the UR controller simulator (see ``--help``)."""
+"""``python -m quickhealth.station.sim``: run the UR controller simulator (see ``--help``).
+
+Importing this module does nothing (the wheel test imports every module of the package).
+"""
 
 from .process import main
 
-raise SystemExit(main())
+if __name__ == "__main__":
+    raise SystemExit(main())

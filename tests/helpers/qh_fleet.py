@@ -78,8 +78,7 @@ def station(
     kill_at: str | None = None,
     kill_run: int = 4,
 ) -> None:
-    from quickhealth.station.archive import Archive
-    from quickhealth.station.commands.trend import trend_for
+    from quickhealth.station.archive import Archive, trend_for
 
     arch = Archive.open(root, url)
     errors: list[str] = []

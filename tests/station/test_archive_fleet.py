@@ -139,7 +139,7 @@ def test_eight_stations_at_once_with_kills(tmp_path, sources, db, request):
         )
     assert not [p for p in arch.orphans() if not p.name.startswith(".incoming-")]
     # the trends still read cleanly after the kills
-    from quickhealth.station.commands.trend import trend_for
+    from quickhealth.station.archive import trend_for
 
     for rb in arch.robots():
         assert len(trend_for(arch, rb).run_ids) == len(arch.runs(rb))
