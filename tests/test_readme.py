@@ -54,6 +54,8 @@ def test_readme_table_lists_the_tutorial_in_order():
 def test_readme_tutorial_runs_as_written(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("QUICKHEALTH_ARCHIVE", str(tmp_path / "archive"))
+    # its own run lock: a run on this machine's cell (a demo, another test run) is not ours
+    monkeypatch.setenv("QUICKHEALTH_LOCK_DIR", str(tmp_path / "lock"))
     done = []
     for cmd in readme_commands():
         argv = shlex.split(cmd)[1:]
