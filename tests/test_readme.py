@@ -5,7 +5,9 @@ through the command line's ``main`` in an empty folder; each step reads what an 
 wrote.  Two rows need what a test cannot type: the camera images of ``vision calibrate``
 (and so ``vision measure ... --calibration cal.json``) and the interactive TUI.  The
 hardware step ``run --sim`` runs on the simulated cell (the real ur-rtde client against the
-controller simulator) and must measure the plan.
+controller simulator) and must measure the plan; the simulated arm runs faster than life and
+renders smaller images (``QUICKHEALTH_SIM_SPEED_FACTOR``, ``QUICKHEALTH_SIM_IMAGE_SCALE``),
+which changes the simulated hardware, not the commands.
 """
 
 from __future__ import annotations
@@ -56,6 +58,10 @@ def test_readme_tutorial_runs_as_written(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("QUICKHEALTH_ARCHIVE", str(tmp_path / "archive"))
     # its own run lock: a run on this machine's cell (a demo, another test run) is not ours
     monkeypatch.setenv("QUICKHEALTH_LOCK_DIR", str(tmp_path / "lock"))
+    # the simulated hardware, not the commands: an arm 20x faster than life and quarter-size
+    # images (a 1x arm makes this one test take 4 of make test's minutes)
+    monkeypatch.setenv("QUICKHEALTH_SIM_SPEED_FACTOR", "20")
+    monkeypatch.setenv("QUICKHEALTH_SIM_IMAGE_SCALE", "0.25")
     done = []
     for cmd in readme_commands():
         argv = shlex.split(cmd)[1:]

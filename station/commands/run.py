@@ -61,9 +61,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--cameras", default="0,1", help="left,right OpenCV camera indices or paths (real cell)"
     )
     p.add_argument("--calibration", default=None, help="stereo CAL.json (real cell)")
-    p.add_argument("--sim-image-scale", type=float, default=0.5, help=argparse.SUPPRESS)
+    # the simulated hardware's size and clock; None: QUICKHEALTH_SIM_IMAGE_SCALE /
+    # QUICKHEALTH_SIM_SPEED_FACTOR from the environment, else 0.5 and 1 (docs/station.md)
+    p.add_argument("--sim-image-scale", type=float, default=None, help=argparse.SUPPRESS)
     p.add_argument("--twin-seed", type=int, default=1, help=argparse.SUPPRESS)
-    p.add_argument("--sim-speed-factor", type=float, default=1.0, help=argparse.SUPPRESS)
+    p.add_argument("--sim-speed-factor", type=float, default=None, help=argparse.SUPPRESS)
     p.add_argument(
         "--sim-degrade",
         default=None,
@@ -101,8 +103,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {str(out)!r}: '..' is not allowed in a run folder path")
     if args.robot_name is not None:
         safe_name(args.robot_name, "robot name")
-    if args.sim_image_scale <= 0 or args.sim_image_scale > 1:
-        raise InputError("--sim-image-scale must be in (0, 1]")
+    args.sim_image_scale = _sim_setting(
+        args.sim_image_scale, "--sim-image-scale", SIM_IMAGE_SCALE_ENV, 0.5, (0.05, 1.0)
+    )
+    args.sim_speed_factor = _sim_setting(
+        args.sim_speed_factor, "--sim-speed-factor", SIM_SPEED_FACTOR_ENV, 1.0, (0.1, 100.0)
+    )
     cell = load_cell(args.cell)
     plan = load_plan(args.plan)
     if plan.cell_sha256 != cell.sha256:
@@ -120,6 +126,41 @@ def run(args: argparse.Namespace) -> int:
         return _run_locked(args, plan, out)
     finally:
         lock.release()
+
+
+SIM_IMAGE_SCALE_ENV = "QUICKHEALTH_SIM_IMAGE_SCALE"
+SIM_SPEED_FACTOR_ENV = "QUICKHEALTH_SIM_SPEED_FACTOR"
+
+
+def _sim_setting(
+    value: float | None, option: str, env: str, default: float, bounds: tuple[float, float]
+) -> float:
+    """A simulated-cell setting: the option, else the environment variable, else the default.
+
+    The simulated cell's image size and clock are properties of the simulated hardware, not
+    of the command, so a test or a quick look can run the README's commands exactly as
+    written on a faster simulated arm.  Refused (one line) unless finite and in
+    ``[lo, hi]``.
+    """
+    import math
+    import os
+
+    from quickhealth.identify.errors import InputError
+
+    where = option
+    if value is None:
+        text = os.environ.get(env)
+        if text is None:
+            return default
+        where = f"{env}={text!r}"
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputError(f"{where}: not a number") from None
+    lo, hi = bounds
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise InputError(f"{where}: must be in {lo:g}..{hi:g}")
+    return float(value)
 
 
 def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: ignore[no-untyped-def]

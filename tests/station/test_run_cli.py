@@ -54,6 +54,26 @@ def test_cell_file_with_a_yaml_object_tag_is_refused(plan_path, tmp_path, capsys
     assert not marker.exists() and not out.exists()
 
 
+@pytest.mark.parametrize(
+    ("env", "value", "want"),
+    [
+        ("QUICKHEALTH_SIM_SPEED_FACTOR", "fast", "QUICKHEALTH_SIM_SPEED_FACTOR='fast': not a number"),
+        ("QUICKHEALTH_SIM_SPEED_FACTOR", "nan", "must be in 0.1..100"),
+        ("QUICKHEALTH_SIM_SPEED_FACTOR", "1e9", "must be in 0.1..100"),
+        ("QUICKHEALTH_SIM_IMAGE_SCALE", "0", "must be in 0.05..1"),
+        ("QUICKHEALTH_SIM_IMAGE_SCALE", "inf", "must be in 0.05..1"),
+    ],
+)
+def test_absurd_simulated_cell_settings_are_refused(
+    plan_path, tmp_path, capsys, monkeypatch, env, value, want
+):
+    monkeypatch.setenv(env, value)
+    out = tmp_path / "run"
+    code = main(["run", "--cell", "reference", "--plan", str(plan_path), "--out", str(out), "--sim"])
+    _one_line_error(capsys, code, want)
+    assert not out.exists()
+
+
 class _Payload:
     def __init__(self, marker: Path) -> None:
         self.marker = marker
