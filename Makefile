@@ -60,7 +60,7 @@ postgres:
 test: $(STAMP) chromium postgres
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(VENV)/bin/pytest -q -p no:cacheprovider
+	QUICKHEALTH_REQUIRE_SERVICES=1 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(VENV)/bin/pytest -q -rs -p no:cacheprovider
 
 check: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(VENV)/bin/pytest -q -m "not slow" -x

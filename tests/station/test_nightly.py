@@ -95,3 +95,32 @@ def test_nightly_script_steps_and_exit_status(tmp_path):
     assert r.stderr.strip().splitlines() == [
         "quickhealth-nightly: error: not set: QH_ROBOT_IP (see nightly.env.example)"
     ]
+
+
+def test_the_documented_cron_line_passes_the_settings_to_the_script(tmp_path):
+    """docs/monitoring.md's cron line, run by /bin/sh as cron would, with the shipped settings."""
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "monitoring.md").read_text()
+    line = next(ln for ln in doc.splitlines() if ln.strip().startswith("0 2 * * *"))
+    command = line.strip().split(None, 5)[5]  # after the five time fields
+    stub = tmp_path / "quickhealth"
+    stub.write_text(STUB)
+    stub.chmod(stub.stat().st_mode | stat.S_IXUSR)
+    env_file = tmp_path / "nightly.env"
+    text = (UNITS / "nightly.env.example").read_text()
+    text = text.replace("/opt/quickhealth/.venv/bin/quickhealth", str(stub))
+    text = text.replace("/var/lib/quickhealth/runs", str(tmp_path / "runs"))
+    env_file.write_text(text + f"STUB_LOG={tmp_path / 'calls.log'}\n")
+    command = (
+        command.replace("/etc/quickhealth/nightly.env", str(env_file))
+        .replace(
+            "/usr/local/lib/quickhealth/quickhealth-nightly.sh",
+            str(UNITS / "quickhealth-nightly.sh"),
+        )
+        .replace("/var/log/quickhealth-nightly.log", str(tmp_path / "cron.log"))
+    )
+    r = subprocess.run(["/bin/sh", "-c", command], env={"PATH": os.environ["PATH"]})
+    log = (tmp_path / "cron.log").read_text()
+    assert r.returncode == 0, log
+    calls = (tmp_path / "calls.log").read_text().splitlines()
+    assert [c.split()[0] for c in calls] == ["run", "identify", "archive", "trend"], log
+    assert "--robot-ip 192.168.1.10" in calls[0] and "--robot ur5-cell3" in calls[2]

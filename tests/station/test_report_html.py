@@ -7,6 +7,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+import qh_required
 import qh_runs as _runs
 
 from quickhealth.station.archive import Archive
@@ -148,7 +149,7 @@ def reported(archived):
 @pytest.mark.slow
 def test_report_renders_every_plot_in_chromium(reported):
     if not CHROMIUM.exists():
-        pytest.skip(
+        qh_required.unavailable(
             "headless Chromium not installed (/usr/bin/chromium missing): "
             "apt-get install -y chromium chromium-driver"
         )

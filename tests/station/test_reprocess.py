@@ -150,10 +150,12 @@ def test_unreachable_scheduler_is_one_line_and_exit_3(fleet, capsys):
     rc = main(["reprocess", "--archive", str(fleet.root), "--runs", "run00", "ur5-0",
                "--scheduler", f"tcp://127.0.0.1:{port}", "--scheduler-timeout", "2"])  # fmt: skip
     err = capsys.readouterr().err
-    errors = [x for x in err.splitlines() if "error" in x.lower()]
+    # what it was about to do (the banner), then exactly one line saying what went wrong
+    lines = [x for x in err.splitlines() if not x.startswith("reprocessing ")]
     assert rc == 3
-    assert len(errors) == 1 and "Traceback" not in err, err
-    assert f"cannot reach the Dask scheduler tcp://127.0.0.1:{port}" in errors[0]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith("quickhealth: error: "), err
+    assert f"cannot reach the Dask scheduler tcp://127.0.0.1:{port}" in lines[0]
 
 
 def test_reprocess_command_local_and_failures(fleet, capsys):

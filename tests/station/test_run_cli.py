@@ -57,7 +57,11 @@ def test_cell_file_with_a_yaml_object_tag_is_refused(plan_path, tmp_path, capsys
 @pytest.mark.parametrize(
     ("env", "value", "want"),
     [
-        ("QUICKHEALTH_SIM_SPEED_FACTOR", "fast", "QUICKHEALTH_SIM_SPEED_FACTOR='fast': not a number"),
+        (
+            "QUICKHEALTH_SIM_SPEED_FACTOR",
+            "fast",
+            "QUICKHEALTH_SIM_SPEED_FACTOR='fast': not a number",
+        ),
         ("QUICKHEALTH_SIM_SPEED_FACTOR", "nan", "must be in 0.1..100"),
         ("QUICKHEALTH_SIM_SPEED_FACTOR", "1e9", "must be in 0.1..100"),
         ("QUICKHEALTH_SIM_IMAGE_SCALE", "0", "must be in 0.05..1"),
@@ -69,7 +73,9 @@ def test_absurd_simulated_cell_settings_are_refused(
 ):
     monkeypatch.setenv(env, value)
     out = tmp_path / "run"
-    code = main(["run", "--cell", "reference", "--plan", str(plan_path), "--out", str(out), "--sim"])
+    code = main(
+        ["run", "--cell", "reference", "--plan", str(plan_path), "--out", str(out), "--sim"]
+    )
     _one_line_error(capsys, code, want)
     assert not out.exists()
 
