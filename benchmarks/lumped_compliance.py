@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         (f"compliance:j{rng.choice([2, 3])}", float(rng.uniform(2e-5, 4e-5)), 500 + 7 * i)
         for i in range(args.random)
     ]
-    cases += [(None, 0.0, 500 + 7 * i) for i in range(args.controls)]
+    cases += [(None, 0.0, 900 + 7 * i) for i in range(args.controls)]  # apart from the draws
     print(
         f"{'effect':<15}{'size':>9}{'seed':>6}{'masses':>9}{'lumped':>9}{'none':>9}{'floor':>9}"
         f"{'l/m':>7}{'l/fl':>7}{'t_m s':>7}{'t_l s':>7}  diagnose (masses withheld, no effect)"
