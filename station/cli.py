@@ -48,7 +48,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument(
         "--debug",
         action="store_true",
-        help="show the traceback of an internal error (exit 3) instead of one line",
+        help="show the traceback of an internal error (exit 3) instead of one line "
+        "(anywhere on the line: quickhealth trend cell3 --debug)",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     names = sorted(m.name for m in pkgutil.iter_modules(commands.__path__))
@@ -85,6 +86,14 @@ def _one_line(text: str, limit: int = 400) -> str:
     return s if len(s) <= limit else s[: limit - 1] + "…"
 
 
+def _take_debug(argv: list[str]) -> tuple[list[str], bool]:
+    """``argv`` without ``--debug``, and whether it was there: the flag is accepted anywhere
+    (before or after the command's name), never after a ``--`` that ends the options."""
+    end = argv.index("--") if "--" in argv else len(argv)
+    head = [a for a in argv[:end] if a != "--debug"]
+    return head + argv[end:], len(head) < end
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (never raises, never exits 1 on a crash).
 
@@ -93,11 +102,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     traceback only with ``--debug``.  Only the module of the command asked for is imported.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    debug = "--debug" in argv
+    argv, debug = _take_debug(argv)
     try:
         parser = build_parser(next((a for a in argv if not a.startswith("-")), None))
         args = parser.parse_args(argv)
-        debug = bool(getattr(args, "debug", debug))
+        debug = debug or bool(getattr(args, "debug", False))
         func = getattr(args, "func", None)
         if func is None:
             parser.print_help()

@@ -51,7 +51,16 @@ def run(args: argparse.Namespace) -> int:
     """Run the comparison; prints the table, writes --json and --plots."""
     from quickhealth.identify.compare import compare_effect, plot_comparison
     from quickhealth.station.formats import read_measurements, read_model, write_text_atomic
+    from quickhealth.station.fsio import refuse_overwriting_inputs, write_figure
 
+    png = None if args.plots is None else args.plots / "compare.png"
+    if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
+        from quickhealth.identify.errors import InputError
+
+        raise InputError(f"{args.plots}: --plots must be a folder")
+    refuse_overwriting_inputs(
+        [("--json", args.json), ("--plots", png)], [args.model, args.meas, args.heldout]
+    )
     fitted = read_model(args.model)
     nj = fitted.robot.n_joints
     train = read_measurements(args.meas, nj)
@@ -67,12 +76,10 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(cmp.summary()))
     if args.json:
         write_text_atomic(args.json, json.dumps(cmp.to_dict(), indent=1) + "\n")
-    if args.plots:
+    if png is not None:
         import matplotlib
 
         matplotlib.use("Agg")
-        args.plots.mkdir(parents=True, exist_ok=True)
-        out = args.plots / "compare.png"
-        plot_comparison(cmp).savefig(out, dpi=110)
-        print(f"plot: {out}")
+        write_figure(plot_comparison(cmp), png, dpi=110)
+        print(f"plot: {png}")
     return 0

@@ -10,6 +10,14 @@ umask (like ``open(path, "w")``; ``tempfile.mkstemp`` would force ``0600``).
 an output path that names one of the command's input files is refused with one line (exit 2),
 so ``predict M meas.csv --out meas.csv`` cannot destroy the measurements.
 
+Figures (matplotlib) are written by :func:`write_figure`: rendered into memory, then
+:func:`write_atomic`, so a PNG is never half-written and its errors are the same one line.
+
+:func:`claim_output_folder` is the rule for commands that write into a folder (``plan``,
+``identify fit``): an existing folder that holds results of another kind (a plan, a run, a
+fit) or of another run is refused without ``--force``; the command's own earlier results
+there are replaced, and the command says so in one line.
+
 A file that cannot be written is one line: exit 2 when the path itself is unusable (read-only
 file system, no permission, not a directory), exit 3 for a failure of the machine (disk full,
 I/O error).
@@ -18,10 +26,13 @@ I/O error).
 from __future__ import annotations
 
 import errno
+import fnmatch
+import io
 import os
 import secrets
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from quickhealth.identify.errors import InputError, QuickhealthError
 
@@ -38,7 +49,8 @@ _USAGE_ERRNOS = {
 }
 
 
-def _write_error(path: Path, exc: OSError) -> QuickhealthError:
+def write_error(path: Path, exc: OSError) -> QuickhealthError:
+    """The one-line error of a failed write of ``path`` (exit 2 for the path, 3 for the machine)."""
     what = exc.strerror or type(exc).__name__
     if exc.errno in _USAGE_ERRNOS:
         return InputError(f"{path}: cannot write: {what}")
@@ -90,7 +102,7 @@ def write_atomic(
             p.parent.mkdir(parents=True, exist_ok=True)
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     except OSError as exc:
-        raise _write_error(p, exc) from None
+        raise write_error(p, exc) from None
     try:
         try:
             view = memoryview(buf)
@@ -104,7 +116,7 @@ def write_atomic(
         os.replace(tmp, p)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise _write_error(p, exc) from None
+        raise write_error(p, exc) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -112,9 +124,38 @@ def write_atomic(
         fsync_dir(p.parent)
 
 
+def make_dirs(path: str | os.PathLike[str]) -> Path:
+    """``mkdir -p`` with the errors of :func:`write_atomic` (one line; exit 2 for a path that
+    cannot be written, 3 for a failure of the machine); returns the path."""
+    p = Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError(f"{p}: exists and is not a folder") from None
+    except OSError as exc:
+        raise write_error(p, exc) from None
+    return p
+
+
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
     """:func:`write_atomic` of a text (UTF-8)."""
     write_atomic(path, text)
+
+
+def write_figure(fig: Any, path: str | os.PathLike[str], *, dpi: int = 100) -> str:
+    """Render a matplotlib figure as PNG in memory, then :func:`write_atomic` it; returns the
+    path.  The figure is closed afterwards if it belongs to pyplot (no figure left open)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    try:
+        import matplotlib.pyplot as plt
+
+        if plt.fignum_exists(getattr(fig, "number", -1)):
+            plt.close(fig)
+    except ImportError:  # pragma: no cover - matplotlib made the figure
+        pass
+    write_atomic(path, buf.getvalue())
+    return str(path)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -150,3 +191,126 @@ def refuse_overwriting_inputs(
         if key in seen:
             raise InputError(f"{o}: {opt} and {seen[key]} name the same file")
         seen[key] = opt
+
+
+def refuse_outputs_inside(
+    outputs: Iterable[tuple[str, str | os.PathLike[str] | None]],
+    folder: str | os.PathLike[str],
+    what: str,
+) -> None:
+    """Refuse (one line, exit 2) an output path inside ``folder`` (e.g. the archive, whose
+    index and run folders are the input of ``trend``)."""
+    root = Path(folder).resolve()
+    for opt, o in outputs:
+        if o is not None and Path(o).resolve().is_relative_to(root):
+            raise InputError(f"{o}: {opt} lies inside {what} {root}; refusing to write there")
+
+
+# ------------------------------------------------------------------------- output folders
+
+#: The files each kind of result folder holds (names or glob patterns).
+RESULT_FILES: Mapping[str, tuple[str, ...]] = {
+    "plan": ("plan.json", "loop.script", "fig6_joints.png", "fig6_targets.png"),
+    "run": ("journal.jsonl", "run.json", "measurements.csv", "images", "run.log"),
+    "fit": (
+        "model.json",
+        "report.json",
+        "residuals.csv",
+        "residuals.png",
+        "workspace_histogram.png",
+        "joint*_curves.png",
+        "report.html",
+        "diagnosis.json",
+    ),
+}
+_KIND_WORDS = {"plan": "a plan", "run": "a run", "fit": "a fit"}
+
+
+def result_files(folder: str | os.PathLike[str]) -> dict[str, list[str]]:
+    """The result files of each kind present in ``folder`` (names, sorted; empty lists for a
+    missing folder).  Files of no kind (a user's notes) are not results."""
+    d = Path(folder)
+    names = sorted(p.name for p in d.iterdir()) if d.is_dir() else []
+    return {
+        kind: [n for n in names if any(fnmatch.fnmatchcase(n, pat) for pat in pats)]
+        for kind, pats in RESULT_FILES.items()
+    }
+
+
+def claim_output_folder(
+    folder: str | os.PathLike[str],
+    kind: str,
+    other: Sequence[str] = (),
+    *,
+    force: bool = False,
+    option: str = "--out",
+) -> str:
+    """May a command that writes results of ``kind`` write into ``folder``?
+
+    Parameters
+    ----------
+    folder : path
+        The output folder (may not exist yet).
+    kind : str
+        ``"plan"`` or ``"fit"``: the results the command writes (:data:`RESULT_FILES`).
+    other : sequence of str
+        What in the folder belongs to another kind or another run, each a few words naming
+        the files (:func:`foreign_results`, plus the caller's own findings such as "the fit
+        of other.csv"); empty when everything there is the command's own.
+    force : bool
+        ``--force``: write anyway (the files of the same names are replaced, nothing else is
+        touched).
+    option : str
+        The option naming the folder, for the message.
+
+    Returns
+    -------
+    str
+        With ``force``, what was foreign there ("" if nothing): :func:`replacing_line` says it.
+
+    Raises
+    ------
+    InputError
+        ``folder`` is a file, or it holds results of another kind or run and ``force`` is
+        False: one line naming them and ``--force``.  Called before anything is written.
+    """
+    d = Path(folder)
+    if d.exists() and not d.is_dir():
+        raise InputError(f"{d}: {option} exists and is not a folder")
+    what = "; ".join(other)
+    if what and not force:
+        raise InputError(
+            f"{d}: {option} holds {what}: choose another folder, or give --force to write "
+            "into it anyway"
+        )
+    return what
+
+
+def foreign_results(
+    folder: str | os.PathLike[str], kind: str, own: Iterable[str] = ()
+) -> list[str]:
+    """What in ``folder`` is a result of another kind than ``kind`` (for
+    :func:`claim_output_folder`), each as "a run (journal.jsonl, measurements.csv)"; the names
+    in ``own`` (files the command knows to be of its own run) are left out."""
+    mine = set(own)
+    out = []
+    for k, names in result_files(folder).items():
+        theirs = [n for n in names if n not in mine]
+        if k != kind and theirs:
+            out.append(f"{_KIND_WORDS[k]} ({', '.join(theirs)})")
+    return out
+
+
+def replacing_line(
+    folder: str | os.PathLike[str], names: Iterable[str], why: str = "", forced: str = ""
+) -> str:
+    """The one line a command prints when it replaces files in its output folder ("" when
+    there is nothing to say): the paths replaced, and why that is fine (``why``: "the same
+    plan") or that ``--force`` overrode what was there (``forced``, from
+    :func:`claim_output_folder`)."""
+    d = Path(folder)
+    paths = ", ".join(str(d / n) for n in sorted(names))
+    note = f"--force: {d} held {forced}" if forced else why
+    if paths:
+        return f"replacing {paths}" + (f" ({note})" if note else "")
+    return f"--force: wrote into {d}, which held {forced}" if forced else ""

@@ -18,7 +18,9 @@ Sections, in the order a reader needs them:
 ``build_report`` gathers the numbers and figures from a run folder; ``render_html`` turns them
 into the page.  ``report_json`` is the page's content as JSON (also embedded in the page as
 ``<script type="application/json" id="report-json">``).  Missing inputs give a section that
-says what is missing and how to get it, never a silent gap.
+says what is missing and how to get it ("Not available: ..."), never a silent gap; a section
+that does not apply to the run (ISO 9283 on a plan without repeated poses) says why ("Not
+applicable: ...").
 
 SYNOPSIS::
 
@@ -69,6 +71,8 @@ class Section:
     table: tuple[tuple[str, ...], ...] = ()  # first row = header
     plots: tuple[Plot, ...] = ()
     missing: str = ""  # non-empty: the section could not be made, and why
+    # non-empty: the section does not apply to this run (nothing is missing), and why
+    not_applicable: str = ""
     data: dict[str, Any] = field(default_factory=dict)
     folded: tuple[tuple[str, ...], ...] = ()  # a second table, folded away (same header)
     folded_title: str = ""
@@ -667,7 +671,15 @@ def _iso_section(fitted: Any, meas: Any) -> Section:
     commanded = fitted.nominal_pose(meas.q)[:, :3, 3]
     stats = iso9283_pose_stats(meas.pose_id, meas.pos, commanded)
     if not stats:
-        return Section("iso9283", title, missing="the plan visits no pose more than once")
+        return Section(
+            "iso9283",
+            title,
+            not_applicable=(
+                f"the plan visits each of its {len(set(meas.pose_id))} poses once: ISO 9283 "
+                "accuracy (AP) and repeatability (RP) need poses visited more than once (one "
+                "pose_id on several rows)"
+            ),
+        )
     rows = [("pose", "visits", "AP (mm)", "RP (mm)")]
     rows += [
         (s.pose_id, str(s.n), f"{s.accuracy * 1e3:.4f}", f"{s.repeatability * 1e3:.4f}")
@@ -751,6 +763,7 @@ def report_json(rep: Report) -> dict[str, Any]:
                 "table": [list(r) for r in s.table],
                 "plots": [p.key for p in s.plots],
                 "missing": s.missing or None,
+                "not_applicable": s.not_applicable or None,
                 "data": s.data,
                 "folded": [list(r) for r in s.folded],
             }
@@ -781,7 +794,7 @@ body{font-family:system-ui,sans-serif;max-width:1100px;margin:1em auto;padding:0
 h1{font-size:1.4em}h2{font-size:1.15em;border-bottom:1px solid #ccc;margin-top:1.6em}
 img.plot{max-width:100%;display:block;margin:.6em 0;border:1px solid #eee}
 table{border-collapse:collapse;font-size:.85em}td,th{border:1px solid #ccc;padding:2px 6px}
-.missing{color:#a60}.flag{color:#b00;font-weight:bold}pre{white-space:pre-wrap}
+.missing{color:#a60}.not-applicable{color:#555}.flag{color:#b00;font-weight:bold}pre{white-space:pre-wrap}
 .verdict{border:2px solid #888;border-radius:6px;padding:.4em 1em;margin:.6em 0}
 .verdict p{margin:.3em 0}.verdict-line{font-size:1.25em;font-weight:bold}
 .verdict.healthy{border-color:#2a7;background:#effaf3}
@@ -830,6 +843,8 @@ def render_html(rep: Report) -> str:
         out.append(f'<section id="{s.key}"><h2>{e(s.title)}</h2>')
         if s.missing:
             out.append(f'<p class="missing">Not available: {e(s.missing)}</p>')
+        if s.not_applicable:
+            out.append(f'<p class="not-applicable">Not applicable: {e(s.not_applicable)}</p>')
         for line in s.lines:
             cls = ' class="flag"' if line.startswith(("verdict: FLAGGED", "joint ")) else ""
             out.append(f"<p{cls}>{e(line)}</p>")

@@ -185,3 +185,49 @@ def _residual_records(fm: Any, meas: Any) -> list[dict[str, Any]]:
             r["rot_deg"] = np.degrees(fm.residual_rot[i]).tolist()
         out.append(r)
     return out
+
+
+def with_sections(doc: Mapping[str, Any], sections: Mapping[str, Mapping[str, Any]]) -> str:
+    """report.json ``doc`` with the sections of ``quickhealth report`` added, as the text to
+    write: each section's data, or ``{"missing": why}`` / ``{"not_applicable": why}``.
+
+    The document keeps its ``schema`` (a version 1 file stays version 1: it lacks keys of
+    version 2, and relabelling it would make it claim what it does not hold) and every key
+    of the fit; ``provenance`` names the program that wrote the file last, as for any
+    writer.  NaN and infinities become null.
+    """
+    import json
+
+    from .provenance import provenance
+
+    new = dict(doc)
+    for key, s in sections.items():
+        if s.get("missing"):
+            new[key] = {"missing": s["missing"]}
+        elif s.get("not_applicable"):
+            new[key] = {"not_applicable": s["not_applicable"]}
+        else:
+            new[key] = s["data"]
+    new["provenance"] = provenance()
+    return json.dumps(_plain(new), indent=1, allow_nan=False) + "\n"
+
+
+def _plain(x: Any) -> Any:
+    """JSON-able copy: numpy to Python, NaN/inf to None."""
+    import math
+
+    import numpy as np
+
+    if isinstance(x, Mapping):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.bool_ | bool):
+        return bool(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.floating | float):
+        return float(x) if math.isfinite(x) else None
+    return x

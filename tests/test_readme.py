@@ -12,12 +12,14 @@ which changes the simulated hardware, not the commands.
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 from pathlib import Path
 
 import pytest
 
+from quickhealth.station import formats
 from quickhealth.station.cli import main
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -90,5 +92,17 @@ def test_readme_tutorial_runs_as_written(tmp_path, monkeypatch, capsys):
         assert Path(p).is_file(), p
     arch = tmp_path / "archive" / "robots" / "cell3"
     assert arch.is_dir() and any(arch.iterdir())
-    print(f'report.html: {Path("run1/report.html").read_text().count("Not available")} '
-          "sections 'Not available'")  # fmt: skip
+    # the report has every section: the trend too (run1/ was archived as cell3 before the
+    # report step, and the report finds it there); ISO 9283 does not apply to the reference
+    # plan, which visits each pose once, and the report says so rather than "Not available"
+    page = Path("run1/report.html").read_text()
+    assert page.count("Not available") == 0, re.findall(r"Not available: [^<]*", page)
+    n_poses = formats.read_measurements("run1/measurements.csv", 6).n_poses  # all measured
+    assert re.findall(r"Not applicable: [^<]*", page) == [
+        f"Not applicable: the plan visits each of its {n_poses} poses once: ISO 9283 accuracy "
+        "(AP) and repeatability (RP) need poses visited more than once (one pose_id on "
+        "several rows)"
+    ]
+    rep = json.loads(Path("run1/report.json").read_text())
+    assert rep["schema"] == "quickhealth.report/2" and rep["trend"]["baseline"] == "run1"
+    assert set(rep["iso9283"]) == {"not_applicable"}

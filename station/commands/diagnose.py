@@ -111,9 +111,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
     if args.max_harmonic < 1:
         raise InputError(f"--max-harmonic must be at least 1, got {args.max_harmonic}")
     from quickhealth.station.formats import MAX_FIT_ROWS, check_joint_limits
-    from quickhealth.station.fsio import refuse_overwriting_inputs
+    from quickhealth.station.fsio import refuse_overwriting_inputs, write_figure
 
-    refuse_overwriting_inputs([("--json", args.json)], [args.model, args.meas])
+    inputs = [args.model, args.meas]
+    refuse_overwriting_inputs([("--json", args.json)], inputs)
+    if args.plots is not None:
+        _refuse_plots_over_inputs(args.plots, inputs)
     fitted = read_model(args.model)
     meas = read_measurements(args.meas, fitted.robot.n_joints)
     if meas.n_poses > MAX_FIT_ROWS:
@@ -140,18 +143,32 @@ def run_diagnose(args: argparse.Namespace) -> int:
         matplotlib.use("Agg")
         from quickhealth.identify.diagnose import plot_candidate, plot_spectrum
 
-        args.plots.mkdir(parents=True, exist_ok=True)
         for i, c in enumerate(diag.candidates[:3], 1):
             out = args.plots / f"candidate_{i}_{c.effect.replace(':', '_')}.png"
-            plot_candidate(state, meas, c.effect).savefig(out, dpi=110)
+            write_figure(plot_candidate(state, meas, c.effect), out, dpi=110)
             print(f"plot: {out}")
         if diag.spectra:
             out = args.plots / "spectrum.png"
-            plot_spectrum(diag).savefig(out, dpi=110)
+            write_figure(plot_spectrum(diag), out, dpi=110)
             print(f"plot: {out}")
     if args.fail_on_missing and diag.verdict is Verdict.MISSING_EFFECT:
         return 1
     return 0
+
+
+def _refuse_plots_over_inputs(folder: Path, inputs: list[Path]) -> None:
+    """--plots DIR writes candidate_*.png and spectrum.png: refuse a DIR where one of those
+    names is an input (the names depend on the diagnosis, so by pattern, before any work)."""
+    import fnmatch
+
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station.fsio import refuse_overwriting_inputs
+
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: --plots must be a folder")
+    for i in inputs:
+        if fnmatch.fnmatchcase(i.name, "candidate_*.png") or i.name == "spectrum.png":
+            refuse_overwriting_inputs([("--plots", folder / i.name)], [i])
 
 
 def parse_twin_effects(text: str, robot: object) -> dict[str, float]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shutil
 import sys
 import tempfile
@@ -65,6 +66,11 @@ def register(subparsers: Any) -> None:
         help="rerun once with the suspected uncertainty raised if the chi2 check fails",
     )
     f.add_argument("--plots", action="store_true", help="also write PNG figures into DIR")
+    f.add_argument(
+        "--force",
+        action="store_true",
+        help="write into DIR even if it holds a plan, another run or the fit of other data",
+    )
     f.add_argument("--quiet", action="store_true", help="no progress on stderr")
     f.set_defaults(func=_fit)
 
@@ -119,14 +125,25 @@ def _fit(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a directory")
-    from quickhealth.station.fsio import refuse_overwriting_inputs
+    from quickhealth.station.fsio import (
+        claim_output_folder,
+        make_dirs,
+        refuse_overwriting_inputs,
+        replacing_line,
+        write_error,
+    )
 
-    outputs = ("model.json", "report.json", "residuals.csv")
+    robot = formats.load_robot(args.robot)
+    outputs = ["model.json", "report.json", "residuals.csv"]
+    if args.plots:
+        outputs += ["workspace_histogram.png", "residuals.png"]
+        outputs += [f"joint{j}_curves.png" for j in range(1, robot.n_joints + 1)]
     refuse_overwriting_inputs(
         [("--out", out / n) for n in outputs],
         [args.meas, args.robot if Path(args.robot).is_file() else None],
     )
-    robot = formats.load_robot(args.robot)
+    _, other = fit_folder_owner(out, Path(args.meas))
+    forced = claim_output_folder(out, "fit", other, force=args.force)
     meas = formats.read_measurements(args.meas, robot.n_joints)
     formats.check_poses_for_fit(meas, robot, args.meas)
     noise = InstrumentNoise(
@@ -158,18 +175,22 @@ def _fit(args: argparse.Namespace) -> int:
         n_lines = len(Path(args.meas).read_text(encoding="utf-8").splitlines())
         raise InputError(f"{args.meas}:{n_lines}:1: {exc}") from None
     # write everything into a temporary directory first: nothing half-written on failure
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".identify-", dir=out.parent))
+    make_dirs(out.parent)
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=".identify-", dir=out.parent))
+    except OSError as exc:
+        raise write_error(out, exc) from None
     try:
         if render is not None:
             render.run(a, tmp)
         formats.write_model(tmp / "model.json", a.fitted)
         write_report_json(tmp / "report.json", a, source=str(args.meas))
         formats.write_text_atomic(tmp / "residuals.csv", residual_table(a.fitted, meas))
-        out.mkdir(parents=True, exist_ok=True)
+        make_dirs(out)
         replaced = sorted(f.name for f in tmp.iterdir() if (out / f.name).exists())
-        if replaced:
-            print(f"replacing {', '.join(replaced)} in {out}", file=sys.stderr)
+        line = replacing_line(out, replaced, "the earlier fit of this data", forced)
+        if line:
+            print(line, file=sys.stderr)
         for f in tmp.iterdir():
             (tmp / f.name).replace(out / f.name)
     finally:
@@ -180,15 +201,69 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def fit_folder_owner(out: Path, meas: Path) -> tuple[bool, list[str]]:
+    """Whose is the output folder of ``identify fit MEAS --out DIR``?
+
+    Returns whether ``DIR`` holds the input ``MEAS`` itself (the run folder of this data: its
+    plan, journal, images and measurements are this run's), and what in ``DIR`` belongs to
+    another kind or run (for :func:`~quickhealth.station.fsio.claim_output_folder`): outside
+    the data's own folder a plan or a run's files, anywhere a fit whose report.json names
+    another input file (or, outside the own folder, a fit that names none).
+    """
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station import formats
+    from quickhealth.station.fsio import foreign_results, result_files
+
+    if not out.is_dir():
+        return False, []
+    try:
+        own = meas.is_file() and os.path.samefile(meas.parent, out)
+    except OSError:
+        own = False
+    other = [] if own else foreign_results(out, "fit")
+    fit = [n for n in result_files(out)["fit"] if n in ("model.json", "report.json")]
+    if fit:
+        src = None
+        if (out / "report.json").is_file():
+            try:
+                doc = formats.read_report(out / "report.json")
+                src = doc.get("input") if isinstance(doc.get("input"), str) else None
+            except InputError:
+                src = None
+        if src is None:
+            if not own:
+                other.append(f"a fit of unknown data ({', '.join(fit)})")
+        elif not _same_input(Path(src), meas, own):
+            other.append(f"the fit of another measurement file, {src} ({', '.join(fit)})")
+    return own, other
+
+
+def _same_input(recorded: Path, meas: Path, own_folder: bool) -> bool:
+    """Is the input a report.json records (as typed then) the file ``meas``?"""
+    try:
+        if recorded.is_file() and os.path.samefile(recorded, meas):
+            return True
+    except OSError:
+        pass
+    # typed from another working directory: in the data's own folder the name tells
+    return own_folder and recorded.name == meas.name
+
+
 def residual_table(fm: Any, meas: Any) -> str:
-    """Per-pose measured-minus-model table (CSV: mm, deg)."""
+    """Per-pose measured-minus-model table (CSV: mm, deg; cells quoted by the csv module, so
+    a pose_id holding a comma or a quote stays one cell)."""
+    import csv
+    import io
+
     import numpy as np
 
     cols = ["row", "pose_id"] + [f"q{i + 1}" for i in range(meas.n_joints)]
     cols += ["rx_mm", "ry_mm", "rz_mm", "r_mm"]
     if fm.residual_rot is not None:
         cols += ["rrx_deg", "rry_deg", "rrz_deg"]
-    lines = [",".join(cols)]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
     qd = np.degrees(meas.q)
     for i in range(fm.n_poses):
         rp = fm.residual_pos[i] * 1e3
@@ -197,8 +272,29 @@ def residual_table(fm: Any, meas: Any) -> str:
         v += [f"{x:.6f}" for x in rp] + [f"{np.linalg.norm(rp):.6f}"]
         if fm.residual_rot is not None:
             v += [f"{x:.7f}" for x in np.degrees(fm.residual_rot[i])]
-        lines.append(",".join(v))
-    return "\n".join(lines) + "\n"
+        w.writerow(v)
+    return buf.getvalue()
+
+
+def csv_cells(values: Any) -> list[str]:
+    """Each text as one CSV cell, quoted as the csv module quotes it (only when it holds a
+    comma, a quote or a line break): for rows built by ``%`` formatting, where the other
+    cells are numbers."""
+    import csv
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    out = []
+    for v in values:
+        s = str(v)
+        if "," in s or '"' in s or "\n" in s or "\r" in s:
+            buf.seek(0)
+            buf.truncate()
+            w.writerow([s])
+            s = buf.getvalue()[:-1]
+        out.append(s)
+    return out
 
 
 def _render_figures(job: tuple[str, Any, Any, str]) -> str:
@@ -212,8 +308,9 @@ def _render_figures(job: tuple[str, Any, Any, str]) -> str:
         fig = report.residual_plot(data, extra)
     else:
         fig = report.joint_curve_figure(data)
-    fig.savefig(path, dpi=100)
-    return path
+    from quickhealth.station.fsio import write_figure
+
+    return write_figure(fig, path, dpi=100)
 
 
 def _warm() -> None:
@@ -298,7 +395,7 @@ def _predict(args: argparse.Namespace) -> int:
         data.append(np.asarray(src_lines))
     if meas is not None and meas.pose_id is not None:
         fmt.append("%s")
-        data.append(np.asarray(meas.pose_id, dtype=object))
+        data.append(np.asarray(csv_cells(meas.pose_id), dtype=object))
     fmt += ["%.6f"] * (nj + 3)
     data += list(qd.T) + list(xyz.T)
     if fm.has_orientation:
@@ -399,7 +496,10 @@ def wam_sign(robot: Any, path: str | Path) -> tuple[float, dict[float, float]]:
 def _import_wam(args: argparse.Namespace) -> int:
     from quickhealth.identify.errors import InputError
     from quickhealth.station import formats
+    from quickhealth.station.fsio import refuse_overwriting_inputs
 
+    robot_file = args.robot if args.robot and Path(args.robot).is_file() else None
+    refuse_overwriting_inputs([("--out", args.out)], [args.wam, robot_file])
     if args.sign == "auto":
         if args.robot is None:
             raise InputError("--sign auto needs --robot (the WAM description file)")

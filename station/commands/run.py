@@ -103,6 +103,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {str(out)!r}: '..' is not allowed in a run folder path")
     if args.robot_name is not None:
         safe_name(args.robot_name, "robot name")
+    from quickhealth.station.fsio import refuse_overwriting_inputs
+
+    refuse_overwriting_inputs(  # the run's own files never replace the plan, cell or calibration
+        [("--out", out / n) for n in ("measurements.csv", "run.json", "journal.jsonl", "run.log")],
+        [p for p in (args.cell, args.plan, args.calibration) if p and Path(p).is_file()],
+    )
     args.sim_image_scale = _sim_setting(
         args.sim_image_scale, "--sim-image-scale", SIM_IMAGE_SCALE_ENV, 0.5, (0.05, 1.0)
     )

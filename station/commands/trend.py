@@ -265,8 +265,12 @@ def _trend(args: argparse.Namespace) -> int:
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
     from quickhealth.station.archive import trend_for
+    from quickhealth.station.fsio import refuse_outputs_inside, refuse_overwriting_inputs
 
+    refuse_overwriting_inputs([("--json", args.json), ("--plot", args.plot)], [])
     arch = _open(args)
+    # the archive (its index, its run folders) is this command's input
+    refuse_outputs_inside([("--json", args.json), ("--plot", args.plot)], arch.root, "the archive")
     res = trend_for(
         arch,
         args.robot,
@@ -304,7 +308,9 @@ def _trend(args: argparse.Namespace) -> int:
 
         write_text_atomic(args.json, json.dumps(_plain(trend_json(res)), indent=1) + "\n")
     if args.plot:
-        trend_figure(res).savefig(args.plot, dpi=100)
+        from quickhealth.station.fsio import write_figure
+
+        write_figure(trend_figure(res), args.plot, dpi=100)
     if args.fail_on == "threshold":
         return 1 if res.breaches[-1] else 0
     return 1 if flags else 0
@@ -494,32 +500,91 @@ def _compensate(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
+    """The run's HTML report; report.json gains the report's sections, keeping its schema.
+
+    Refused (one line, exit 2, nothing written): a folder without model.json or report.json
+    (fit it first), a report.json that is not a complete fit report of its schema, an --out
+    that is one of the files the report reads.
+    """
+    from quickhealth.identify.errors import InputError
     from quickhealth.station import formats
+    from quickhealth.station.fsio import refuse_overwriting_inputs, write_atomic
     from quickhealth.station.report_html import build_report, render_html, report_json
+    from quickhealth.station.report_json import with_sections
 
     d = Path(args.run_dir)
-    arch = _open(args) if args.robot else None
+    if not d.is_dir():
+        raise InputError(f"{d}: not a run folder")
+    fit_first = (
+        f"fit the run first: quickhealth identify fit {d / 'measurements.csv'} --robot ROBOT "
+        f"--out {d}"
+    )
+    for name in ("model.json", "report.json"):
+        if not (d / name).is_file():
+            raise InputError(f"{d}: no {name} ({fit_first})")
+    out = Path(args.out) if args.out else d / "report.html"
+    reads = ("model.json", "report.json", "measurements.csv", "plan.json", "run.json")
+    reads += ("diagnosis.json", "journal.jsonl")
+    refuse_overwriting_inputs([("--out", out)], [d / n for n in reads if (d / n).exists()])
+    rp = d / "report.json"
+    doc = formats.read_report(rp)  # a quickhealth report of a schema this version reads
+    formats.check_report(doc, str(rp))  # the fit's figures are there
+    if doc["schema"] == "quickhealth.report/2":  # every key of /2, or it is not a /2 file
+        from quickhealth.station.report_json import check_report
+
+        try:
+            check_report(doc, str(rp))
+        except InputError as exc:
+            raise InputError(f"{exc}: not a complete report.json ({fit_first})") from None
+    arch, robot = (_open(args), args.robot) if args.robot else _archived_as(args, d)
     rep = build_report(
         d,
         archive=arch,
-        robot=args.robot,
+        robot=robot,
         run_id=args.run_id,
         threshold_mm=args.threshold_mm,
         diagnose_if_missing=not args.no_diagnose,
     )
-    out = Path(args.out) if args.out else d / "report.html"
-    formats.write_text_atomic(out, render_html(rep))
-    # report.json gains the report's sections that the fit did not write (never loses keys)
-    rp = d / "report.json"
-    doc = formats.read_report(rp) if rp.is_file() else {}
-    doc.pop("schema", None)
-    content = report_json(rep)["sections"]
-    for key in ("coverage", "diagnosis", "trend", "iso9283"):
-        s = content[key]
-        doc[key] = s["data"] if not s["missing"] else {"missing": s["missing"]}
-    formats.write_report(rp, doc)
+    page = render_html(rep)
+    sections = report_json(rep)["sections"]
+    new = with_sections(
+        doc, {k: sections[k] for k in ("coverage", "diagnosis", "trend", "iso9283")}
+    )
+    formats.write_text_atomic(out, page)
+    write_atomic(rp, new)
     print(f"wrote {out} ({len(rep.plots)} plots) and updated {rp}")
     return 0
+
+
+def _archived_as(args: argparse.Namespace, d: Path) -> tuple[Any, str | None]:
+    """The archive and robot under which run folder ``d`` was archived (``archive add``), if
+    it was: a run of the folder's run id whose archived model.json is this folder's, under one
+    robot only.  An archive that does not exist is not created."""
+    from quickhealth.station.archive import Archive, default_root, run_metadata
+
+    root = Path(args.archive) if args.archive else default_root()
+    if args.db is None and not (root / "index.sqlite").is_file():
+        return None, None
+    arch = Archive.open(root, args.db)
+    rid = args.run_id or run_metadata(d).get("run_id") or d.resolve().name
+    model = (d / "model.json").read_bytes()
+    found, refitted = [], []
+    for robot in arch.robots():
+        for rec in arch.runs(robot):
+            if rec.run_id == rid:
+                mp = arch.folder(rec) / "model.json"
+                same = mp.is_file() and mp.read_bytes() == model
+                (found if same else refitted).append(robot)
+    if len(found) != 1:
+        if not found and refitted:
+            print(
+                f"note: run {rid} of robot {', '.join(refitted)} in the archive {arch.root} has "
+                f"another model.json than {d} (refitted since archive add?): no trend section; "
+                "give --robot to report against it anyway"
+            )
+        return None, None
+    print(f"{d} is run {rid} of robot {found[0]} in the archive {arch.root}")
+    return arch, found[0]
 
 
 # ------------------------------------------------------------------------ reprocess

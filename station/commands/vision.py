@@ -73,6 +73,15 @@ def run_calibrate(args: argparse.Namespace) -> int:
     board = parse_board_spec(args.board)
     left = io.expand_glob(args.left, "--left")
     right = io.expand_glob(args.right, "--right") if args.right else None
+    from quickhealth.station.fsio import refuse_overwriting_inputs, write_figure
+
+    out: Path = args.out
+    stem = out.with_suffix("")
+    figs = ("residuals", "coverage", "uncertainty")
+    refuse_overwriting_inputs(
+        [("--out", out)] + [("--out", Path(f"{stem}_{n}.png")) for n in figs],
+        [*left, *(right or [])],
+    )
     if right is not None and len(right) != len(left):
         raise InputError(
             f"--left matches {len(left)} images but --right matches {len(right)}: a stereo set needs "
@@ -107,15 +116,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
         **({"right": [str(p) for p in right]} if right else {}),
     }
     doc["board"] = args.board
-    out: Path = args.out
     io.write_json(out, doc)
-    stem = out.with_suffix("")
-    for name, fig in (
-        ("residuals", plot_residuals(res)),
-        ("coverage", plot_coverage(res)),
-        ("uncertainty", plot_uncertainty(res)),
-    ):
-        fig.savefig(f"{stem}_{name}.png", dpi=110)
+    for name, plot in zip(figs, (plot_residuals, plot_coverage, plot_uncertainty), strict=True):
+        write_figure(plot(res), f"{stem}_{name}.png", dpi=110)
     print("\n".join(res.summary()))
     print(f"wrote {out} and {stem.name}_{{residuals,coverage,uncertainty}}.png")
     return 1 if args.fail_on_unreliable and res.verdict is Verdict.UNRELIABLE else 0
@@ -275,6 +278,18 @@ def run_measure(args: argparse.Namespace) -> int:
         files = [(run / "images" / f"{p}_left.png", run / "images" / f"{p}_right.png") for p in ids]
     if len(set(ids)) != len(ids):
         raise InputError(f"{run}: pose ids repeat; each pose needs its own id")
+    from quickhealth.station.fsio import refuse_overwriting_inputs
+
+    reads = [
+        cal if cal.exists() else None,
+        tpath,
+        run / "journal.jsonl",
+        run / "images" / "index.csv",
+    ]
+    refuse_overwriting_inputs(
+        [("--out", args.out or run / "measurements.csv")],
+        [p for p in reads if p is not None and Path(p).exists()] + [p for f in files for p in f],
+    )
     jobs = []
     for k, pid in enumerate(ids):
         for p in files[k]:
@@ -336,6 +351,12 @@ def run_measure(args: argparse.Namespace) -> int:
         pose_id=[ids[k] for k in keep], meta=meta,
     )  # fmt: skip
     out = args.out or (run / "measurements.csv")
+    if out.exists():  # re-measuring stored images replaces the run's measurements: say so
+        fitted = (out.parent / "model.json").exists()
+        note = (
+            f" ({out.parent / 'model.json'} was fitted to the old one: fit again)" if fitted else ""
+        )
+        print(f"replacing {out}{note}", file=sys.stderr)
     formats.write_measurements(out, meas)
     print(f"measured {len(keep)}/{len(ids)} poses; rejected {len(rejected)}; wrote {out}")
     for r in rejected:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fsio import write_figure
 from .planner import DropReason, LegType, PlanResult
 
 
@@ -50,8 +51,7 @@ def write_figures(res: PlanResult, out_dir: Path) -> list[Path]:
         f"Joint distribution of the kept poses ({len(res.poses)} of {res.n_generated}; cell {cell.name})"
     )
     p = out_dir / "fig6_joints.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    write_figure(fig, p, dpi=110)  # atomic; closes the pyplot figure
     paths.append(p)
 
     fig = plt.figure(figsize=(13, 6), constrained_layout=True)
@@ -104,7 +104,6 @@ def write_figures(res: PlanResult, out_dir: Path) -> list[Path]:
     ax2.legend(fontsize=7, loc="best")
     fig.suptitle(f"Generated targets: kept and dropped (cell {cell.name}, seed {res.seed})")
     p = out_dir / "fig6_targets.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    write_figure(fig, p, dpi=110)  # atomic; closes the pyplot figure
     paths.append(p)
     return paths

@@ -12,15 +12,14 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..fsio import write_figure
 from .views import HistoryRow, JointCurve
 
 MOTION_ORDER = ("dx", "dy", "dz", "ex", "ey", "ez")
 
 
 def _write(fig: Figure, path: Path) -> str:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    return str(path)
+    return write_figure(fig, path, dpi=90)  # atomic, parent folders made
 
 
 def histogram_png(

@@ -62,11 +62,9 @@ def compare_job(
 
     cmp = compare_effect(fitted, meas, effect, heldout=heldout, folds=folds, progress=progress)
     if png is not None:
-        from pathlib import Path
+        from ..fsio import write_figure
 
-        path = Path(png)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        plot_comparison(cmp).savefig(path, dpi=90)
+        write_figure(plot_comparison(cmp), png, dpi=90)
     return cmp
 
 

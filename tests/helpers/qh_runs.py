@@ -62,21 +62,22 @@ def make_run(
     formats.write_model(folder / "model.json", fitted)
     ws = workspace_error(fitted, n_samples=500 if light else 2000)
     curves = [] if light else [c.as_dict() for c in all_joint_curves(fitted, n_points=31)]
-    formats.write_report(
-        folder / "report.json",
-        {
-            "n_poses": fitted.n_poses,
-            "n_params": fitted.n_free,
-            "bic": fitted.bic,
-            "chi2": fitted.chi2_data,
-            "rms_pos_mm": fitted.rms_pos * 1e3,
-            "converged": fitted.converged,
-            "robot": "ur5",
-            "summary": fitted.summary(),
-            "workspace": ws.as_dict(),
-            "joint_curves": curves,
-        },
-    )
+    # a version 1 report: the archive's figures, not every key of version 2 (labelled /2 it
+    # would claim keys it lacks, and `quickhealth report` refuses that)
+    report = {
+        "schema": "quickhealth.report/1",
+        "n_poses": fitted.n_poses,
+        "n_params": fitted.n_free,
+        "bic": fitted.bic,
+        "chi2": fitted.chi2_data,
+        "rms_pos_mm": fitted.rms_pos * 1e3,
+        "converged": fitted.converged,
+        "robot": "ur5",
+        "summary": fitted.summary(),
+        "workspace": ws.as_dict(),
+        "joint_curves": curves,
+    }
+    (folder / "report.json").write_text(json.dumps(report, default=_plain, indent=1))
     plan = {
         "plan_hash": (meta or {}).get("plan_hash", "plan-a"),
         "poses": [{"q_deg": np.degrees(r).tolist(), "leg": "joint"} for r in q],
@@ -90,3 +91,7 @@ def make_run(
 
 def measurements(folder: Path) -> Measurements:
     return formats.read_measurements(folder / "measurements.csv", 6)
+
+
+def _plain(x):  # numpy scalars in a report
+    return x.item() if hasattr(x, "item") else str(x)

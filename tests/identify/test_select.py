@@ -88,6 +88,29 @@ def test_chi2_check_blames_a_too_tight_prior():
     assert chi2_check(sel.fitted).verdict == "prior"
 
 
+def test_chi2_check_never_calls_an_inconsistent_chi2_consistent():
+    """The bug of issue 13: "3347 is 3.89 x its median 861: consistent with the stated
+    instrument uncertainty".  Residuals twice the stated noise (χ² about 4x its median) pass
+    the paper's x5 rule, but the message must say they are larger than the stated noise."""
+    from quickhealth.identify.fit import fit_model
+
+    truth = S.paper_truth(7, orders_j1=[0] * 6)
+    q = S.random_q(120, 61)
+    stated = InstrumentNoise(3e-5, 1e-4)
+    for sigma, consistent in ((3e-5, True), (6e-5, False)):
+        meas = S.measure(truth, q, 62, sigma_pos=sigma, sigma_rot=sigma / 3e-5 * 1e-4)
+        fm = fit_model(truth.robot, meas, truth.spec, noise=stated)
+        chk = chi2_check(fm)
+        assert chk.verdict == "ok"  # within the x5 rule either way
+        if consistent:
+            assert chk.ratio_to_median < 1.5 and "consistent with the stated" in chk.message
+        else:
+            assert 2.5 < chk.ratio_to_median < 5.0, chk.ratio_to_median
+            assert "consistent" not in chk.message, chk.message
+            assert f"{chk.ratio_to_median:.2f} x its median" in chk.message
+            assert "larger than the stated instrument uncertainty" in chk.message
+
+
 def test_data_spec_spans_the_measured_range():
     truth = S.paper_truth(0)
     meas = S.measure(truth, S.random_q(30, 1), 2)

@@ -870,7 +870,8 @@ def _(b, t):
     return Case(
         ["identify", "predict", str(d / "model.json"), str(d / "prog.script"), "--out", str(out)],
         2,
-        r"/sys/qh-corpus\.csv: cannot write: Permission denied",
+        # a read-only /sys (a container) says so; a writable one refuses new files
+        r"/sys/qh-corpus\.csv: cannot write: (Permission denied|Read-only file system)",
         [d / "model.json"],
         [out],
     )
@@ -1060,6 +1061,412 @@ def _(b, t):
     )
 
 
+# ---- 5. every command's outputs: never one of its inputs (by path, symlink or hard link)
+
+
+def _report_case(b, t, run: Path, *extra: str) -> Case:
+    return Case(
+        ["report", str(run), "--no-diagnose", "--archive", str(t / "arch"), *extra],
+        2,
+        "",
+        [run / "model.json", run / "report.json", run / "measurements.csv"],
+        [run / "report.html", t / "arch"],
+    )
+
+
+@case("report-out-is-the-report-json")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    return _with(
+        _report_case(b, t, run, "--out", str(run / "report.json")),
+        r"report\.json: --out names an input file of this command",
+    )
+
+
+@case("report-out-is-the-measurements")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    return _with(
+        _report_case(b, t, run, "--out", str(run / "measurements.csv")),
+        r"measurements\.csv: --out names an input file",
+    )
+
+
+@case("report-out-is-a-hard-link-to-the-model")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    os.link(run / "model.json", t / "page.html")
+    return _with(
+        _report_case(b, t, run, "--out", str(t / "page.html")),
+        r"page\.html: --out names an input file",
+    )
+
+
+@case("report-run-without-report-json")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: (r / "report.json").unlink())
+    c = _report_case(b, t, run)
+    c.inputs.remove(run / "report.json")
+    c.absent.append(run / "report.json")
+    return _with(
+        c, r"run: no report\.json \(fit the run first: quickhealth identify fit .*measurements\.csv"
+    )
+
+
+@case("report-incomplete-schema-2-report")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)  # labelled /2 but holds only the archive's figures
+    return _with(
+        _report_case(b, t, run),
+        r"report\.json: missing key 'n_params': not a complete report\.json \(fit the run",
+    )
+
+
+@case("report-keeps-a-version-1-report-version-1")
+def _(b, t):
+    def v1(r: Path) -> None:
+        doc = json.loads((r / "report.json").read_text())
+        doc["schema"] = "quickhealth.report/1"
+        (r / "report.json").write_text(json.dumps(doc))
+
+    run = _run_copy(b, t, v1)
+    before = json.loads((run / "report.json").read_text())
+
+    def check() -> None:
+        doc = json.loads((run / "report.json").read_text())
+        assert doc["schema"] == "quickhealth.report/1"  # not relabelled /2: it lacks /2's keys
+        assert {k: doc[k] for k in before if k != "provenance"} == {
+            k: v for k, v in before.items() if k != "provenance"
+        }
+        assert {"coverage", "diagnosis", "trend", "iso9283"} <= set(doc)
+        assert (run / "report.html").read_text().startswith("<!DOCTYPE html>")
+
+    c = _report_case(b, t, run)
+    c.inputs = [run / "model.json", run / "measurements.csv"]
+    c.absent = [t / "arch"]  # an archive that does not exist is not created
+    return _with(c, r"wrote .*report\.html", code=0, check=check)
+
+
+def _compare(b, t, *extra: str) -> Case:
+    d = b["dir"]
+    argv = ["compare", str(d / "model.json"), str(d / "meas.csv"), "--effects", "backlash:j2"]
+    return Case([*argv, *extra], 2, "", [d / "model.json", d / "meas.csv"], [])
+
+
+@case("compare-json-is-the-model")
+def _(b, t):
+    return _with(
+        _compare(b, t, "--json", str(b["dir"] / "model.json")),
+        r"model\.json: --json names an input file",
+    )
+
+
+@case("compare-json-is-the-heldout-via-symlink")
+def _(b, t):
+    held = t / "held.csv"
+    held.write_bytes((b["dir"] / "meas.csv").read_bytes())
+    (t / "cmp.json").symlink_to(held)
+    c = _compare(b, t, "--heldout", str(held), "--json", str(t / "cmp.json"))
+    c.inputs.append(held)
+    return _with(c, r"cmp\.json: --json names an input file")
+
+
+@case("compare-plots-png-is-the-measurements")
+def _(b, t):
+    d = b["dir"]
+    meas = t / "compare.png"  # a measurement file whose name --plots would write
+    meas.write_bytes((d / "meas.csv").read_bytes())
+    argv = ["compare", str(d / "model.json"), str(meas), "--effects", "backlash:j2"]
+    return Case(
+        [*argv, "--plots", str(t)],
+        2,
+        r"compare\.png: --plots names an input file",
+        [meas, d / "model.json"],
+    )
+
+
+@case("import-wam-out-is-the-input")
+def _(b, t):
+    wam = t / "grid.csv"
+    wam.write_text("x_t,y_t,z_t\n1,2,3\n")
+    return Case(
+        ["identify", "import-wam", str(wam), "--out", str(wam), "--sign", "+1"],
+        2,
+        r"grid\.csv: --out names an input file",
+        [wam],
+    )
+
+
+@case("import-wam-out-is-the-robot-file")
+def _(b, t):
+    wam = t / "grid.csv"
+    wam.write_text("x_t,y_t,z_t\n1,2,3\n")
+    robot = t / "wam.toml"
+    robot.write_text((ROOT / "fixtures" / "robots" / "wam.toml").read_text())
+    return Case(
+        ["identify", "import-wam", str(wam), "--out", str(robot), "--robot", str(robot)],
+        2,
+        r"wam\.toml: --out names an input file",
+        [wam, robot],
+    )
+
+
+def _archived(b, t) -> Path:
+    from quickhealth.station.archive import Archive
+
+    Archive.open(t / "arch").add_run("cell3", b["dir"] / "run1", time_utc="2026-01-01T08:00:00Z")
+    return t / "arch"
+
+
+@case("trend-json-is-the-archive-index")
+def _(b, t):
+    arch = _archived(b, t)
+    return Case(
+        ["trend", "cell3", "--archive", str(arch), "--json", str(arch / "index.sqlite")],
+        2,
+        r"index\.sqlite: --json lies inside the archive",
+        [arch / "index.sqlite", arch / "robots" / "cell3" / "run1" / "report.json"],
+    )
+
+
+@case("trend-plot-is-an-archived-model")
+def _(b, t):
+    arch = _archived(b, t)
+    model = arch / "robots" / "cell3" / "run1" / "model.json"
+    return Case(
+        ["trend", "cell3", "--archive", str(arch), "--plot", str(model)],
+        2,
+        r"model\.json: --plot lies inside the archive",
+        [model, arch / "index.sqlite"],
+    )
+
+
+@case("trend-json-and-plot-are-one-file")
+def _(b, t):
+    arch = _archived(b, t)
+    return Case(
+        ["trend", "cell3", "--archive", str(arch), "--json", str(t / "x"), "--plot", str(t / "x")],
+        2,
+        r"x: --plot and --json name the same file",
+        [arch / "index.sqlite"],
+        [t / "x"],
+    )
+
+
+@case("trend-plot-on-unwritable-file-system")
+def _(b, t):
+    arch = _archived(b, t)
+    out = Path("/sys/qh-corpus-trend.png")  # a figure: one line, exit 2, as for any file
+    return Case(
+        ["trend", "cell3", "--archive", str(arch), "--plot", str(out)],
+        2,
+        r"/sys/qh-corpus-trend\.png: cannot write: (Permission denied|Read-only file system)",
+        [arch / "index.sqlite"],
+        [out],
+    )
+
+
+@case("diagnose-plots-png-is-the-measurements")
+def _(b, t):
+    d = b["dir"]
+    meas = t / "spectrum.png"
+    meas.write_bytes((d / "meas.csv").read_bytes())
+    return Case(
+        [
+            "diagnose",
+            str(d / "model.json"),
+            str(meas),
+            "--json",
+            str(t / "d.json"),
+            "--plots",
+            str(t),
+        ],  # fmt: skip
+        2,
+        r"spectrum\.png: --plots names an input file",
+        [meas],
+        [t / "d.json"],
+    )
+
+
+@case("vision-calibrate-figure-would-overwrite-an-image")
+def _(b, t):
+    img = _png_header(t, 64, 48, "cal_residuals.png")
+    return Case(
+        [
+            "vision",
+            "calibrate",
+            "--board",
+            "chessboard:9x6:25",
+            "--left",
+            str(img),
+            "--out",
+            str(t / "cal.json"),
+        ],  # fmt: skip
+        2,
+        r"cal_residuals\.png: --out names an input file",
+        [img],
+        [t / "cal.json"],
+    )
+
+
+@case("vision-measure-out-is-the-index")
+def _(b, t):
+    c = _index_run(b, t, "P1,0,-90,0,0,0,0\n")
+    index = t / "vrun" / "images" / "index.csv"
+    c.argv += ["--out", str(index)]
+    return _with(c, r"index\.csv: --out names an input file")
+
+
+@case("run-out-would-overwrite-the-plan")
+def _(b, t):
+    plan = t / "r" / "run.json"  # a plan saved under the name the run writes its summary to
+    plan.parent.mkdir()
+    plan.write_text("{}")
+    return Case(
+        ["run", "--cell", "reference", "--plan", str(plan), "--out", str(t / "r"), "--sim"],
+        2,
+        r"run\.json: --out names an input file",
+        [plan],
+        [t / "r" / "journal.jsonl", t / "r" / "measurements.csv"],
+    )
+
+
+# ---- 5. output folders: another kind or another run is refused without --force
+
+
+@case("plan-out-holds-a-run")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    return Case(
+        ["plan", "--cell", "reference", "--n", "20", "--out", str(run)],
+        2,
+        r"run: --out holds a run \(measurements\.csv\); a fit \(model\.json, report\.json\): "
+        r"choose another folder, or give --force",
+        [run],
+        [run / "plan.json", run / "loop.script"],
+    )
+
+
+@case("plan-out-holds-another-plan")
+def _(b, t):
+    (t / "p").mkdir()
+    old = t / "p" / "plan.json"
+    old.write_text(json.dumps({"hash": "sha256:" + "0" * 64}))
+    return Case(
+        ["plan", "--cell", "reference", "--n", "20", "--out", str(t / "p")],
+        2,
+        r"p: --out holds another plan \(plan\.json sha256:0000000000",
+        [t / "p"],
+        [t / "p" / "loop.script"],
+    )
+
+
+@case("plan-out-on-unwritable-file-system")
+def _(b, t):
+    out = Path("/sys/qh-corpus-plan")
+    return Case(
+        ["plan", "--cell", "reference", "--n", "20", "--out", str(out)],
+        2,
+        r"/sys/qh-corpus-plan: cannot write: (Operation not permitted|Permission denied|Read-only)",
+        [],
+        [out],
+    )
+
+
+@case("fit-out-holds-a-plan")
+def _(b, t):
+    (t / "p").mkdir()
+    (t / "p" / "plan.json").write_text("{}")
+    (t / "p" / "loop.script").write_text("movej([0,0,0,0,0,0])\n")
+    c = _fit(b["dir"] / "meas.csv", t)
+    c[c.index("--out") + 1] = str(t / "p")
+    return Case(c, 2, r"p: --out holds a plan \(loop\.script, plan\.json\)", [t / "p"])
+
+
+@case("fit-out-holds-another-run")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)  # its measurements.csv is not the fit's input
+    c = _fit(b["dir"] / "meas.csv", t)
+    c[c.index("--out") + 1] = str(run)
+    return Case(
+        c,
+        2,
+        r"run: --out holds a run \(measurements\.csv\); a fit of unknown data",
+        [run, run / "model.json", run / "report.json"],
+    )
+
+
+@case("fit-out-holds-the-fit-of-other-data")
+def _(b, t):
+    (t / "res").mkdir()
+    (t / "res" / "model.json").write_bytes((b["dir"] / "model.json").read_bytes())
+    (t / "res" / "report.json").write_text(
+        json.dumps({"schema": "quickhealth.report/2", "input": "elsewhere/other.csv"})
+    )
+    c = _fit(b["dir"] / "meas.csv", t)
+    c[c.index("--out") + 1] = str(t / "res")
+    return Case(
+        c,
+        2,
+        r"res: --out holds the fit of another measurement file, elsewhere/other\.csv",
+        [t / "res", t / "res" / "model.json", t / "res" / "report.json"],
+    )
+
+
+@case("fit-out-on-unwritable-file-system")
+def _(b, t):
+    c = _fit(b["dir"] / "meas.csv", t, "--max-order", "0")
+    c[c.index("--out") + 1] = "/sys/qh-corpus-fit"
+    return Case(
+        c,
+        2,
+        r"/sys/qh-corpus-fit: cannot write: (Operation not permitted|Permission denied|Read-only)",
+        [b["dir"] / "meas.csv"],
+        [Path("/sys/qh-corpus-fit")],
+    )
+
+
+# ---- 5. CSV outputs quote what needs quoting
+
+
+@case("predict-pose-id-with-comma-and-quote")
+def _(b, t):
+    rows = _good_rows(b)[:3]
+    ids = ['"a,b"', '"say ""hi"""', "plain"]
+    text = "pose_id,q1,q2,q3,q4,q5,q6,x,y,z\n" + "".join(
+        f"{i},{','.join(repr(v) for v in r)}\n" for i, r in zip(ids, rows, strict=True)
+    )
+    csv_in = _csv(b, t, text=text)
+    c = _predict(b, t, b["dir"] / "model.json", csv_in)
+
+    def check() -> None:
+        import csv
+
+        got = list(csv.reader((t / "o.csv").read_text().splitlines()))
+        head = got[0]
+        assert all(len(r) == len(head) for r in got), got
+        assert [r[head.index("pose_id")] for r in got[1:]] == ["a,b", 'say "hi"', "plain"]
+        assert [float(r[head.index("q1")]) for r in got[1:]] == pytest.approx(
+            [r[0] for r in rows], abs=1e-6
+        )
+
+    return _with(c, r"3 commands", code=0, absent=[], check=check)
+
+
+# ---- 4. --debug is an option of every command, wherever it stands
+
+
+@case("debug-after-the-command-name")
+def _(b, t):
+    arch = _archived(b, t)
+    return Case(  # accepted, not a usage error: the command runs
+        ["archive", "list", "--debug", "--archive", str(arch)],
+        0,
+        r"cell3: 1 runs, baseline run1",
+        [arch / "index.sqlite"],
+    )
+
+
 # ---- 8. small but misleading: vision measure index files
 
 
@@ -1148,8 +1555,14 @@ def test_unexpected_error_is_exit_3_one_line_traceback_only_with_debug(monkeypat
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert err.startswith("quickhealth: internal error: ZeroDivisionError: a bug")
-    assert main(["--debug", "trend", "cell3"]) == 3
-    assert "Traceback" in capsys.readouterr().err
+    for argv in (["--debug", "trend", "cell3"], ["trend", "cell3", "--debug"]):
+        assert main(argv) == 3  # --debug before or after the command's name
+        err = capsys.readouterr().err
+        assert "Traceback" in err and "ZeroDivisionError: a bug" in err, argv
+    # after "--" it is an argument, not the option
+    from quickhealth.station.cli import _take_debug
+
+    assert _take_debug(["trend", "--", "--debug"]) == (["trend", "--", "--debug"], False)
 
 
 def test_memory_error_and_oserror_are_one_line(monkeypatch, capsys):
