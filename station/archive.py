@@ -362,7 +362,7 @@ class Archive:
         # a run the trend and reprocess can use: the fit's figures and a valid model
         from quickhealth.station import formats
 
-        formats.check_report(report, str(report_p))
+        formats.check_report(report, str(report_p), complete=False)
         model_p = src / "model.json"
         if not model_p.is_file():
             raise InputError(f"{src}: no model.json (fit the run first: quickhealth identify fit)")
