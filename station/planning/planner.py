@@ -341,7 +341,7 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
     usable_min, usable_max = usable_range(q_feas)
 
     # step 3: order
-    order = _order(cell, Q[alive], feasible[alive])
+    order = order_tour(cell, Q[alive], feasible[alive])
     tour = [int(alive[k]) for k in order]
     first_k: int | None = None
     first_t = 0.0
@@ -452,7 +452,7 @@ def _start_from_home(
     opts = []
     for pos, i in enumerate(tour):
         for k in np.flatnonzero(feas[i]):
-            t = float(_trap_time(np.abs(Q[i, k] - home).max(), m.joint_speed, m.joint_accel))
+            t = float(trap_time(np.abs(Q[i, k] - home).max(), m.joint_speed, m.joint_accel))
             opts.append((t, pos, int(k)))
     for t, pos, k in sorted(opts):
         if joint_leg_ok(cell, world, home, Q[tour[pos], k]):
@@ -502,13 +502,13 @@ def joint_coverage(
     )
 
 
-def _trap_time(d: F, v: float, a: float) -> F:
+def trap_time(d: F, v: float, a: float) -> F:
     """Duration of a rest-to-rest trapezoidal move of length ``d`` (elementwise)."""
     d = np.abs(d)
     return np.where(d > v * v / a, d / v + v / a, 2.0 * np.sqrt(d / a))
 
 
-def _order(cell: Cell, Q: F, feas: NDArray[np.bool_]) -> list[int]:
+def order_tour(cell: Cell, Q: F, feas: NDArray[np.bool_]) -> list[int]:
     """Step 3: nearest neighbour then 2-opt on the joint-move time between poses."""
     k = len(Q)
     if k <= 2:
@@ -519,7 +519,7 @@ def _order(cell: Cell, Q: F, feas: NDArray[np.bool_]) -> list[int]:
         dq = np.abs(Qm[i][None, :, None, :] - Qm[:, None, :, :]).max(-1)
         D[i] = np.nanmin(np.where(np.isnan(dq), np.inf, dq).reshape(k, -1), axis=1)
     m = cell.motion
-    C = _trap_time(D, m.joint_speed, m.joint_accel)
+    C = trap_time(D, m.joint_speed, m.joint_accel)
     np.fill_diagonal(C, 0.0)
     # nearest neighbour from pose 0
     tour = [0]
@@ -634,7 +634,7 @@ class _Walker:
             m = self.cell.motion
             return (
                 LegType.JOINT,
-                float(_trap_time(np.abs(q1 - q0).max(), m.joint_speed, m.joint_accel)),
+                float(trap_time(np.abs(q1 - q0).max(), m.joint_speed, m.joint_accel)),
             )
         return None
 
@@ -643,7 +643,7 @@ def linear_leg_time(cell: Cell, T_a: F, T_b: F) -> float:
     """Estimated duration of a moveL between two target poses (position-limited)."""
     d = float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3]))
     m = cell.motion
-    return float(_trap_time(np.array(d), m.linear_speed, m.linear_accel))
+    return float(trap_time(np.array(d), m.linear_speed, m.linear_accel))
 
 
 def interpolate_linear(T_a: F, T_b: F, s: F) -> F:

@@ -13,12 +13,12 @@ from quickhealth.station.planning.cell import Obstacle, load_cell
 from quickhealth.station.planning.collision import CollisionWorld
 from quickhealth.station.planning.ik_ur import ik_ur
 from quickhealth.station.planning.planner import (
-    _order,
-    _trap_time,
     joint_coverage,
     joint_leg_ok,
     linear_leg_ok,
+    order_tour,
     sample_targets,
+    trap_time,
 )
 
 
@@ -57,10 +57,10 @@ def test_order_finds_the_short_loop(cell):
     Q[:, :, 0] = a[:, None]
     feas = np.zeros((25, 8), dtype=bool)
     feas[:, 0] = True
-    t = _order(cell, Q, feas)
+    t = order_tour(cell, Q, feas)
     assert sorted(t) == list(range(25))
     m = cell.motion
-    C = _trap_time(np.abs(a[:, None] - a[None, :]), m.joint_speed, m.joint_accel)
+    C = trap_time(np.abs(a[:, None] - a[None, :]), m.joint_speed, m.joint_accel)
     best = list(np.argsort(a))
     assert _tour_cost(C, t) <= _tour_cost(C, best) + 1e-9
 
