@@ -621,7 +621,6 @@ class Station:
             h.curves,
             str(d),
         )
-        report["healthy"] = h.verdict == "healthy"  # the archive reads it at the top level
         write_model(d / "model.json", self.analysis.model())
         write_report(d / "report.json", report)
         if not (d / "measurements.csv").exists():

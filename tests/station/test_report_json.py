@@ -19,7 +19,7 @@ from quickhealth.station.reprocess import ReprocessJob, reprocess_run
 from quickhealth.station.tui.facade import Station
 
 MAX_ORDER = 2
-PRODUCER_KEYS = ("input", "run", "healthy")  # who wrote it, not what was assessed
+PRODUCER_KEYS = ("input", "run")  # who wrote it, not what was assessed
 
 
 def _compare(a: Any, b: Any, where: str = "") -> None:
