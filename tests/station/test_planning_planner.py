@@ -119,3 +119,22 @@ def test_coverage_and_evenness_figures():
     assert np.allclose(c2.coverage, 0.01)
     q3 = np.tile(np.linspace(0.0, 0.5, 60)[:, None], (1, 6))
     assert np.allclose(joint_coverage(q3, lo, hi, 12).coverage, 0.5)
+
+
+def test_one_leg_type_for_the_planner_plan_file_and_driver():
+    import subprocess
+    import sys
+
+    from quickhealth.station.hardware.legs import Leg
+    from quickhealth.station.hardware.robot import Leg as DriverLeg
+    from quickhealth.station.planning import planfile, planner
+
+    assert planner.Leg is Leg and planfile.Leg is Leg and DriverLeg is Leg
+    assert [str(v) for v in Leg] == ["joint", "linear"]  # plan.json's values
+    # the driver imports the leg vocabulary without any of the planner's modules
+    code = (
+        "import sys, quickhealth.station.hardware.robot as r; "
+        "print(sorted(m for m in sys.modules if m.startswith('quickhealth.station.planning')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
