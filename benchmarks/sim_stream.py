@@ -35,8 +35,9 @@ CONTROL_PORT = 30096
 
 def longest_linear_leg(n: int, seed: int):
     """(q_start, q_end, TCP length m, leg name, motion) of the plan's longest linear leg."""
+    from quickhealth.station.hardware.legs import Leg
     from quickhealth.station.planning import load_cell
-    from quickhealth.station.planning.planner import LegType, plan_loop
+    from quickhealth.station.planning.planner import plan_loop
 
     cell = load_cell("reference")
     res = plan_loop(cell, n, seed)
@@ -44,7 +45,7 @@ def longest_linear_leg(n: int, seed: int):
     best = None
     prev = cell.home
     for p in res.poses:
-        if p.leg == LegType.LINEAR:
+        if p.leg == Leg.LINEAR:
             L = float(np.linalg.norm(robot.fk(p.q)[:3, 3] - robot.fk(prev)[:3, 3]))
             if best is None or L > best[2]:
                 best = (prev, p.q, L, f"pose {res.poses.index(p) + 1} of {len(res.poses)}")

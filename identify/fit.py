@@ -50,6 +50,8 @@ from .linearize import (
     InstrumentNoise,
     Whitening,
     coefficient_columns,
+    effect_channels,
+    effect_jacobian,
     forward,
     joint_angle_jacobian,
     loop_pose,
@@ -57,10 +59,11 @@ from .linearize import (
     noise_covariance,
     pose_residuals,
     rotation_noise_cov,
+    sensitivities,
 )
 from .measurements import Measurements
 from .robot import RobotModel
-from .transforms import kabsch, log_so3, make_T, skew
+from .transforms import kabsch, make_T, skew
 
 __all__ = [
     "FittedModel",
@@ -606,7 +609,7 @@ class _Problem:
         Jc = self._coeff_columns(Jmot)  # (n, d, nc)
         cols = [Jc]
         if self.effects:
-            cols.append(self._effect_columns(coeffs, ep, T))
+            cols.append(self._effect_columns(coeffs, pert, (T, A, mot)))
         Jraw = np.concatenate(cols, axis=-1)
         if d == 6:  # ∂ log(R_meas R_modelᵀ) = −J_r⁻¹(w) ω with J_r⁻¹(w) ≈ I + ½[w]×
             Jraw[:, 3:] = (np.eye(3) + 0.5 * skew(raw[:, 3:])) @ Jraw[:, 3:]
@@ -634,42 +637,23 @@ class _Problem:
     def _coeff_columns(self, Jmot: F) -> F:
         return coefficient_columns(self.spec, self.meas.q, Jmot)
 
-    def _effect_columns(self, coeffs: F, ep: list[F], T: F) -> F:
-        """Central differences in each effect parameter (they enter linearly, nearly exactly)."""
-        cols = []
-        for k, e in enumerate(self.effects):
-            h_all = np.maximum(np.asarray(e.prior_sigma, float) * 1e-2, 1e-12)
-            for j in range(e.n_params):
-                plus = [x.copy() for x in ep]
-                minus = [x.copy() for x in ep]
-                plus[k][j] += h_all[j]
-                minus[k][j] -= h_all[j]
-                Tp = loop_pose(
-                    self.robot,
-                    self.spec,
-                    coeffs,
-                    self.T_ib0,
-                    self.T_ft0,
-                    self.meas.q,
-                    self._pert(plus),
-                )
-                Tm = loop_pose(
-                    self.robot,
-                    self.spec,
-                    coeffs,
-                    self.T_ib0,
-                    self.T_ft0,
-                    self.meas.q,
-                    self._pert(minus),
-                )
-                dp = (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h_all[j])
-                if self.d == 6:
-                    dw = log_so3(Tp[:, :3, :3] @ np.swapaxes(Tm[:, :3, :3], -1, -2)) / (
-                        2 * h_all[j]
-                    )
-                    dp = np.concatenate([dp, dw], axis=1)
-                cols.append(dp)
-        return np.stack(cols, axis=-1)
+    def _effect_columns(self, coeffs: F, pert: Perturbation, loop: tuple[F, F, F]) -> F:
+        """∂model/∂(every effect parameter), (n, d, k): :func:`~.linearize.effect_jacobian`
+        through the loop's sensitivities to the channels the effects use."""
+        assert self.ctx is not None
+        sens = sensitivities(
+            self.robot,
+            self.spec,
+            coeffs,
+            self.T_ib0,
+            self.T_ft0,
+            self.meas.q,
+            pert,
+            channels=effect_channels(self.effects, self.ctx),
+            loop=loop,
+        )
+        cols = [effect_jacobian(e, self.ctx, sens)[:, : self.d] for e in self.effects]
+        return np.concatenate(cols, axis=-1)
 
     # ---- identifiability
     def identifiable(self, J: F, rank_tol: float) -> NDArray[np.bool_]:

@@ -25,6 +25,7 @@ uninformative covariance (cross-validation keeps left-out poses for the executio
 
 from __future__ import annotations
 
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -247,10 +248,16 @@ def _geometric_point(T: F, scale_z: F | None) -> F:
     return p
 
 
+#: The channels of :class:`Sensitivities`: the four an effect can perturb, and the frames' motions.
+CHANNELS = ("dq", "link_scale", "base_twist", "instr_scale_z", "frame_motion")
+
+
 @dataclass(frozen=True, eq=False)
 class Sensitivities:
     """Derivatives of the model pose ``(n, 6)`` (position m, rotation rad) at an estimate,
     per unit of every channel an effect can perturb.
+
+    A channel left out of :func:`sensitivities`' ``channels`` is None.
 
     Attributes
     ----------
@@ -267,10 +274,10 @@ class Sensitivities:
     """
 
     dq: F
-    link_scale: F
-    base_twist: F
-    instr_scale_z: F
-    frame_motion: F
+    link_scale: F | None
+    base_twist: F | None
+    instr_scale_z: F | None
+    frame_motion: F | None
 
 
 def sensitivities(
@@ -282,19 +289,32 @@ def sensitivities(
     q: F,
     pert: Perturbation = _NO_PERTURBATION,
     h: float = 1e-6,
+    *,
+    channels: Collection[str] = CHANNELS,
+    loop: tuple[F, F, F] | None = None,
 ) -> Sensitivities:
     """Every channel's derivative of the loop at ``coeffs`` with the effects' ``pert`` applied.
 
     Joint angles and frame motions analytically (:func:`joint_angle_jacobian`,
     :func:`motion_jacobian`); the three effect-only channels (link growth, base motion,
     depth scale) by central differences of :func:`loop_pose` (8 channels, 16 loops).
+
+    Parameters
+    ----------
+    channels : collection of str
+        The channels to compute (default all, :data:`CHANNELS`); ``dq`` is always computed.
+        The fit asks only for those its effects use (:func:`effect_channels`).
+    loop : (T, A, motions), optional
+        :func:`forward` at this estimate, when the caller has it already.
     """
     q = np.atleast_2d(np.asarray(q, float))
     n = q.shape[0]
-    T, A, mot = forward(robot, spec, coeffs, T_ib0, T_ft0, q, pert)
+    T, A, mot = loop if loop is not None else forward(robot, spec, coeffs, T_ib0, T_ft0, q, pert)
     assert A is not None
-    Jm = motion_jacobian(T, A, mot, pert.instr_scale_z)  # (n, 6c, nf, 6m)
-    S_fm = np.moveaxis(Jm, 1, 3)  # (n, nf, 6m, 6c)
+    S_fm = None
+    if "frame_motion" in channels:
+        Jm = motion_jacobian(T, A, mot, pert.instr_scale_z)  # (n, 6c, nf, 6m)
+        S_fm = np.moveaxis(Jm, 1, 3)  # (n, nf, 6m, 6c)
     S_dq = joint_angle_jacobian(T, A, pert.instr_scale_z)
 
     def diff(make) -> F:  # type: ignore[no-untyped-def]
@@ -304,39 +324,62 @@ def sensitivities(
         dw = log_so3(Tp[:, :3, :3] @ np.swapaxes(Tm[:, :3, :3], -1, -2)) / (2 * h)
         return np.concatenate([dp, dw], axis=1)
 
-    S_ls = diff(lambda s: Perturbation(link_scale=np.full(n, s)))
-    S_bt = np.empty((n, 6, 6))
-    for c in range(6):
-        unit = np.zeros((n, 6))
-        unit[:, c] = 1.0
-        S_bt[:, c] = diff(lambda s, u=unit: Perturbation(base_twist=u * s))
-    S_iz = diff(lambda s: Perturbation(instr_scale_z=np.full(n, s)))
+    S_ls = S_bt = S_iz = None
+    if "link_scale" in channels:
+        S_ls = diff(lambda s: Perturbation(link_scale=np.full(n, s)))
+    if "base_twist" in channels:
+        S_bt = np.empty((n, 6, 6))
+        for c in range(6):
+            unit = np.zeros((n, 6))
+            unit[:, c] = 1.0
+            S_bt[:, c] = diff(lambda s, u=unit: Perturbation(base_twist=u * s))
+    if "instr_scale_z" in channels:
+        S_iz = diff(lambda s: Perturbation(instr_scale_z=np.full(n, s)))
     return Sensitivities(S_dq, S_ls, S_bt, S_iz, S_fm)
+
+
+def _unit_perturbations(effect: Effect, ctx: EffectContext) -> list[Perturbation]:
+    """The effect's perturbation per unit of each parameter (it is linear in them)."""
+    return [effect.perturbation(ctx, np.eye(effect.n_params)[i]) for i in range(effect.n_params)]
+
+
+def effect_channels(effects: Sequence[Effect], ctx: EffectContext) -> frozenset[str]:
+    """The :class:`Sensitivities` channels that :func:`effect_jacobian` of ``effects`` needs."""
+    used = {"dq"}
+    for e in effects:
+        for p in _unit_perturbations(e, ctx):
+            used |= {c for c in CHANNELS[:4] if getattr(p, c) is not None}
+    return frozenset(used)
 
 
 def effect_jacobian(effect: Effect, ctx: EffectContext, sens: Sensitivities) -> F:
     """Derivative of the model pose with respect to the effect's parameters, ``(n, 6, k)``.
 
     Exact for the perturbation (an effect is linear in its parameters); the loop is
-    linearised at the estimate through :class:`Sensitivities`.
+    linearised at the estimate through :class:`Sensitivities`.  The one effect Jacobian of
+    the package: the fit, the diagnosis and the comparison all take it from here.
     """
     n = ctx.n_poses
     out = np.zeros((n, 6, effect.n_params))
-    for i in range(effect.n_params):
-        unit = np.zeros(effect.n_params)
-        unit[i] = 1.0
-        p = effect.perturbation(ctx, unit)
+    for i, p in enumerate(_unit_perturbations(effect, ctx)):
         col = np.zeros((n, 6))
         if p.dq is not None:
             col += np.einsum("nj,njc->nc", p.dq, sens.dq)
         if p.link_scale is not None:
-            col += p.link_scale[:, None] * sens.link_scale
+            col += p.link_scale[:, None] * _channel(sens, "link_scale")
         if p.base_twist is not None:
-            col += np.einsum("nk,nkc->nc", p.base_twist, sens.base_twist)
+            col += np.einsum("nk,nkc->nc", p.base_twist, _channel(sens, "base_twist"))
         if p.instr_scale_z is not None:
-            col += p.instr_scale_z[:, None] * sens.instr_scale_z
+            col += p.instr_scale_z[:, None] * _channel(sens, "instr_scale_z")
         out[:, :, i] = col
     return out
+
+
+def _channel(sens: Sensitivities, name: str) -> F:
+    v = getattr(sens, name)
+    if v is None:
+        raise ValueError(f"sensitivities computed without the {name!r} channel")
+    return v
 
 
 # --------------------------------------------------------------------------- noise model

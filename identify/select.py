@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,11 +57,21 @@ from .robot import RobotModel
 F = NDArray[np.float64]
 
 
+class StepKind(StrEnum):
+    """What a step of the search did (report.json's ``search.steps[].kind``)."""
+
+    START = "start"  # the fit at the starting orders
+    RAISE = "raise"  # one motion's order up
+    LOWER = "lower"  # one motion's order down
+    PRUNE = "prune"  # the paper's pruning of a series' top coefficients
+    RESCALE = "rescale"  # the χ² check failed: noise or prior rescaled, search run again
+
+
 @dataclass(frozen=True)
 class SearchStep:
     """One move the search tried."""
 
-    kind: str  # "start", "raise", "lower", "prune", "rescale"
+    kind: StepKind
     motion: str  # e.g. "j1.ez" ("" for start/rescale)
     from_order: int
     to_order: int
@@ -209,7 +220,9 @@ def select_orders(
         sel2 = search(noise2, prior2)
         return Selection(
             fitted=sel2.fitted,
-            trace=sel.trace + (SearchStep("rescale", "", 0, 0, np.nan, np.nan, True),) + sel2.trace,
+            trace=sel.trace
+            + (SearchStep(StepKind.RESCALE, "", 0, 0, np.nan, np.nan, True),)
+            + sel2.trace,
             chi2_check=sel2.chi2_check,
             n_fits=sel.n_fits + sel2.n_fits,
             n_scored=sel.n_scored + sel2.n_scored,
@@ -380,7 +393,7 @@ def _search(
     fitted = fit_model(robot, meas, spec0, effects, noise, prior, setup=setup, hold=hold)
     n_fits = 1
     n_scored = 0
-    trace: list[SearchStep] = [SearchStep("start", "", 0, 0, np.nan, fitted.bic, True)]
+    trace: list[SearchStep] = [SearchStep(StepKind.START, "", 0, 0, np.nan, fitted.bic, True)]
     n_moves = nj * 6 * max_order
     if margin is None:
         margin = float(np.log(max(n_moves, 2)))
@@ -392,13 +405,15 @@ def _search(
         labels = parameter_labels(fitted.spec, effects)
         pos_of = {lb: i for i, lb in enumerate(labels)}
         free_pos = {int(ix): k for k, ix in enumerate(lin.free_idx)}
-        moves: list[tuple[float, str, int, int, int]] = []
+        moves: list[tuple[float, StepKind, int, int, int]] = []
         for j in range(nj):
             for m in range(6):
                 cur = int(orders[j + 1, m])
                 sig = prior.joint_rot if m >= 3 else prior.joint_pos
                 for new in range(cur + 1, max_order + 1):
-                    moves.append((_score_raise(lin, j, m, cur, new, sig), "raise", j, m, new))
+                    moves.append(
+                        (_score_raise(lin, j, m, cur, new, sig), StepKind.RAISE, j, m, new)
+                    )
                 for new in range(max(cur - 1, -1), -1, -1) if cur > 0 else ():
                     cols = [
                         free_pos[pos_of[f"j{j + 1}.{MOTIONS[m]}.c{k}"]]
@@ -407,7 +422,7 @@ def _search(
                     ]
                     if not cols or new < 0:
                         continue
-                    moves.append((_score_lower(lin, np.array(cols)), "lower", j, m, new))
+                    moves.append((_score_lower(lin, np.array(cols)), StepKind.LOWER, j, m, new))
         n_scored += len(moves)
         # the same evidence bar in both directions: a raise must lower the BIC by more than
         # the margin, and a lower is taken unless it raises the BIC by more than the margin
@@ -466,9 +481,9 @@ def _search(
     )
 
 
-def _need(kind: str, margin: float) -> float:
+def _need(kind: StepKind, margin: float) -> float:
     """BIC drop a move must reach: ``margin`` for a raise, ``−margin`` for a lower."""
-    return margin if kind == "raise" else -margin
+    return margin if kind is StepKind.RAISE else -margin
 
 
 def _prune(
@@ -511,7 +526,7 @@ def _prune(
     cand = fit_model(robot, meas, spec.with_orders(orders), effects, noise, prior, init=fitted)
     ok = cand.bic <= fitted.bic
     for name, a, b in changed:
-        trace.append(SearchStep("prune", name, a, b, np.nan, cand.bic, ok))
+        trace.append(SearchStep(StepKind.PRUNE, name, a, b, np.nan, cand.bic, ok))
     visited.add(orders.tobytes())
     if ok:
         say("pruned " + ", ".join(f"{n} {a}->{b}" for n, a, b in changed) + f", BIC {cand.bic:.1f}")

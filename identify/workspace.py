@@ -28,14 +28,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from .distributions import chi2_ppf, norm_ppf
 from .effects import Perturbation
+from .effects.thermal import T_REF_C
 from .errormodel import MOTIONS, chebyshev_basis, chebyshev_u
 from .fit import FittedModel
 from .linearize import forward, motion_jacobian
 
 F = NDArray[np.float64]
-
-#: The temperature (°C) the thermal effect's link lengths refer to.
-REFERENCE_TEMP_C = 20.0
 
 
 @dataclass(frozen=True)
@@ -77,7 +75,7 @@ def reference_conditions(fitted: FittedModel) -> Conditions:
     """The stated reference conditions of ``fitted``: 20 °C for ``thermal``, the time of the
     last fitted pose for ``drift`` (0 s if the model does not know it)."""
     needs = {col for e in fitted.effects for col in e.requires()}
-    temp = REFERENCE_TEMP_C if "temp" in needs else None
+    temp = T_REF_C if "temp" in needs else None
     time = note = None
     if "time" in needs:
         if fitted.reference_time is not None:

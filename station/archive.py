@@ -122,6 +122,15 @@ def _iso(t: datetime) -> str:
 # ------------------------------------------------------------------ reading a run folder
 
 
+def _report_healthy(report: dict[str, Any]) -> bool | None:
+    """The verdict a report.json carries: ``run.healthy``, or an older top-level ``healthy``."""
+    run = report.get("run")
+    for v in (run.get("healthy") if isinstance(run, dict) else None, report.get("healthy")):
+        if isinstance(v, bool):
+            return v
+    return None
+
+
 def _read_json(path: Path) -> dict[str, Any]:
     from quickhealth.station.formats import load_json_limited
 
@@ -345,8 +354,9 @@ class Archive:
         meta : mapping, optional
             Overrides plan_hash, cell, calibration_id, software_version.
         healthy : bool, optional
-            Default: the report's ``healthy`` entry if present, else unknown (counts as healthy
-            for choosing the first baseline).
+            Default: the report's ``run.healthy`` (the TUI writes it; a top-level ``healthy``
+            of older reports also counts) if present, else unknown (counts as healthy for
+            choosing the first baseline).
 
         Returns
         -------
@@ -362,7 +372,7 @@ class Archive:
         # a run the trend and reprocess can use: the fit's figures and a valid model
         from quickhealth.station import formats
 
-        formats.check_report(report, str(report_p))
+        formats.check_report(report, str(report_p), complete=False)
         model_p = src / "model.json"
         if not model_p.is_file():
             raise InputError(f"{src}: no model.json (fit the run first: quickhealth identify fit)")
@@ -380,8 +390,8 @@ class Archive:
         if not found.get("software_version"):
             found["software_version"] = _software_version()
         figs, _ = report_figures(report)
-        if healthy is None and isinstance(report.get("healthy"), bool):
-            healthy = report["healthy"]
+        if healthy is None:
+            healthy = _report_healthy(report)
         dst = self.run_path(robot, rid)
         in_place = dst.exists() and dst.resolve() == src.resolve()
         rec = RunRecord(

@@ -175,7 +175,7 @@ def _coverage_figure(robot: Any, q: F, q_lo: F, q_hi: F) -> Figure:
     return fig
 
 
-def _joint_figure(curves: Any, fitted: Any = None) -> Figure:
+def joint_figure(curves: Any, fitted: Any = None) -> Figure:
     """One joint's six error motions with bands, in one row (compact; no tight_layout).
 
     A motion the data cannot identify (every coefficient held at zero, no band) is labelled
@@ -433,7 +433,7 @@ def build_report(
             "Error motions of every joint, 95 % bands (paper Fig. 8)",
             ("bands: sampling uncertainty of the estimate; model error is not in them",),
             plots=tuple(
-                Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(_joint_figure(c, fitted)))
+                Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(joint_figure(c, fitted)))
                 for c in curves
             ),
             data={"joint_curves": [c.as_dict() for c in curves]},

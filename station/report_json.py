@@ -1,12 +1,13 @@
 """report.json: the one writer of an :class:`~quickhealth.identify.assess.Assessment`.
 
 ``identify fit``, the TUI's results, ``reprocess`` and the demo all write report.json through
-:func:`write_report_json`; :func:`check_report` checks a document against the schema
-(docs/identify.md, "report.json").  Schema ``quickhealth.report/2``: the assessment's keys
-below; a producer may add a ``run`` object (the station's run id, robot name, verdict,
-threshold) and ``input`` (the measurement file), and ``quickhealth report`` adds
-``coverage``, ``diagnosis``, ``trend`` and ``iso9283`` sections.  Units: mm, degrees, mrad
-(joint curves), °C, s.
+:func:`write_report_json`; the schema (``SCHEMA``) and its one checker (:func:`check_report`)
+live with the file format in :mod:`quickhealth.station.formats.report` and are re-exported
+here (docs/identify.md, "report.json").  Schema ``quickhealth.report/2``: the assessment's
+keys (``formats.report.REQUIRED``); a producer may add a ``run`` object (the station's run
+id, robot name, verdict, threshold) and ``input`` (the measurement file), and ``quickhealth
+report`` adds ``coverage``, ``diagnosis``, ``trend`` and ``iso9283`` sections.  Units: mm,
+degrees, mrad (joint curves), °C, s.
 """
 
 from __future__ import annotations
@@ -15,35 +16,10 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-from quickhealth.identify.errors import InputError
+from quickhealth.station.formats.report import REPORT_SCHEMA as SCHEMA
+from quickhealth.station.formats.report import check_report
 
-SCHEMA = "quickhealth.report/2"
-
-#: Top-level keys every report.json of an assessment has, and their JSON types.
-REQUIRED: dict[str, type | tuple[type, ...]] = {
-    "n_poses": int,
-    "n_params": int,
-    "n_params_total": int,
-    "bic": float,
-    "chi2": float,
-    "chi2_with_prior": float,
-    "dof": int,
-    "rms_pos_mm": float,
-    "converged": bool,
-    "robot": str,
-    "effects": list,
-    "orders": dict,
-    "joint_range_deg": dict,
-    "unidentifiable": list,
-    "chi2_check": (dict, type(None)),
-    "search": (dict, type(None)),
-    "noise": dict,
-    "summary": list,
-    "workspace": dict,
-    "joint_curves": list,
-    "residuals": list,
-}
-WORKSPACE_KEYS = ("conditions", "n_samples", "mean_mm", "std_mm", "max_mm", "p95_mm", "histogram")
+__all__ = ["SCHEMA", "check_report", "report_of", "write_report_json"]
 
 
 def report_of(
@@ -133,40 +109,11 @@ def write_report_json(
     run: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write report.json of assessment ``a`` (atomically); returns the content written."""
-    from quickhealth.station import formats
+    from quickhealth.station.formats.report import write_report
 
     rep = report_of(a, source=source, run=run)
-    formats.write_report(path, rep)
+    write_report(path, rep)
     return rep
-
-
-def check_report(doc: Mapping[str, Any], name: str = "report.json") -> None:
-    """Raise :class:`InputError` (one line) if ``doc`` is not a schema-2 assessment report."""
-    if doc.get("schema") != SCHEMA:
-        raise InputError(f"{name}: schema is {doc.get('schema')!r}, expected {SCHEMA!r}")
-    for key, typ in REQUIRED.items():
-        if key not in doc:
-            raise InputError(f"{name}: missing key {key!r}")
-        v = doc[key]
-        ok = isinstance(v, typ) or (typ is float and isinstance(v, int) and not isinstance(v, bool))
-        if not ok:
-            raise InputError(f"{name}: {key!r} is {type(v).__name__}, expected {typ}")
-    for key in WORKSPACE_KEYS:
-        if key not in doc["workspace"]:
-            raise InputError(f"{name}: workspace has no {key!r}")
-    cond = doc["workspace"]["conditions"]
-    if not isinstance(cond, dict) or not {"temp_c", "time_s", "text"} <= set(cond):
-        raise InputError(f"{name}: workspace.conditions needs temp_c, time_s and text")
-    needs = {"thermal": "temp_c", "drift": "time_s"}
-    for eff, key in needs.items():
-        if eff in doc["effects"] and cond[key] is None:
-            raise InputError(f"{name}: the model has {eff} but the conditions give no {key}")
-    if len(doc["residuals"]) != doc["n_poses"]:
-        raise InputError(
-            f"{name}: {len(doc['residuals'])} residual rows for {doc['n_poses']} poses"
-        )
-    if doc["n_poses"] and "pos_mm" not in doc["residuals"][0]:
-        raise InputError(f"{name}: residual rows need pos_mm")
 
 
 def _residual_records(fm: Any, meas: Any) -> list[dict[str, Any]]:

@@ -39,6 +39,7 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -196,15 +197,28 @@ class Station:
         self.closers.clear()
 
 
+class ProgressKind(StrEnum):
+    """What a :class:`Progress` event is about (the value is what ``quickhealth run`` prints)."""
+
+    PREFLIGHT = "preflight"
+    SELFCHECK = "selfcheck"
+    RESUME = "resume"
+    MOVE = "move"
+    POSE = "pose"
+    MEASURED = "measured"
+    STOP = "stop"
+    DONE = "done"
+
+
 @dataclass(frozen=True)
 class Progress:
     """What the run is doing, for progress bars and the TUI.
 
-    ``kind``: ``preflight``, ``selfcheck``, ``resume``, ``move``, ``pose``, ``measured``,
-    ``stop``, ``done``.  ``index`` is the 1-based plan index (0 when not about a pose).
+    ``kind``: a :class:`ProgressKind`.  ``index`` is the 1-based plan index (0 when not about
+    a pose).
     """
 
-    kind: str
+    kind: ProgressKind
     index: int
     n_poses: int
     name: str = ""
@@ -476,7 +490,12 @@ class _Runner:
         self.timings.setdefault(key, []).append(dt)
 
     def emit(
-        self, kind: str, index: int = 0, name: str = "", status: str = "", message: str = ""
+        self,
+        kind: ProgressKind,
+        index: int = 0,
+        name: str = "",
+        status: str = "",
+        message: str = "",
     ) -> None:
         self.progress(Progress(kind, index, self.n, name, status, message))
 
@@ -510,7 +529,9 @@ class _Runner:
             }
         self.append(rec)
         self.emit(
-            "selfcheck", status="ok" if rec["ok"] else "failed", message=f"self-check ({phase})"
+            ProgressKind.SELFCHECK,
+            status="ok" if rec["ok"] else "failed",
+            message=f"self-check ({phase})",
         )
         return rec
 
@@ -518,13 +539,13 @@ class _Runner:
     def do_pose(self, pose: Any) -> None:
         s, cfg = self.s, self.cfg
         mo = self.plan.motion
-        leg = Leg(str(pose.leg.value if hasattr(pose.leg, "value") else pose.leg))
+        leg = Leg(pose.leg)
         speed, accel = (
             (mo.joint_speed, mo.joint_accel)
             if leg is Leg.JOINT
             else (mo.linear_speed, mo.linear_accel)
         )
-        self.emit("move", pose.index, pose.name)
+        self.emit(ProgressKind.MOVE, pose.index, pose.name)
         t0 = time.monotonic()
         s.robot.move(pose.q, leg, speed=speed, accel=accel)
         t1 = time.monotonic()
@@ -557,7 +578,7 @@ class _Runner:
                 "reason": f"{reason} after {cfg.capture_attempts} captures",
                 "time_s": time.time() - self.t_epoch,
             })  # fmt: skip
-            self.emit("pose", pose.index, pose.name, "failed", reason)
+            self.emit(ProgressKind.POSE, pose.index, pose.name, "failed", reason)
             return
         td = time.monotonic()
         images = [f"images/{pose.index:04d}_{pose.name}_{side}.png" for side in "LR"]
@@ -574,7 +595,7 @@ class _Runner:
         self.submit_measure(
             pose.index, pose.name, frame.left, frame.right, pan, T_pred, write=images
         )
-        self.emit("pose", pose.index, pose.name, "captured", f"attempt {attempt}")
+        self.emit(ProgressKind.POSE, pose.index, pose.name, "captured", f"attempt {attempt}")
 
     def write_images(self, names: list[str], left: Any, right: Any) -> None:
         """Both images, each atomically, then the folder entry made durable."""
@@ -626,7 +647,7 @@ class _Runner:
                     }
                     status = "measured"
                 self.append(rec)
-                self.emit("measured", index, name, status, rec.get("reason", ""))
+                self.emit(ProgressKind.MEASURED, index, name, status, rec.get("reason", ""))
             except BaseException as exc:  # noqa: BLE001 - reported by the main loop
                 self.worker_error = exc
 
@@ -730,7 +751,7 @@ def run_plan(
     todo = [p for p in plan.poses if p.index not in done]
     lines = preflight(station, plan, run_dir, len(todo), settings, resume=resume)
     for ln in lines:
-        r.emit("preflight", status="ok", message=ln)
+        r.emit(ProgressKind.PREFLIGHT, status="ok", message=ln)
     r.journal.open(truncate_to=state.valid_bytes if state.truncated_tail else None)
     station.robot.clear_stop()  # starting (or resuming) is the operator's go: moves allowed
     stopped: str | None = None
@@ -739,7 +760,7 @@ def run_plan(
             r.t_epoch = float(state.start["epoch"])
             r.append({"type": "resume", "at_utc": _utc(), "done": len(done),
                       "truncated_tail": state.truncated_tail})  # fmt: skip
-            r.emit("resume", message=f"{len(done)} of {r.n} poses done; "
+            r.emit(ProgressKind.RESUME, message=f"{len(done)} of {r.n} poses done; "
                    f"{len(unmeasured)} to measure from images")  # fmt: skip
             r.remeasure(state, unmeasured)
         else:
@@ -766,14 +787,14 @@ def run_plan(
                 r.drain()
         home = getattr(plan, "home", None)
         if stopped is None and home is not None:  # close the loop: back to the start
-            leg = Leg(str(getattr(plan.return_leg, "value", plan.return_leg)))
+            leg = Leg(plan.return_leg)
             mo = plan.motion
             speed, accel = (
                 (mo.joint_speed, mo.joint_accel)
                 if leg is Leg.JOINT
                 else (mo.linear_speed, mo.linear_accel)
             )
-            r.emit("move", message="return to home")
+            r.emit(ProgressKind.MOVE, message="return to home")
             station.robot.move(home, leg, speed=speed, accel=accel)
     except HardwareError as exc:
         stopped = str(exc)
@@ -793,7 +814,7 @@ def run_plan(
         r.append({"type": "end", "at_utc": _utc()})
     else:
         r.append({"type": "stop", "reason": stopped, "at_utc": _utc()})
-        r.emit("stop", message=stopped)
+        r.emit(ProgressKind.STOP, message=stopped)
     r.journal.close()
     final = read_journal(jpath)
     meas_path = write_outputs(run_dir, final, plan, station, drift, settings)
@@ -813,7 +834,7 @@ def run_plan(
         measurements=meas_path,
         timings={k: float(np.mean(v)) for k, v in r.timings.items()},
     )
-    r.emit("done", status="stopped" if stopped else "complete",
+    r.emit(ProgressKind.DONE, status="stopped" if stopped else "complete",
            message=f"{res.n_measured} measured, {res.n_failed} failed of {res.n_poses}")  # fmt: skip
     return res
 

@@ -263,7 +263,7 @@ class TargetDescription:
                 corners.append(c / 1000.0)
             if "grid" in d:
                 g = d["grid"]
-                gi, gc = _grid_markers(
+                gi, gc = grid_markers(
                     int(g["cols"]), int(g["rows"]), float(g["marker_mm"]) / 1000,
                     float(g["pitch_mm"]) / 1000, int(g.get("first_id", 0)),
                 )  # fmt: skip
@@ -294,7 +294,7 @@ class TargetDescription:
             ) from None
 
 
-def _grid_markers(cols: int, rows: int, side: float, pitch: float, first_id: int) -> tuple[I64, F]:
+def grid_markers(cols: int, rows: int, side: float, pitch: float, first_id: int) -> tuple[I64, F]:
     """Markers on a regular grid centred on the target origin, ids row by row."""
     j, i = np.mgrid[0:rows, 0:cols]
     cx = (i.ravel() - (cols - 1) / 2.0) * pitch
@@ -312,7 +312,7 @@ def reference_target() -> TargetDescription:
     At 2.5 m through the reference camera (fx ≈ 5000 px) a marker spans ≈ 48 px and one
     marker cell ≈ 8 px: well above the detector's limits as tuned in :mod:`markers`.
     """
-    ids, corners = _grid_markers(8, 6, 0.024, 0.032, 0)
+    ids, corners = grid_markers(8, 6, 0.024, 0.032, 0)
     plate = np.array([[-0.136, -0.104], [0.136, 0.104]])
     return TargetDescription(
         "reference-8x6-4x4", "DICT_4X4_50", ids, corners, plate, np.array([0.0, 1.0, 0.0])

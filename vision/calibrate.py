@@ -562,7 +562,7 @@ def _calibrate_mono(
         outl.append(~masks[i])
     inl = np.concatenate([r[~o] for r, o in zip(residuals, outl, strict=True)])
     rms = float(np.sqrt((inl**2).sum(1).mean()))
-    cov12 = _intrinsics_cov(cam, [views[i] for i in used], [masks[i] for i in used], rvecs, tvecs)  # type: ignore[misc]
+    cov12 = intrinsics_cov(cam, [views[i] for i in used], [masks[i] for i in used], rvecs, tvecs)  # type: ignore[misc]
     cov = cov12[:9, :9]
     gx = np.linspace(0, size[0] - 1, 32)
     gy = np.linspace(0, size[1] - 1, 24)
@@ -586,7 +586,7 @@ def _coverage(px: F, size: tuple[int, int], nx: int = 10, ny: int = 6) -> float:
     return float(np.unique(iy * nx + ix).size / (nx * ny))
 
 
-def _intrinsics_cov(
+def intrinsics_cov(
     cam: CameraModel,
     views: Sequence[BoardView],
     masks: Sequence[NDArray[np.bool_]],

@@ -130,7 +130,7 @@ class PoseMeasurement:
 
     def row(self) -> dict[str, float]:
         """The CSV v1 values of this pose in SI (m, rad, s): x y z pitch yaw roll, sx sy sz
-        spitch syaw sroll, and pan / time when known.  ``station/formats.py`` converts."""
+        spitch syaw sroll, and pan / time when known.  ``station/formats/measurements.py`` converts."""
         p, a, sp, sa = self.position, self.rpy, self.sigma_pos, self.sigma_rpy
         out = {
             "x": p[0], "y": p[1], "z": p[2], "pitch": a[0], "yaw": a[1], "roll": a[2],

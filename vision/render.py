@@ -95,7 +95,7 @@ def render_target(
     T = np.asarray(T_cam_target, dtype=float)
     if pan:
         T = T @ pan_transform(target, pan)
-    return _render(camera, T, target.layers(), target.plate, imaging, rng)
+    return render_layers(camera, T, target.layers(), target.plate, imaging, rng)
 
 
 def render_board(
@@ -108,7 +108,7 @@ def render_board(
 ) -> U8:
     """Image of a calibration board (chessboard or ChArUco) seen by ``camera``."""
     lo, hi = board.plate()
-    return _render(camera, T_cam_board, board.layers(), np.array([lo, hi]), imaging, rng)
+    return render_layers(camera, T_cam_board, board.layers(), np.array([lo, hi]), imaging, rng)
 
 
 def render_stereo(
@@ -132,7 +132,7 @@ def render_stereo(
     return out[0], out[1]
 
 
-def _render(
+def render_layers(
     camera: CameraModel,
     T_cam_plate: F,
     layers: list[Layer],
@@ -140,6 +140,9 @@ def _render(
     im: Imaging,
     rng: np.random.Generator | None,
 ) -> U8:
+    """One camera image of printed ``layers`` on a plate (extent ``plate``, plate frame)
+    seen from pose ``T_cam_plate``; the engine under :func:`render_target` and
+    :func:`render_board`."""
     rng = np.random.default_rng(0) if rng is None else rng
     T_cam_plate = np.asarray(T_cam_plate, dtype=float)
     w, h = camera.image_size

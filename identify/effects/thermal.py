@@ -25,6 +25,8 @@ from ..robot import RobotModel
 from . import EffectContext, Perturbation, register
 from ._base import F
 
+#: The temperature (°C) the link lengths refer to: the thermal effect's zero and the reference
+#: condition of the workspace map (:func:`~quickhealth.identify.workspace.reference_conditions`).
 T_REF_C = 20.0
 
 

@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from quickhealth.identify.errors import HardwareError, InputError
 from quickhealth.identify.robot import RobotModel, ur5
 
+from .legs import Leg
 from .urtypes import RobotMode, SafetyMode
 
 F = NDArray[np.float64]
@@ -38,13 +39,6 @@ MAX_JOINT_SPEED = 3.14  # rad/s, UR5 joint limit
 MAX_JOINT_ACCEL = 40.0  # rad/s²
 MAX_TOOL_SPEED = 3.0  # m/s
 MAX_TOOL_ACCEL = 150.0  # m/s²
-
-
-class Leg(Enum):
-    """How the robot travels to a pose (the plan's ``leg``)."""
-
-    JOINT = "joint"
-    LINEAR = "linear"
 
 
 def _enum(cls: type[Enum], v: int) -> Enum:

@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.transforms import inv_T, make_T
 from quickhealth.identify.twin import Twin, TwinTruth, make_twin, twin_from_truth
-from quickhealth.vision.boards import TargetDescription, _grid_markers
+from quickhealth.vision.boards import TargetDescription, grid_markers
 from quickhealth.vision.boards import reference_target as _reference_target
 from quickhealth.vision.camera import StereoRig
 from quickhealth.vision.reference import reference_rig
@@ -40,7 +40,7 @@ def reference_board() -> TargetDescription:
 
     A different dictionary from the smart target's, so the two are never confused.
     """
-    ids, corners = _grid_markers(6, 6, 0.036, 0.048, 0)
+    ids, corners = grid_markers(6, 6, 0.036, 0.048, 0)
     plate = np.array([[-0.15, -0.16], [0.15, 0.16]])
     return TargetDescription(
         "selfcheck-6x6-5x5", "DICT_5X5_50", ids, corners, plate, np.array([0.0, 1.0, 0.0])

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from ..fsio import write_figure
-from .planner import DropReason, LegType, PlanResult
+from ..hardware.legs import Leg
+from .planner import DropReason, PlanResult
 
 
 def write_figures(res: PlanResult, out_dir: Path) -> list[Path]:
@@ -58,7 +59,7 @@ def write_figures(res: PlanResult, out_dir: Path) -> list[Path]:
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
     ax2 = fig.add_subplot(1, 2, 2)
     groups: list[tuple[str, np.ndarray, str, str]] = []
-    for leg, col in ((LegType.LINEAR, "tab:blue"), (LegType.JOINT, "tab:cyan")):
+    for leg, col in ((Leg.LINEAR, "tab:blue"), (Leg.JOINT, "tab:cyan")):
         pts = np.array([p.T_world_target[:3, 3] for p in res.poses if p.leg == leg]).reshape(-1, 3)
         groups.append((f"kept, {leg.value} leg ({len(pts)})", pts, col, "o"))
     colours = dict(

@@ -23,8 +23,9 @@ from quickhealth.identify.errors import InputError
 from quickhealth.identify.robot import RobotModel
 from quickhealth.identify.transforms import R_to_rpy, exp_so3, log_so3, make_T
 
+from ..hardware.legs import Leg
 from .cell import ROBOTS, Motion
-from .planner import DropReason, LegType, PlanResult
+from .planner import DropReason, PlanResult
 
 F = NDArray[np.float64]
 SCHEMA = "quickhealth.plan/1"
@@ -51,7 +52,7 @@ class PlanPose:
     name: str
     index: int  # 1-based position in the loop
     q: F  # (6,) rad
-    leg: LegType
+    leg: Leg
     pan: float  # rad
     T_base_target: F  # (4, 4), m
     candidate: int
@@ -67,7 +68,7 @@ class Plan:
     cell_sha256: str
     robot: RobotModel  # with the plan's joint limits
     poses: tuple[PlanPose, ...]
-    return_leg: LegType
+    return_leg: Leg
     motion: Motion
     T_flange_target: F
     T_world_base: F
@@ -128,7 +129,7 @@ def plan_to_dict(res: PlanResult) -> dict[str, Any]:
                 "leg_time_s": _r(p.leg_time_s, 3),
             }
         )
-    n_lin = sum(p.leg == LegType.LINEAR for p in res.poses[1:])
+    n_lin = sum(p.leg == Leg.LINEAR for p in res.poses[1:])
     doc: dict[str, Any] = {
         "schema": SCHEMA,
         "cell": {"name": cell.name, "source": cell.source, "sha256": cell.sha256},
@@ -384,7 +385,7 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
                 "joint target does not reach target_base_mm / target_base_rotvec_deg",
             )
         cand = _int(label, f"{key}.candidate", rp.get("candidate", -1), -1, 10**7)
-        poses.append(PlanPose(name, j + 1, q, LegType(leg), pan, T_bt, cand))
+        poses.append(PlanPose(name, j + 1, q, Leg(leg), pan, T_bt, cand))
     ret = doc.get("return_leg")
     if ret not in ("linear", "joint"):
         raise _err(label, "return_leg", f"expected 'linear' or 'joint', got {str(ret)[:40]!r}")
@@ -410,7 +411,7 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
         cell_sha256=csha,
         robot=robot,
         poses=tuple(poses),
-        return_leg=LegType(ret),
+        return_leg=Leg(ret),
         motion=motion,
         T_flange_target=T_ft,
         T_world_base=T_wb,

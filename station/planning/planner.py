@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.transforms import exp_so3, inv_T, log_so3, make_T
 
+from ..hardware.legs import Leg
 from .cell import Cell
 from .collision import CollisionWorld
 from .ik_ur import ik_ur, within_limits
@@ -51,13 +52,6 @@ Progress = Callable[[str, int, int], None]
 # Largest distance of any robot or target point from each joint axis (m), for sweep sampling.
 _REACH = np.array([1.0, 1.0, 0.65, 0.35, 0.3, 0.25])
 USABLE_TAIL = 0.025
-
-
-class LegType(StrEnum):
-    """How the robot arrives at a pose."""
-
-    LINEAR = "linear"
-    JOINT = "joint"
 
 
 class DropReason(StrEnum):
@@ -78,7 +72,7 @@ class PlannedPose:
 
     candidate: int  # index among the generated targets
     q: F  # (6,) rad, joint target
-    leg: LegType  # how the robot arrives here from the previous pose
+    leg: Leg  # how the robot arrives here from the previous pose
     branch: int  # IK solution index 0..7
     T_base_target: F  # (4, 4), target at pan 0
     T_world_target: F
@@ -124,7 +118,7 @@ class PlanResult:
     seed: int
     poses: tuple[PlannedPose, ...]
     dropped: tuple[DroppedTarget, ...]
-    return_leg: LegType
+    return_leg: Leg
     return_leg_time_s: float
     coverage: JointCoverage
     home: F | None = None  # (6,) rad; the first pose's leg_time_s is then the move from home
@@ -150,7 +144,7 @@ class PlanResult:
     def summary(self) -> list[str]:
         """The lines the command line prints."""
         by = ", ".join(f"{k} {v}" for k, v in self.dropped_by_reason.items() if v)
-        n_lin = sum(p.leg == LegType.LINEAR for p in self.poses[1:])
+        n_lin = sum(p.leg == Leg.LINEAR for p in self.poses[1:])
         c = self.coverage
         cov = " ".join(f"{x * 100:.0f}%" for x in c.coverage)
         full = " ".join(f"{x * 100:.0f}%" for x in c.coverage_full)
@@ -341,7 +335,7 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
     usable_min, usable_max = usable_range(q_feas)
 
     # step 3: order
-    order = _order(cell, Q[alive], feasible[alive])
+    order = order_tour(cell, Q[alive], feasible[alive])
     tour = [int(alive[k]) for k in order]
     first_k: int | None = None
     first_t = 0.0
@@ -350,11 +344,11 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
 
     # steps 4-5: legs and configurations
     walker = _Walker(cell, world, Q, feasible, T_bt, usable_min, usable_max)
-    kept: list[tuple[int, int, LegType, float]] = []
+    kept: list[tuple[int, int, Leg, float]] = []
     for step, i in enumerate(tour):
         progress("checking legs", step, len(tour))
         if step == 0 and first_k is not None:
-            choice: tuple[int, int, LegType, float] | None = (i, first_k, LegType.JOINT, first_t)
+            choice: tuple[int, int, Leg, float] | None = (i, first_k, Leg.JOINT, first_t)
         else:
             choice = walker.choose(i, kept[-1] if kept else None)
         if choice is None:
@@ -371,7 +365,7 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
         walker.add(choice)
     progress("checking legs", len(tour), len(tour))
     # the return leg closes the loop; drop trailing poses until it is feasible
-    ret: tuple[LegType, float] | None = None
+    ret: tuple[Leg, float] | None = None
     while len(kept) > 1:
         ret = walker.leg(kept[-1], kept[0][0], kept[0][1])
         if ret is not None:
@@ -387,7 +381,7 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
             )
         )
     if ret is None:
-        ret = (LegType.JOINT, 0.0)
+        ret = (Leg.JOINT, 0.0)
 
     poses = []
     for j, (i, k, leg, t) in enumerate(kept):
@@ -395,7 +389,7 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
             PlannedPose(
                 candidate=i,
                 q=Q[i, k].copy(),
-                leg=LegType.JOINT if j == 0 else leg,
+                leg=Leg.JOINT if j == 0 else leg,
                 branch=k,
                 T_base_target=T_bt[i],
                 T_world_target=T_wt[i],
@@ -452,7 +446,7 @@ def _start_from_home(
     opts = []
     for pos, i in enumerate(tour):
         for k in np.flatnonzero(feas[i]):
-            t = float(_trap_time(np.abs(Q[i, k] - home).max(), m.joint_speed, m.joint_accel))
+            t = float(trap_time(np.abs(Q[i, k] - home).max(), m.joint_speed, m.joint_accel))
             opts.append((t, pos, int(k)))
     for t, pos, k in sorted(opts):
         if joint_leg_ok(cell, world, home, Q[tour[pos], k]):
@@ -502,13 +496,13 @@ def joint_coverage(
     )
 
 
-def _trap_time(d: F, v: float, a: float) -> F:
+def trap_time(d: F, v: float, a: float) -> F:
     """Duration of a rest-to-rest trapezoidal move of length ``d`` (elementwise)."""
     d = np.abs(d)
     return np.where(d > v * v / a, d / v + v / a, 2.0 * np.sqrt(d / a))
 
 
-def _order(cell: Cell, Q: F, feas: NDArray[np.bool_]) -> list[int]:
+def order_tour(cell: Cell, Q: F, feas: NDArray[np.bool_]) -> list[int]:
     """Step 3: nearest neighbour then 2-opt on the joint-move time between poses."""
     k = len(Q)
     if k <= 2:
@@ -519,7 +513,7 @@ def _order(cell: Cell, Q: F, feas: NDArray[np.bool_]) -> list[int]:
         dq = np.abs(Qm[i][None, :, None, :] - Qm[:, None, :, :]).max(-1)
         D[i] = np.nanmin(np.where(np.isnan(dq), np.inf, dq).reshape(k, -1), axis=1)
     m = cell.motion
-    C = _trap_time(D, m.joint_speed, m.joint_accel)
+    C = trap_time(D, m.joint_speed, m.joint_accel)
     np.fill_diagonal(C, 0.0)
     # nearest neighbour from pose 0
     tour = [0]
@@ -583,7 +577,7 @@ class _Walker:
         expected = self.k / self.B
         return float(np.sum((self.hist[np.arange(6), b] + 1.0) / (expected + 1.0)))
 
-    def add(self, choice: tuple[int, int, LegType, float]) -> None:
+    def add(self, choice: tuple[int, int, Leg, float]) -> None:
         i, k = choice[0], choice[1]
         b = self._bins(self.Q[i, k])
         self.hist[np.arange(6), b] += 1
@@ -600,13 +594,13 @@ class _Walker:
                 return
 
     def choose(
-        self, i: int, prev: tuple[int, int, LegType, float] | None
-    ) -> tuple[int, int, LegType, float] | None:
+        self, i: int, prev: tuple[int, int, Leg, float] | None
+    ) -> tuple[int, int, Leg, float] | None:
         ks = np.flatnonzero(self.feas[i])
         if prev is None:
             pen = [self.penalty(self.Q[i, k]) for k in ks]
-            return (i, int(ks[int(np.argmin(pen))]), LegType.JOINT, 0.0)
-        best: tuple[float, float, tuple[int, int, LegType, float]] | None = None
+            return (i, int(ks[int(np.argmin(pen))]), Leg.JOINT, 0.0)
+        best: tuple[float, float, tuple[int, int, Leg, float]] | None = None
         opts = sorted(ks, key=lambda k: self.penalty(self.Q[i, k]))
         for k in opts:
             pen = self.penalty(self.Q[i, k])
@@ -615,26 +609,24 @@ class _Walker:
             leg = self.leg(prev, i, int(k))
             if leg is None:
                 continue
-            score = pen - (self.cell.planner.linear_preference if leg[0] == LegType.LINEAR else 0.0)
+            score = pen - (self.cell.planner.linear_preference if leg[0] == Leg.LINEAR else 0.0)
             cand = (score, leg[1], (i, int(k), leg[0], leg[1]))
             if best is None or (score, leg[1]) < (best[0], best[1]):
                 best = cand
         return None if best is None else best[2]
 
-    def leg(
-        self, prev: tuple[int, int, LegType, float], i: int, k: int
-    ) -> tuple[LegType, float] | None:
+    def leg(self, prev: tuple[int, int, Leg, float], i: int, k: int) -> tuple[Leg, float] | None:
         """The preferred feasible leg from ``prev`` to configuration k of target i, or None."""
         q0 = self.Q[prev[0], prev[1]]
         q1 = self.Q[i, k]
         t = linear_leg_time(self.cell, self.T_bt[prev[0]], self.T_bt[i])
         if linear_leg_ok(self.cell, self.world, self.T_bt[prev[0]], q0, self.T_bt[i], q1):
-            return (LegType.LINEAR, t)
+            return (Leg.LINEAR, t)
         if joint_leg_ok(self.cell, self.world, q0, q1):
             m = self.cell.motion
             return (
-                LegType.JOINT,
-                float(_trap_time(np.abs(q1 - q0).max(), m.joint_speed, m.joint_accel)),
+                Leg.JOINT,
+                float(trap_time(np.abs(q1 - q0).max(), m.joint_speed, m.joint_accel)),
             )
         return None
 
@@ -643,7 +635,7 @@ def linear_leg_time(cell: Cell, T_a: F, T_b: F) -> float:
     """Estimated duration of a moveL between two target poses (position-limited)."""
     d = float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3]))
     m = cell.motion
-    return float(_trap_time(np.array(d), m.linear_speed, m.linear_accel))
+    return float(trap_time(np.array(d), m.linear_speed, m.linear_accel))
 
 
 def interpolate_linear(T_a: F, T_b: F, s: F) -> F:

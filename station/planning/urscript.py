@@ -33,8 +33,8 @@ import numpy as np
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.transforms import log_so3
 
+from ..hardware.legs import Leg
 from .planfile import HASH_RE, NAME_RE, Plan
-from .planner import LegType
 
 HOME_TOLERANCE_RAD = 0.05  # how far from home (per joint) the program refuses to start
 
@@ -79,8 +79,8 @@ def render_urscript(plan: Plan) -> str:
     _i(k, 1, 100000)
     cell = plan.cell_name if re.fullmatch(r"[A-Za-z0-9_\-]{1,64}", plan.cell_name) else "?"
 
-    def move(leg: LegType, q: np.ndarray) -> str:
-        if leg == LegType.LINEAR:
+    def move(leg: Leg, q: np.ndarray) -> str:
+        if leg == Leg.LINEAR:
             return f"movel({_q(q)}, a={la}, v={lv})"
         return f"movej({_q(q)}, a={ja}, v={jv})"
 
@@ -125,7 +125,7 @@ def render_urscript(plan: Plan) -> str:
         ]
     L += [
         f"  # {_name(plan.poses[0].name)}: first pose",
-        "  " + move(LegType.JOINT, plan.poses[0].q),
+        "  " + move(Leg.JOINT, plan.poses[0].q),
     ]
     L += ["  qh_pass = 0", f"  while qh_pass < {_i(m.passes, 1, 100)}:"]
     for j, p in enumerate(plan.poses):

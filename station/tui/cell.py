@@ -23,7 +23,7 @@ from typing import Any
 
 from quickhealth.identify.errors import HardwareError, QuickhealthError
 
-from .views import Check, Connection, Fault, PoseStatus, Preflight, RunProgress
+from .views import CellState, Check, Connection, Fault, PoseStatus, Preflight, RunProgress
 
 WHAT_TO_DO = {
     "connection-lost": "check the network cable and the power of the robot controller; "
@@ -94,7 +94,7 @@ class CellControl:
         self._lock = threading.Lock()
         self.running = False
         self.paused = False
-        self.state = "idle"
+        self.state = CellState.IDLE
         self.fault: Fault | None = None
         self._status: dict[int, PoseStatus] = {}
         self._t_pose: list[float] = []
@@ -232,10 +232,11 @@ class CellControl:
 
     def _on_event(self, ev: Any, emit: Callable[[RunProgress], None]) -> None:
         from quickhealth.station.journal import JOURNAL, read_journal
+        from quickhealth.station.run import ProgressKind
 
         if ev.index <= 0 or ev.index not in self._status:
             return
-        if ev.kind == "move":
+        if ev.kind == ProgressKind.MOVE:
             now = time.monotonic()
             with self._lock:
                 if self._t_last is not None:
@@ -245,10 +246,10 @@ class CellControl:
                 ps = PoseStatus(ev.index - 1, ev.name, "moving", q)
                 self._status[ev.index] = ps
                 self._current = ps
-        elif ev.kind in ("pose", "measured"):
+        elif ev.kind in (ProgressKind.POSE, ProgressKind.MEASURED):
             st = read_journal(self.run_dir / JOURNAL)
             ps = self._from_journal(st, ev.index)
-            if ev.kind == "pose" and ev.status == "failed":
+            if ev.kind == ProgressKind.POSE and ev.status == "failed":
                 ps = PoseStatus(
                     ps.index, ps.pose_id, "failed", ps.q_deg, ps.markers, reason=ev.message
                 )
@@ -276,7 +277,7 @@ class CellControl:
             self.running, self.paused, self._abort = True, False, False
             self.fault = None
             self._cancel.clear()
-            self.state = "running"
+            self.state = CellState.RUNNING
         emit(self._snapshot())
         try:
             while True:
@@ -293,29 +294,29 @@ class CellControl:
                     )
                 except QuickhealthError as exc:  # pre-flight refused: nothing moved
                     self.fault = classify(self.station.robot, str(exc))
-                    self.state = "fault"
+                    self.state = CellState.FAULT
                     break
                 if res.stopped is None:
-                    self.state = "finished"
+                    self.state = CellState.FINISHED
                     break
                 if self._abort:
-                    self.state = "aborted"
+                    self.state = CellState.ABORTED
                     break
                 if self._cancel.is_set():  # paused: wait for resume or abort
-                    self.state = "paused"
+                    self.state = CellState.PAUSED
                     emit(self._snapshot())
                     self._wake.wait()
                     self._wake.clear()
                     self._cancel.clear()
                     if self._abort:
-                        self.state = "aborted"
+                        self.state = CellState.ABORTED
                         break
                     self.paused = False
-                    self.state = "running"
+                    self.state = CellState.RUNNING
                     emit(self._snapshot())
                     continue
                 self.fault = classify(self.station.robot, res.stopped)
-                self.state = "fault"
+                self.state = CellState.FAULT
                 break
         finally:
             with self._lock:
@@ -373,8 +374,8 @@ class CellControl:
             raise HardwareError(f"robot not ready: {st.describe()}")
         with self._lock:
             self.fault = None
-            if self.state == "fault":
-                self.state = "idle"
+            if self.state == CellState.FAULT:
+                self.state = CellState.IDLE
 
     def close(self) -> None:
         """Stop the arm if it moves, end the run, release the hardware."""

@@ -560,11 +560,11 @@ class Station:
         problems: list[str] = []
         t0 = robot.now()
         for p in plan.poses[1:]:
-            linear = p.leg.value == "linear"
+            linear = p.leg == Leg.LINEAR
             try:
                 robot.move(
                     p.q,
-                    Leg.LINEAR if linear else Leg.JOINT,
+                    p.leg,
                     speed=m.linear_speed if linear else m.joint_speed,
                     accel=m.linear_accel if linear else m.joint_accel,
                 )
@@ -621,7 +621,6 @@ class Station:
             h.curves,
             str(d),
         )
-        report["healthy"] = h.verdict == "healthy"  # the archive reads it at the top level
         write_model(d / "model.json", self.analysis.model())
         write_report(d / "report.json", report)
         if not (d / "measurements.csv").exists():

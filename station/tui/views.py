@@ -8,6 +8,7 @@ seconds for durations.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -118,11 +119,22 @@ class Fault:
     what_to_do: str
 
 
+class CellState(StrEnum):
+    """Where the run of the Run screen is."""
+
+    IDLE = "idle"
+    RUNNING = "running"
+    PAUSED = "paused"
+    ABORTED = "aborted"
+    FAULT = "fault"
+    FINISHED = "finished"
+
+
 @dataclass(frozen=True)
 class RunProgress:
     """The run as the Run screen shows it, after every pose event."""
 
-    state: str  # "idle", "running", "paused", "aborted", "fault", "finished"
+    state: CellState
     done: int
     total: int
     eta_s: float | None

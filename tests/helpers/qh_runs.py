@@ -35,13 +35,16 @@ def make_run(
     meta: dict[str, str] | None = None,
     order: int = 1,
     light: bool = False,
+    effects: dict[str, float] | None = None,
 ) -> Path:
     """Write one run folder; ``degrade`` adds to true coefficients (e.g. ``{"j2.ex.c0": 3e-4}``).
 
     ``repeats`` > 0 visits the first 5 poses that many extra times (ISO 9283 repeatability).
     ``light``: a smaller workspace sample and no joint curves in report.json (fast fleets).
+    ``effects``: physical effects hidden in this run's robot (SI sizes, :func:`make_twin`), not
+    in its fitted model (the diagnosis then has a candidate that matters).
     """
-    twin = make_twin(seed=1, position_dependent=False)
+    twin = make_twin(seed=1, position_dependent=False, effects=effects)
     if degrade:
         labels = twin.truth.spec.labels()
         c = twin.truth.coeffs.copy()

@@ -132,6 +132,26 @@ def test_duplicate_and_bad_inputs(tmp_path, run_dirs, index_url):
     assert a.get("ur5-a", "ghost").healthy is False and (own / "report.json").is_file()
 
 
+def test_the_verdict_comes_from_the_reports_run_object(tmp_path, run_dirs, index_url):
+    # the TUI writes its verdict as run.healthy (report.json has no second, top-level copy);
+    # reports written before that carried a top-level "healthy": both are read
+    import shutil
+
+    a = Archive.open(tmp_path / "arch", url=index_url)
+    for name, extra in (
+        ("tui", {"run": {"run_id": "tui", "healthy": False}}),
+        ("old", {"healthy": False}),
+    ):
+        d = tmp_path / name
+        shutil.copytree(run_dirs[0], d)
+        rep = json.loads((d / "report.json").read_text())
+        (d / "report.json").write_text(json.dumps({**rep, **extra}))
+        a.add_run("ur5-a", d, run_id=name)
+        assert a.get("ur5-a", name).healthy is False
+    a.add_run("ur5-a", run_dirs[1], run_id="plain")
+    assert a.get("ur5-a", "plain").healthy is None  # unknown: counts as healthy for a baseline
+
+
 def _trend(capsys, *argv):
     rc = main(["trend", *argv])
     cap = capsys.readouterr()

@@ -19,7 +19,8 @@ import pytest
 import qh_fleet
 import qh_runs as _runs
 
-from quickhealth.station.archive import Archive, _read_json, report_figures
+from quickhealth.station.archive import Archive, report_figures
+from quickhealth.station.formats import load_json_limited
 
 N_STATIONS, N_RUNS, KILL_RUN = 8, 10, 4
 KILLS = {5: "copy", 6: "insert", 7: "rename"}  # station -> where it kills itself
@@ -51,7 +52,9 @@ def _same_tree(a: Path, b: Path) -> bool:
 def _fleet(tmp_path, url, sources):
     root = tmp_path / "shared-archive"
     Archive.open(root, url)  # the schema exists before the stations start (they race too)
-    figures = {s: report_figures(_read_json(Path(s) / "report.json"))[0]["max"] for s in sources}
+    figures = {
+        s: report_figures(load_json_limited(Path(s) / "report.json"))[0]["max"] for s in sources
+    }
     # children fork from a clean single-threaded server that imported the code once
     ctx = mp.get_context("forkserver")
     ctx.set_forkserver_preload(["qh_fleet", "quickhealth.station.commands.trend"])

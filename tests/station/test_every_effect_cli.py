@@ -3,8 +3,11 @@
 For each of the six effect families of CONTRACTS.md, one case with two effects at once and one
 with three: ``quickhealth twin`` hides the effects, ``identify fit`` fits the paper's model,
 ``diagnose`` names what is missing, ``identify fit --effects <its suggested list>`` fits again
-and ``identify predict`` on held-out poses must come within 1.3x the noise floor.  Then the
-TUI's "add effect" and its results (report.json) for the condition-dependent effects.
+and ``identify predict`` on held-out poses must come within 1.3x the noise floor.  On the same
+data the other doors: ``compare`` (the held-out error falls) and reprocessing of the fitted run
+folder (the same report.json) for every case, the TUI's "add effect" (the held-out error
+falls) for the two- and three-effect cases.  Then the TUI's "add effect" and results
+(report.json) for the condition-dependent effects, thermal and drift.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import shutil
 from pathlib import Path
 
 import pytest
@@ -35,6 +39,8 @@ CASES = {
         {"compliance:j2", "cyclic:j1:h9", "depthscale"},
     ),
 }
+
+TUI_CASES = ("two", "three")  # with the thermal-and-drift TUI test below: all six families
 
 
 def _qh(*argv: str) -> None:
@@ -72,6 +78,43 @@ def test_twin_diagnose_fit_predict_through_the_cli(case: str, tmp_path: Path, ca
     rms = math.sqrt(sum(float(r["meas_minus_model_mm"]) ** 2 for r in rows) / len(rows))
     print(f"{case}: held-out RMS {rms:.4f} mm = {rms / FLOOR_MM:.3f} x floor")
     assert rms <= 1.3 * FLOOR_MM, (case, rms)
+    _other_doors(case, effects, truth, meas, tmp_path)
+
+
+def _other_doors(case: str, effects: str, truth: set[str], meas: Path, tmp_path: Path) -> None:
+    """compare, reprocess and the TUI's "add effect" with the same effects on the same data."""
+    from quickhealth.station.reprocess import ReprocessJob, reprocess_run
+    from quickhealth.station.tui.facade import Station
+
+    heldout = tmp_path / "meas.heldout.csv"
+    # compare: the model without and with the effects, judged on the held-out poses
+    cmp = tmp_path / "cmp.json"
+    _qh(
+        "compare", tmp_path / "fit0/model.json", meas, "--effects", effects,
+        "--heldout", heldout, "--json", cmp,
+    )  # fmt: skip
+    doc = json.loads(cmp.read_text())
+    assert doc["after"]["pos_mm"] < 0.8 * doc["before"]["pos_mm"], (case, doc["after"])
+    # reprocess the fitted run folder (orders selected anew, as identify fit did): same report
+    run = tmp_path / "fit1"
+    shutil.copy(meas, run / "measurements.csv")
+    res = reprocess_run(ReprocessJob("ur5", case, str(run), str(tmp_path / "re"), orders="select"))
+    assert res.ok, res.error
+    cli, rep = (json.loads((d / "report.json").read_text()) for d in (run, tmp_path / "re"))
+    check_report(rep)
+    assert rep["effects"] == cli["effects"] and rep["orders"] == cli["orders"]
+    for key in ("rms_pos_mm", "bic", "chi2"):
+        assert math.isclose(rep[key], cli[key], rel_tol=1e-9), (case, key)
+    assert math.isclose(rep["workspace"]["max_mm"], cli["workspace"]["max_mm"], rel_tol=1e-9)
+    # the TUI: add each effect to the model it fitted itself (the two- and three-effect cases
+    # and test_tui_adds_thermal_and_drift_and_writes_the_report: every family, ~1 s per effect)
+    if case not in TUI_CASES:
+        return
+    station = Station.from_data(meas, heldout, archive_root=tmp_path / "arch", run_id=case)
+    for effect in sorted(truth):
+        refit = station.add_effect(effect)
+        assert effect in refit.effects_after and refit.after_mm < refit.before_mm, (case, refit)
+    assert set(station.analysis.effects) == truth
 
 
 def test_predict_names_the_conditions_it_assumed(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -13,12 +13,12 @@ from quickhealth.station.planning.cell import Obstacle, load_cell
 from quickhealth.station.planning.collision import CollisionWorld
 from quickhealth.station.planning.ik_ur import ik_ur
 from quickhealth.station.planning.planner import (
-    _order,
-    _trap_time,
     joint_coverage,
     joint_leg_ok,
     linear_leg_ok,
+    order_tour,
     sample_targets,
+    trap_time,
 )
 
 
@@ -57,10 +57,10 @@ def test_order_finds_the_short_loop(cell):
     Q[:, :, 0] = a[:, None]
     feas = np.zeros((25, 8), dtype=bool)
     feas[:, 0] = True
-    t = _order(cell, Q, feas)
+    t = order_tour(cell, Q, feas)
     assert sorted(t) == list(range(25))
     m = cell.motion
-    C = _trap_time(np.abs(a[:, None] - a[None, :]), m.joint_speed, m.joint_accel)
+    C = trap_time(np.abs(a[:, None] - a[None, :]), m.joint_speed, m.joint_accel)
     best = list(np.argsort(a))
     assert _tour_cost(C, t) <= _tour_cost(C, best) + 1e-9
 
@@ -119,3 +119,22 @@ def test_coverage_and_evenness_figures():
     assert np.allclose(c2.coverage, 0.01)
     q3 = np.tile(np.linspace(0.0, 0.5, 60)[:, None], (1, 6))
     assert np.allclose(joint_coverage(q3, lo, hi, 12).coverage, 0.5)
+
+
+def test_one_leg_type_for_the_planner_plan_file_and_driver():
+    import subprocess
+    import sys
+
+    from quickhealth.station.hardware.legs import Leg
+    from quickhealth.station.hardware.robot import Leg as DriverLeg
+    from quickhealth.station.planning import planfile, planner
+
+    assert planner.Leg is Leg and planfile.Leg is Leg and DriverLeg is Leg
+    assert [str(v) for v in Leg] == ["joint", "linear"]  # plan.json's values
+    # the driver imports the leg vocabulary without any of the planner's modules
+    code = (
+        "import sys, quickhealth.station.hardware.robot as r; "
+        "print(sorted(m for m in sys.modules if m.startswith('quickhealth.station.planning')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

@@ -6,13 +6,14 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 import qh_required
 import qh_runs as _runs
 
 from quickhealth.station.archive import Archive
 from quickhealth.station.cli import main
-from quickhealth.station.report_html import iso9283_pose_stats
+from quickhealth.station.report_html import iso9283_pose_stats, joint_figure, trend_figure
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path("/usr/bin/chromedriver")
@@ -42,7 +43,8 @@ SECTIONS = [
 
 @pytest.fixture(scope="module")
 def archived(tmp_path_factory):
-    """Three archived runs of one robot; the last has repeated poses and a degraded joint 2."""
+    """Three archived runs of one robot; the last has repeated poses, a degraded joint 2 and a
+    cyclic error of joint 1 (9 per turn) its model does not have: a candidate that matters."""
     base = tmp_path_factory.mktemp("rep")
     a = Archive.open(base / "arch")
     for i in range(3):
@@ -53,6 +55,7 @@ def archived(tmp_path_factory):
             repeats=3 if i == 2 else 0,
             degrade={"j2.ex.c0": 4e-4} if i == 2 else None,
             time_utc=f"2026-0{i + 1}-01T08:00:00Z",
+            effects={"cyclic:j1:h9": 2e-4} if i == 2 else None,
         )
         a.add_run("ur5-a", d)
     return a
@@ -168,8 +171,9 @@ def test_report_renders_every_plot_in_chromium(reported):
     assert line["text"].startswith("FLAGGED: "), line
     assert "baseline" in err["text"] and "mean" in err["text"] and "max" in err["text"], err
     assert top["text"].startswith("top missing effect: "), top
-    # candidates too small to matter are folded away (closed <details>), if any
-    assert all(not d["open"] for d in dom["folded"])
+    # the candidate that matters is in view; the rest are folded away (one closed <details>)
+    assert top["text"] == "top missing effect: cyclic:j1:h9", top
+    assert [(d["open"], d["rows"] > 2) for d in dom["folded"]] == [(False, True)], dom["folded"]
     # coverage, histogram, 6 joints' curves, residuals, trend, ISO 9283
     want = {"plot-coverage", "plot-workspace_hist", "plot-residuals", "plot-trend", "plot-iso9283"}
     want |= {f"plot-curves_j{j}" for j in range(1, 7)}
@@ -189,6 +193,94 @@ def test_report_command_extends_report_json(reported):
     assert all(p["n"] == 4 and p["rp_mm"] < 0.3 for p in doc["iso9283"]["poses"])
     assert doc["diagnosis"]["verdict"] in ("adequate", "missing-effect")
     assert len(doc["coverage"]["range_share"]) == 6
+
+
+@pytest.mark.slow
+def test_diagnosis_shows_the_candidate_that_matters_and_folds_the_rest(reported):
+    import html
+    import re
+
+    doc = json.loads((reported / "report.json").read_text())
+    cands = doc["diagnosis"]["candidates"]
+    page = (reported / "report.html").read_text()
+    sec = page[page.index('<section id="diagnosis">') :]
+    sec = sec[: sec.index("</section>")]
+    shown_part, _, folded_part = sec.partition("<details>")
+    assert "<details open" not in sec and folded_part  # folded, and closed
+
+    def rows(part: str) -> list[tuple[str, str]]:
+        return [
+            (html.unescape(e), html.unescape(ev))
+            for e, ev in re.findall(
+                r"<tr><td>(.*?)</td><td>.*?</td><td>.*?</td><td>(.*?)</td>", part
+            )
+        ]
+
+    shown, folded = rows(shown_part), rows(folded_part)
+    # both non-empty: the hidden cyclic error is shown, the side harmonics are folded
+    assert [e for e, _ in shown] == ["cyclic:j1:h9"]
+    assert {e for e, _ in shown} == {c["effect"] for c in cands if c["significant"]}
+    assert {e for e, _ in folded} == {c["effect"] for c in cands if not c["significant"]}
+    kinds = {ev.split(" (")[0].split(":")[0] for _, ev in folded}
+    assert "detectable but too small to matter" in kinds, kinds  # the case the fold is for
+    assert f"{len(folded)} candidates too small to matter or not significant" in folded_part
+
+
+def test_motions_the_data_cannot_identify_are_labelled_not_identifiable(tmp_path):
+    from quickhealth.identify.errormodel import MOTIONS
+    from quickhealth.identify.workspace import all_joint_curves
+    from quickhealth.station import formats
+
+    # constant (order 0) error motions: a joint's dz and ez constants are not identifiable
+    # (they are the next joint's, or the base's), the rest are
+    d = _runs.make_run(tmp_path / "r", 0, n_poses=30, order=0, light=True)
+    fm = formats.read_model(d / "model.json")
+    states = {"not identifiable": 0, "drawn": 0}
+    for c in all_joint_curves(fm, n_points=21):
+        fig = joint_figure(c, fm)
+        for m, ax in enumerate(fig.axes):
+            label = f"j{c.joint}.{MOTIONS[m]}.c0"
+            texts = [t.get_text() for t in ax.texts]
+            if label in fm.unidentifiable:
+                # said in words on a grey panel, no flat zero line, no band
+                assert texts == ["not identifiable"] and not ax.lines and not ax.collections
+                states["not identifiable"] += 1
+            else:
+                assert texts == [] and len(ax.lines) == 1 and len(ax.collections) == 1, label
+                band = ax.collections[0].get_paths()[0].vertices[:, 1]
+                assert np.ptp(band) > 0, label  # a band with a width
+                states["drawn"] += 1
+    assert states["not identifiable"] >= 6 and states["drawn"] >= 12, states
+
+
+@pytest.mark.parametrize("n_runs", [2, 3])
+def test_control_chart_stays_readable_with_few_runs(n_runs):
+    from quickhealth.identify.trend import RunState, assess_trend
+
+    # a UR5's workspace figures over three monthly runs, the third after a crash: with so few
+    # runs the limit's σ comes from the runs' own jump and climbs far above the data
+    history = [
+        {"mean": 0.21, "std": 0.08, "max": 0.52},
+        {"mean": 0.22, "std": 0.08, "max": 0.55},
+        {"mean": 1.05, "std": 0.46, "max": 2.61},
+    ]
+    if n_runs == 2:
+        history = [history[0], history[2]]
+    runs = [RunState(f"r{i}", 1.77e9 + i * 30 * 86400.0, f) for i, f in enumerate(history)]
+    res = assess_trend(runs, 0)
+    fig = trend_figure(res)
+    climbed = 0
+    for ax, f in zip(fig.axes, ("mean", "std", "max"), strict=True):
+        seen = [*res.figures_mm[f], *res.charts[f].ewma_mm]
+        lo, top = ax.get_ylim()
+        assert lo == 0.0 and max(seen) < top <= 1.35 * max(seen) + 1e-12, (f, top)  # all in view
+        ucl = max(res.charts[f].ucl_mm)
+        if ucl > top:  # the limit is off the axis: said in words with its value
+            climbed += 1
+            assert [t.get_text() for t in ax.texts] == [
+                f"control limit up to {ucl:.2f} mm (few runs: σ not yet known)"
+            ]
+    assert climbed >= 1  # the case the axis rule is for
 
 
 def test_iso9283_figures_of_repeated_poses():

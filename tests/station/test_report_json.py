@@ -19,7 +19,7 @@ from quickhealth.station.reprocess import ReprocessJob, reprocess_run
 from quickhealth.station.tui.facade import Station
 
 MAX_ORDER = 2
-PRODUCER_KEYS = ("input", "run", "healthy")  # who wrote it, not what was assessed
+PRODUCER_KEYS = ("input", "run")  # who wrote it, not what was assessed
 
 
 def _compare(a: Any, b: Any, where: str = "") -> None:
@@ -96,3 +96,23 @@ def test_check_report_names_what_is_wrong() -> None:
         check_report({"schema": "quickhealth.report/1"})
     with pytest.raises(InputError, match="missing key 'n_poses'"):
         check_report({"schema": SCHEMA})
+
+
+def test_one_checker_serves_the_archive_and_the_schema() -> None:
+    # report_json re-exports the formats package's checker and schema: one of each
+    from quickhealth.station import formats
+
+    assert check_report is formats.check_report and SCHEMA == formats.REPORT_SCHEMA
+    v1 = {
+        "schema": "quickhealth.report/1",
+        "n_poses": 150,
+        "rms_pos_mm": 0.05,
+        "chi2": 420.0,
+        "bic": 1234.5,
+        "workspace": {"mean_mm": 0.3, "std_mm": 0.1, "max_mm": 0.8},
+    }
+    check_report(v1, "old.json", complete=False)  # the archive still takes version 1
+    with pytest.raises(InputError, match="old.json: schema is 'quickhealth.report/1'"):
+        check_report(v1, "old.json")
+    with pytest.raises(InputError, match=r"old.json: bic is nan: not a complete fit report"):
+        check_report({**v1, "bic": float("nan")}, "old.json", complete=False)

@@ -16,9 +16,9 @@ import pytest
 import qh_station_plan as _station_plan
 
 from quickhealth.identify.robot import ur5
+from quickhealth.station.hardware.legs import Leg
 from quickhealth.station.hardware.urtypes import RuntimeState, SafetyMode
 from quickhealth.station.planning.planfile import load_plan
-from quickhealth.station.planning.planner import LegType
 from quickhealth.station.sim.arm import (
     HOME_Q_DEG,
     Arm,
@@ -183,7 +183,7 @@ def test_analytic_path_equals_the_dls_path_on_the_reference_plans_linear_legs(pl
     legs = []
     prev = plan.home if plan.home is not None else np.radians(HOME_Q_DEG)
     for p in plan.poses:
-        if p.leg == LegType.LINEAR:
+        if p.leg == Leg.LINEAR:
             length = np.linalg.norm(robot.fk(p.q)[:3, 3] - robot.fk(prev)[:3, 3])
             legs.append((length, prev, p.q))
         prev = p.q

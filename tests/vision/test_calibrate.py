@@ -197,7 +197,7 @@ def test_reported_uncertainty_matches_monte_carlo_refits():
     import cv2
 
     from quickhealth.identify.transforms import kabsch
-    from quickhealth.vision.calibrate import _intrinsics_cov, projection_std
+    from quickhealth.vision.calibrate import intrinsics_cov, projection_std
 
     rng = np.random.default_rng(5)
     shift = make_T(np.eye(3), [-4 * 0.03, -2.5 * 0.03, 0])
@@ -231,7 +231,7 @@ def test_reported_uncertainty_matches_monte_carlo_refits():
         q.append(c.camera.project(rays @ kabsch(P_true, P_est)[:3, :3].T))
         if sig is None:
             sig = c.std[[0, 2]]
-            cov = _intrinsics_cov(c.camera, views, [np.ones(len(obj), bool)] * 12, c.rvecs, c.tvecs)
+            cov = intrinsics_cov(c.camera, views, [np.ones(len(obj), bool)] * 12, c.rvecs, c.tvecs)
             pred = np.diag(projection_std(c.camera, cov, pix[:, 0], pix[:, 1]))
     spread = np.std(np.array(fits), axis=0, ddof=1)
     assert np.all(spread > 0.6 * sig) and np.all(spread < 1.6 * sig), (spread, sig)

@@ -5,7 +5,7 @@ import pytest
 from quickhealth.identify.transforms import make_T, rot_x, rot_y
 from quickhealth.vision.boards import Layer, parse_board_spec
 from quickhealth.vision.camera import CameraModel
-from quickhealth.vision.render import Imaging, _render, render_board
+from quickhealth.vision.render import Imaging, render_board, render_layers
 
 
 @pytest.mark.parametrize("ss", [1, 3])
@@ -26,7 +26,9 @@ def test_edges_land_where_the_model_projects_them_to_0_01_px(ss):
     sharp = Imaging(
         blur_px=0.0, noise_dn=0.0, white_dn=255.0, dark_dn=0.0, background=1.0, supersample=ss
     )
-    img = _render(cam, T, [sq], np.array([[-0.05, -0.04], [0.05, 0.04]]), sharp, None).astype(float)
+    img = render_layers(cam, T, [sq], np.array([[-0.05, -0.04], [0.05, 0.04]]), sharp, None).astype(
+        float
+    )
     dark = 1.0 - img / 255.0
     x = np.arange(400.0)
     rows = slice(150 - 5, 150 + 5)

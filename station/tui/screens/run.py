@@ -15,7 +15,7 @@ from textual.reactive import reactive
 from textual.screen import Screen
 from textual.widgets import DataTable, Footer, ProgressBar, Static
 
-from ..views import PoseStatus, RunProgress
+from ..views import CellState, PoseStatus, RunProgress
 from ..widgets.nav import NavBar
 from ..widgets.textplot import fmt_duration
 from .confirm import ConfirmScreen
@@ -29,12 +29,12 @@ STATUS_MARK = {
     "skipped": "[yellow]skipped[/]",
 }
 STATE_WORDS = {
-    "idle": "Ready: press [b]r[/b] to start the run.",
-    "running": "[cyan]Running[/]  [b]p[/b] pause · [b]a[/b] abort",
-    "paused": "[yellow]Paused[/] after this pose  [b]p[/b] resume · [b]a[/b] abort",
-    "aborted": "[red]Aborted[/]: robot stopped, measured poses kept. [b]r[/b] resumes the run.",
-    "fault": "[b red]Stopped by a fault[/] (below)",
-    "finished": "[green]Finished[/]: press [b]4[/b] for the results.",
+    CellState.IDLE: "Ready: press [b]r[/b] to start the run.",
+    CellState.RUNNING: "[cyan]Running[/]  [b]p[/b] pause · [b]a[/b] abort",
+    CellState.PAUSED: "[yellow]Paused[/] after this pose  [b]p[/b] resume · [b]a[/b] abort",
+    CellState.ABORTED: "[red]Aborted[/]: robot stopped, measured poses kept. [b]r[/b] resumes the run.",
+    CellState.FAULT: "[b red]Stopped by a fault[/] (below)",
+    CellState.FINISHED: "[green]Finished[/]: press [b]4[/b] for the results.",
 }
 
 
@@ -62,7 +62,7 @@ class RunScreen(Screen[None]):
             with Horizontal(id="run-top"):
                 yield ProgressBar(id="run-bar", show_eta=False)
                 yield Static("", id="run-eta")
-            yield Static(STATE_WORDS["idle"], id="run-state")
+            yield Static(STATE_WORDS[CellState.IDLE], id="run-state")
             yield Static("", id="fault", classes="fault")
             yield Static("Current pose: –", id="run-current")
             yield Static("Last measurement: –", id="run-last")
@@ -167,7 +167,7 @@ class RunScreen(Screen[None]):
 
     def action_reconnect(self) -> None:
         p = self.progress
-        if p is None or p.state not in ("fault", "aborted"):
+        if p is None or p.state not in (CellState.FAULT, CellState.ABORTED):
             self.notify("Nothing to reconnect: the run is not stopped by a fault.")
             return
         self.query_one("#run-state", Static).update("Reconnecting…")
@@ -180,7 +180,7 @@ class RunScreen(Screen[None]):
         except Exception as exc:
             self.app.call_from_thread(self.notify, f"Still no connection: {exc}", severity="error")
             self.app.call_from_thread(
-                self.query_one("#run-state", Static).update, STATE_WORDS["fault"]
+                self.query_one("#run-state", Static).update, STATE_WORDS[CellState.FAULT]
             )
             return
         self.app.call_from_thread(self._reconnected)
@@ -201,7 +201,7 @@ class RunScreen(Screen[None]):
             return
         bar = self.query_one("#run-bar", ProgressBar)
         bar.update(total=max(1, p.total), progress=p.done)
-        eta = "" if p.state != "running" else f"ETA {fmt_duration(p.eta_s)}"
+        eta = "" if p.state != CellState.RUNNING else f"ETA {fmt_duration(p.eta_s)}"
         self.query_one("#run-eta", Static).update(f"{p.done}/{p.total}  {eta}")
         self.query_one("#run-state", Static).update(STATE_WORDS.get(p.state, p.state))
         fault = self.query_one("#fault", Static)
@@ -213,7 +213,7 @@ class RunScreen(Screen[None]):
             fault.display = True
         else:
             fault.display = False
-        if p.current is None and p.state != "running":
+        if p.current is None and p.state != CellState.RUNNING:
             self.query_one("#run-current", Static).update("Current pose: –")
             for ps in self.app.station.pose_table():  # type: ignore[attr-defined]
                 if ps.status == "pending":

@@ -1,0 +1,122 @@
+"""Files of the identification, one module per format.
+
+- :mod:`.measurements`: measurement CSV v1 (CONTRACTS.md), and the meaning checks before a fit;
+- :mod:`.model`: model.json (``quickhealth.model/1``);
+- :mod:`.report`: report.json (``quickhealth.report/2``): schema, writer, reader, checker;
+- :mod:`.robot`: robot descriptions (``--robot``: built-in name, DH table TOML, URDF);
+- :mod:`.urscript`: URScript programs (joint targets for ``predict``, ``compensate``);
+- :mod:`.wam`: the Barrett WAM laser-tracker data set;
+- :mod:`.common`: what they share: the read limits and the one atomic write (``fsio``).
+
+Every unit conversion between the file boundary (mm, degrees) and the library (m, rad)
+happens here, once.  Every bad input raises :class:`InputError` with one line
+``file:line:column: what`` (line and column 1-based; column = the CSV column).
+Everything is re-exported here: ``from quickhealth.station.formats import read_model``.
+"""
+
+from __future__ import annotations
+
+from .common import (
+    MAX_BYTES,
+    MAX_CELL_CHARS,
+    MAX_FIT_ROWS,
+    MAX_JSON_DEPTH,
+    MAX_ROWS,
+    MIN_DISTINCT_POSES,
+    MIN_JOINT_SPAN_DEG,
+    MiB,
+    finite_float,
+    load_json_limited,
+    read_text_limited,
+    write_text_atomic,
+)
+from .measurements import (
+    OPTIONAL_COLUMNS,
+    check_joint_limits,
+    check_poses_for_fit,
+    format_measurements,
+    parse_measurements,
+    read_measurements,
+    write_measurements,
+)
+from .model import (
+    MAX_COEFF_M,
+    MAX_COEFF_RAD,
+    MODEL_SCHEMA,
+    check_model,
+    model_from_json,
+    model_to_json,
+    read_model,
+    write_model,
+)
+from .report import (
+    REPORT_FIGURES,
+    REPORT_NUMBERS,
+    REPORT_SCHEMA,
+    REPORT_SCHEMAS_READ,
+    REQUIRED,
+    WORKSPACE_KEYS,
+    check_report,
+    read_report,
+    write_report,
+)
+from .robot import (
+    BUILTIN_ROBOTS,
+    check_robot,
+    load_robot,
+    read_dh_toml,
+    read_urdf,
+    robot_from_json,
+    robot_to_json,
+)
+from .urscript import read_urscript, read_urscript_joints
+from .wam import read_wam_csv
+
+__all__ = [
+    "BUILTIN_ROBOTS",
+    "MAX_BYTES",
+    "MAX_CELL_CHARS",
+    "MAX_COEFF_M",
+    "MAX_COEFF_RAD",
+    "MAX_FIT_ROWS",
+    "MAX_JSON_DEPTH",
+    "MAX_ROWS",
+    "MIN_DISTINCT_POSES",
+    "MIN_JOINT_SPAN_DEG",
+    "MODEL_SCHEMA",
+    "OPTIONAL_COLUMNS",
+    "REPORT_FIGURES",
+    "REPORT_NUMBERS",
+    "REPORT_SCHEMA",
+    "REPORT_SCHEMAS_READ",
+    "REQUIRED",
+    "WORKSPACE_KEYS",
+    "MiB",
+    "check_joint_limits",
+    "check_model",
+    "check_poses_for_fit",
+    "check_report",
+    "check_robot",
+    "finite_float",
+    "format_measurements",
+    "load_json_limited",
+    "load_robot",
+    "model_from_json",
+    "model_to_json",
+    "parse_measurements",
+    "read_dh_toml",
+    "read_measurements",
+    "read_model",
+    "read_report",
+    "read_text_limited",
+    "read_urdf",
+    "read_urscript",
+    "read_urscript_joints",
+    "read_wam_csv",
+    "robot_from_json",
+    "robot_to_json",
+    "write_measurements",
+    "write_model",
+    "write_report",
+    "write_text_atomic",
+]

@@ -1,0 +1,118 @@
+"""What every file format shares: the read limits and the one atomic write.
+
+Every file the station reads is bounded (docs/identify.md, "Limits"): a file over its size
+limit, a non-regular file (a FIFO, /dev/zero behind a symlink), a cell over MAX_CELL_CHARS,
+more rows than the command handles, or JSON nested deeper than MAX_JSON_DEPTH is refused
+with one line (exit 2) before it can cost memory.  Every file a format writes goes through
+:func:`write_text_atomic`, i.e. :func:`quickhealth.station.fsio.write_atomic`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from quickhealth.identify.errors import InputError
+
+from ..fsio import write_atomic
+
+MiB = 1 << 20
+MAX_BYTES = {
+    "measurements": 256 * MiB,  # ~1 M rows of CSV v1
+    "model": 64 * MiB,
+    "report": 64 * MiB,
+    "program": 16 * MiB,
+    "robot": 4 * MiB,
+    "json": 64 * MiB,
+}
+MAX_ROWS = 1_000_000  # predict / compensate: streamed through vectorised code
+MAX_FIT_ROWS = 20_000  # fit, diagnose, compare: the order search is O(rows x fits)
+MAX_CELL_CHARS = 256  # one CSV cell (a pose_id, a number)
+MAX_JSON_DEPTH = 32  # model.json and report.json are at most 5 levels deep
+MIN_DISTINCT_POSES = 8  # fewer different joint configurations cannot support any model
+MIN_JOINT_SPAN_DEG = 1.0  # a joint that moves less than this cannot be identified
+
+
+def read_text_limited(path: str | os.PathLike[str], what: str = "json") -> str:
+    """A UTF-8 text file, refused (one line) when it is missing, not a regular file, larger
+    than ``MAX_BYTES[what]`` or not UTF-8 text."""
+    p = Path(path)
+    limit = MAX_BYTES.get(what, MAX_BYTES["json"])
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read: {exc.strerror}") from None
+    import stat as _stat
+
+    if _stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{p}: is a directory, expected a {what} file")
+    if not _stat.S_ISREG(st.st_mode):
+        raise InputError(f"{p}: not a regular file (a device or a pipe); refusing to read it")
+    if st.st_size > limit:
+        raise InputError(
+            f"{p}: {st.st_size / MiB:.1f} MiB is over the {limit // MiB} MiB limit of a {what} file"
+        )
+    try:
+        with open(p, "rb") as fh:
+            data = fh.read(limit + 1)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read: {exc.strerror}") from None
+    if len(data) > limit:
+        raise InputError(f"{p}: over the {limit // MiB} MiB limit of a {what} file")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"{p}: not UTF-8 text (binary content at byte {exc.start}); expected a {what} file"
+        ) from None
+
+
+def _json_depth_ok(text: str, limit: int = MAX_JSON_DEPTH) -> bool:
+    """True when no bracket nesting of ``text`` is deeper than ``limit`` (strings skipped)."""
+    # strip string literals, then track the depth with cumulative sums (vectorised)
+    stripped = re.sub(r'"(?:[^"\\]|\\.)*"', '""', text)
+    b = np.frombuffer(stripped.encode("utf-8", "replace"), dtype=np.uint8)
+    step = np.zeros(b.size, dtype=np.int32)
+    step[(b == ord("[")) | (b == ord("{"))] = 1
+    step[(b == ord("]")) | (b == ord("}"))] = -1
+    return b.size == 0 or int(np.cumsum(step).max(initial=0)) <= limit
+
+
+def load_json_limited(path: str | os.PathLike[str], what: str = "json") -> Any:
+    """A JSON document within the size and depth limits; every failure is one line."""
+    p = Path(path)
+    text = read_text_limited(p, what)
+    if not _json_depth_ok(text):
+        raise InputError(f"{p}: JSON nested deeper than {MAX_JSON_DEPTH} levels; not a {what} file")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
+    except (ValueError, RecursionError) as exc:  # e.g. an integer of 100 000 digits
+        raise InputError(f"{p}: not a usable {what} file: {str(exc).splitlines()[0]}") from None
+
+
+def finite_float(text: str) -> float:
+    """argparse type of every float option: a finite number (``nan``, ``inf`` are refused)."""
+    import argparse
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return v
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` atomically, respecting the umask (:func:`..fsio.write_atomic`)."""
+    write_atomic(path, text)

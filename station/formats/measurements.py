@@ -1,0 +1,356 @@
+"""Measurement CSV v1 (CONTRACTS.md): read, check for a fit, write.
+
+Every unit conversion between the file (mm, degrees) and the library (m, rad) happens here,
+once.  Every bad input raises :class:`InputError` with one line ``file:line:column: what``
+(line and column 1-based; column = the CSV column).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quickhealth.identify.errors import InputError
+from quickhealth.identify.measurements import Measurements
+from quickhealth.identify.robot import RobotModel
+
+from .common import (
+    MAX_CELL_CHARS,
+    MAX_FIT_ROWS,
+    MAX_ROWS,
+    MIN_DISTINCT_POSES,
+    MIN_JOINT_SPAN_DEG,
+    read_text_limited,
+    write_text_atomic,
+)
+
+F = NDArray[np.float64]
+
+OPTIONAL_COLUMNS = (
+    "pitch",
+    "yaw",
+    "roll",
+    "time",
+    "temp",
+    "pan",
+    "sx",
+    "sy",
+    "sz",
+    "spitch",
+    "syaw",
+    "sroll",
+    "pose_id",
+)
+
+
+def check_joint_limits(
+    q: F, robot: RobotModel, name: str, lines: Sequence[int] | None = None, what: str = "row"
+) -> None:
+    """Refuse joint values (rad) outside the robot's limits, one line naming the first."""
+    q = np.atleast_2d(q)
+    lo = np.asarray(robot.q_min)[None, :] - 1e-9
+    hi = np.asarray(robot.q_max)[None, :] + 1e-9
+    bad = ~((q >= lo) & (q <= hi))
+    if not bad.any():
+        return
+    i, j = (int(v) for v in np.argwhere(bad)[0])
+    where = f"{name}:{lines[i]}:" if lines is not None else f"{name}: {what} {i + 1}: "
+    if lines is not None:
+        where += " "
+    n = int(bad.any(axis=1).sum())
+    raise InputError(
+        f"{where}joint {j + 1} at {math.degrees(q[i, j]):.6g} deg is outside the robot's limits "
+        f"[{math.degrees(robot.q_min[j]):.6g}, {math.degrees(robot.q_max[j]):.6g}] deg"
+        + (f" ({n} {what}s in all)" if n > 1 else "")
+    )
+
+
+def check_poses_for_fit(meas: Measurements, robot: RobotModel, name: str) -> None:
+    """Meaning of a measurement set before a fit: rows, joint limits, distinct poses, spans.
+
+    Raises
+    ------
+    InputError
+        More than ``MAX_FIT_ROWS`` rows, a joint outside the robot's limits, fewer than
+        ``MIN_DISTINCT_POSES`` different joint configurations, or a joint that does not move
+        (its error motions cannot be identified: named).
+    """
+    if meas.n_poses > MAX_FIT_ROWS:
+        raise InputError(
+            f"{name}: {meas.n_poses} rows is over the fit's limit of {MAX_FIT_ROWS} (the order "
+            "search costs rows x fits; the NIST loop has 150 poses): fit a subset"
+        )
+    check_joint_limits(meas.q, robot, name)
+    distinct = np.unique(np.round(meas.q, 6), axis=0).shape[0]
+    if distinct < MIN_DISTINCT_POSES and distinct < meas.n_poses:  # (few rows: the fit says)
+        raise InputError(
+            f"{name}: only {distinct} distinct joint configuration(s) in {meas.n_poses} rows; "
+            f"a fit needs at least {MIN_DISTINCT_POSES}"
+        )
+    span = np.degrees(np.ptp(meas.q, axis=0))
+    still = [j + 1 for j in range(meas.n_joints) if span[j] < MIN_JOINT_SPAN_DEG]
+    if still:
+        raise InputError(
+            f"{name}: joint(s) {', '.join(map(str, still))} move less than "
+            f"{MIN_JOINT_SPAN_DEG} deg over the data: their error motions cannot be identified; "
+            "measure with every joint moving"
+        )
+
+
+def read_measurements(
+    path: str | os.PathLike[str],
+    n_joints: int | None = None,
+    *,
+    joints_only: bool = False,
+) -> Measurements:
+    """Read a measurement file (CSV v1, CONTRACTS.md) into SI :class:`Measurements`.
+
+    Parameters
+    ----------
+    n_joints : int, optional
+        Joint count of the robot; ``q1 … qN`` are then required.  Without it the joint columns
+        present (consecutive from ``q1``) are used.
+    joints_only : bool
+        Accept a file of joint commands without ``x, y, z`` (``pos`` is then NaN).
+
+    Raises
+    ------
+    InputError
+        ``file:line:column: what`` for a missing file, missing or duplicate column, a cell
+        that is not a finite number, angles that look like radians, a ragged row.
+    """
+    p = Path(path)
+    text = read_text_limited(p, "measurements")
+    return parse_measurements(text, str(p), n_joints, joints_only=joints_only)
+
+
+def parse_measurements(
+    text: str, name: str = "<text>", n_joints: int | None = None, *, joints_only: bool = False
+) -> Measurements:
+    """:func:`read_measurements` on the file's text (``name`` is used in messages)."""
+    meta: dict[str, str] = {}
+    header: list[str] | None = None
+    header_line = 0
+    rows: list[tuple[int, list[str]]] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            m = re.match(r"#\s*([^:]+?)\s*:\s*(.*)$", s)
+            if m:
+                meta[m.group(1)] = m.group(2).strip()
+            continue
+        if len(line) > MAX_CELL_CHARS * 64:
+            raise InputError(f"{name}:{lineno}:1: line of {len(line)} characters is too long")
+        if '"' not in line:  # the common case, 20x faster than the csv module per line
+            cells = [c.strip() for c in line.split(",")]
+        else:
+            try:
+                cells = [c.strip() for c in next(csv.reader([line]))]
+            except csv.Error as exc:
+                raise InputError(f"{name}:{lineno}:1: not a CSV row: {exc}") from None
+        for j, c in enumerate(cells):
+            if len(c) > MAX_CELL_CHARS:
+                raise InputError(
+                    f"{name}:{lineno}:{j + 1}: cell of {len(c)} characters is over the limit "
+                    f"of {MAX_CELL_CHARS}"
+                )
+        if header is None:
+            header, header_line = cells, lineno
+        else:
+            rows.append((lineno, cells))
+    if header is None:
+        raise InputError(f"{name}:1:1: no header row (expected columns q1…qN, x, y, z)")
+    col: dict[str, int] = {}
+    for j, h in enumerate(header):
+        if not h:
+            raise InputError(f"{name}:{header_line}:{j + 1}: empty column name in the header")
+        if h in col:
+            raise InputError(
+                f"{name}:{header_line}:{j + 1}: duplicate column {h!r} (also column {col[h] + 1})"
+            )
+        col[h] = j
+    if n_joints is None:
+        n_joints = 0
+        while f"q{n_joints + 1}" in col:
+            n_joints += 1
+        if n_joints == 0:
+            raise InputError(f"{name}:{header_line}:1: missing column 'q1' (joint readings, deg)")
+    required = [f"q{i + 1}" for i in range(n_joints)]
+    if not joints_only:
+        required += ["x", "y", "z"]
+    for c in required:
+        if c not in col:
+            raise InputError(
+                f"{name}:{header_line}:{len(header) + 1}: missing column {c!r} "
+                f"(required: {', '.join(required)})"
+            )
+    extra_q = f"q{n_joints + 1}"
+    if extra_q in col:
+        raise InputError(
+            f"{name}:{header_line}:{col[extra_q] + 1}: column {extra_q!r}, but the robot has "
+            f"{n_joints} joints"
+        )
+    for group in (("pitch", "yaw", "roll"), ("sx", "sy", "sz"), ("spitch", "syaw", "sroll")):
+        present = [g for g in group if g in col]
+        if present and len(present) != 3:
+            missing = [g for g in group if g not in col]
+            raise InputError(
+                f"{name}:{header_line}:{col[present[0]] + 1}: column {present[0]!r} needs "
+                f"{', '.join(repr(m) for m in missing)} too"
+            )
+    if not rows:
+        raise InputError(f"{name}:{header_line + 1}:1: no data rows")
+    if len(rows) > MAX_ROWS:
+        raise InputError(f"{name}: {len(rows)} data rows is over the limit of {MAX_ROWS}")
+    for lineno, cells in rows:
+        if len(cells) != len(header):
+            raise InputError(
+                f"{name}:{lineno}:{min(len(cells), len(header)) + 1}: row has {len(cells)} "
+                f"cells, the header has {len(header)}"
+            )
+
+    parsed: dict[str, F] = {}
+
+    def numbers(c: str, positive: bool = False) -> F:
+        if c in parsed and not positive:
+            return parsed[c]
+        j = col[c]
+        try:  # vectorised fast path; the loop below finds the cell to blame
+            fast = np.array([cells[j] for _, cells in rows], dtype=np.float64)
+        except ValueError:
+            fast = None
+        if fast is not None and np.all(np.isfinite(fast)) and not (positive and np.any(fast <= 0)):
+            parsed[c] = fast
+            return fast
+        out = np.empty(len(rows))
+        for i, (lineno, cells) in enumerate(rows):
+            cell = cells[j]
+            try:
+                v = float(cell)
+            except ValueError:
+                what = "empty cell" if cell == "" else f"{cell!r} is not a number"
+                raise InputError(f"{name}:{lineno}:{j + 1}: column {c!r}: {what}") from None
+            if not math.isfinite(v):
+                raise InputError(f"{name}:{lineno}:{j + 1}: column {c!r}: {cell} is not finite")
+            if positive and v <= 0:
+                raise InputError(
+                    f"{name}:{lineno}:{j + 1}: column {c!r}: uncertainty {cell} must be > 0"
+                )
+            out[i] = v
+        return out
+
+    def looks_like_radians(cols: Sequence[str], what: str, spread: float) -> None:
+        vals = np.stack([numbers(c) for c in cols], axis=1)
+        amax = np.abs(vals).max()
+        if len(rows) >= 3 and amax <= 2 * math.pi + 1e-6 and np.ptp(vals, axis=0).max() > spread:
+            i, j = np.unravel_index(np.argmax(np.abs(vals)), vals.shape)
+            raise InputError(
+                f"{name}:{rows[i][0]}:{col[cols[j]] + 1}: {what} look like radians (every "
+                f"|value| <= {amax:.2f}); the file needs degrees"
+            )
+
+    qcols = [f"q{i + 1}" for i in range(n_joints)]
+    looks_like_radians(qcols, "joint angles", 0.2)
+    q = np.radians(np.stack([numbers(c) for c in qcols], axis=1))
+    if joints_only and "x" not in col:
+        pos = np.full((len(rows), 3), np.nan)
+    else:
+        pos = np.stack([numbers(c) for c in ("x", "y", "z")], axis=1) * 1e-3
+    rpy = None
+    if "pitch" in col:
+        looks_like_radians(("pitch", "yaw", "roll"), "orientation angles", 1.0)
+        rpy = np.radians(np.stack([numbers(c) for c in ("pitch", "yaw", "roll")], axis=1))
+    sig_pos = (
+        np.stack([numbers(c, True) for c in ("sx", "sy", "sz")], axis=1) * 1e-3
+        if "sx" in col
+        else None
+    )
+    sig_rpy = (
+        np.radians(np.stack([numbers(c, True) for c in ("spitch", "syaw", "sroll")], axis=1))
+        if "spitch" in col
+        else None
+    )
+    if sig_rpy is not None and rpy is None:
+        raise InputError(
+            f"{name}:{header_line}:{col['spitch'] + 1}: angle uncertainties without angle columns"
+        )
+    pose_id = tuple(cells[col["pose_id"]] for _, cells in rows) if "pose_id" in col else None
+    return Measurements(
+        q=q,
+        pos=pos,
+        rpy=rpy,
+        time=numbers("time") if "time" in col else None,
+        temp=numbers("temp") if "temp" in col else None,
+        pan=np.radians(numbers("pan")) if "pan" in col else None,
+        sigma_pos=sig_pos,
+        sigma_rpy=sig_rpy,
+        pose_id=pose_id,
+        meta=meta,
+    )
+
+
+def format_measurements(meas: Measurements) -> str:
+    """CSV v1 text of ``meas`` (mm, deg; full precision).
+
+    Raises
+    ------
+    InputError
+        Data the contract (and :func:`parse_measurements`) would refuse: non-finite joints,
+        a pose id with a control character (a newline would split the row).
+    """
+    if not np.all(np.isfinite(meas.q)):
+        i = int(np.argwhere(~np.isfinite(meas.q))[0][0])
+        raise InputError(f"measurement row {i + 1}: joint angles are not finite; not written")
+    if meas.pose_id is not None:
+        for i, pid in enumerate(meas.pose_id):
+            if any(c < " " or c == "\x7f" for c in str(pid)) or len(str(pid)) > MAX_CELL_CHARS:
+                raise InputError(
+                    f"measurement row {i + 1}: pose_id {str(pid)[:40]!r} has a control character "
+                    "or is too long; not written"
+                )
+    buf = io.StringIO()
+    for k, v in meas.meta.items():
+        buf.write(f"# {k}: {v}\n")
+    cols: list[tuple[str, F | tuple[str, ...]]] = []
+    if meas.pose_id is not None:
+        cols.append(("pose_id", meas.pose_id))
+    for i in range(meas.n_joints):
+        cols.append((f"q{i + 1}", np.degrees(meas.q[:, i])))
+    if not np.all(np.isnan(meas.pos)):
+        for i, c in enumerate("xyz"):
+            cols.append((c, meas.pos[:, i] * 1e3))
+    if meas.rpy is not None:
+        for i, c in enumerate(("pitch", "yaw", "roll")):
+            cols.append((c, np.degrees(meas.rpy[:, i])))
+    for c in ("time", "temp"):
+        v = getattr(meas, c)
+        if v is not None:
+            cols.append((c, v))
+    if meas.pan is not None:
+        cols.append(("pan", np.degrees(meas.pan)))
+    if meas.sigma_pos is not None:
+        for i, c in enumerate(("sx", "sy", "sz")):
+            cols.append((c, meas.sigma_pos[:, i] * 1e3))
+    if meas.sigma_rpy is not None:
+        for i, c in enumerate(("spitch", "syaw", "sroll")):
+            cols.append((c, np.degrees(meas.sigma_rpy[:, i])))
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([c for c, _ in cols])
+    for r in range(meas.n_poses):
+        w.writerow([v[r] if isinstance(v, tuple) else repr(float(v[r])) for _, v in cols])
+    return buf.getvalue()
+
+
+def write_measurements(path: str | os.PathLike[str], meas: Measurements) -> None:
+    """Write ``meas`` as CSV v1 (atomically: a half-written file never appears)."""
+    write_text_atomic(path, format_measurements(meas))

@@ -1,0 +1,44 @@
+"""The Barrett WAM laser-tracker data set (``quickhealth import-wam``)."""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+import numpy as np
+
+from quickhealth.identify.errors import InputError
+from quickhealth.identify.measurements import Measurements
+
+
+def read_wam_csv(path: str | os.PathLike[str], sign: float) -> Measurements:
+    """The Barrett WAM laser-tracker files (step_order, x_t…, x_dif…, joint_1…7) as Measurements.
+
+    Position = desired + ``sign`` · difference (mm → m); joints deg → rad.
+    """
+    p = Path(path)
+    try:
+        rows = list(csv.reader(p.read_text(encoding="utf-8").splitlines()))
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found") from None
+    head = rows[0]
+    need = ["x_t", "y_t", "z_t", "x_dif", "y_dif", "z_dif"] + [f"joint_{i}" for i in range(1, 8)]
+    for c in need:
+        if c not in head:
+            raise InputError(f"{p}:1:{len(head) + 1}: missing WAM column {c!r}")
+    ix = {c: head.index(c) for c in need}
+    data = []
+    for lineno, r in enumerate(rows[1:], start=2):
+        if not r:
+            continue
+        try:
+            data.append([float(r[ix[c]]) for c in need])
+        except (ValueError, IndexError):
+            raise InputError(f"{p}:{lineno}:1: row is not numeric") from None
+    a = np.array(data)
+    pos = (a[:, 0:3] + sign * a[:, 3:6]) * 1e-3
+    q = np.radians(a[:, 6:13])
+    return Measurements(
+        q=q, pos=pos, meta={"source": p.name, "instrument": "GTS3800 laser tracker"}
+    )
