@@ -1,6 +1,6 @@
 """Acting on an identified model: corrected kinematics exports and program compensation.
 
-Three uses of the fitted error model, each a pure function:
+Uses of the fitted model, each a pure function:
 
 1. ``corrected_robot``   the geometric part (each joint's error motions averaged over its
    range, a constant ``E_i``) folded into the robot's constant link transforms, and
@@ -8,22 +8,36 @@ Three uses of the fitted error model, each a pure function:
 2. ``dh_deltas``         UR-style kinematics parameters: ``delta_theta, delta_a, delta_d,
    delta_alpha`` per joint on the manufacturer's DH table, fitted to the corrected kinematics,
    with what DH cannot express reported as a residual; ``ur_calibration_text`` formats them;
-3. ``compensate_joints`` rewrites joint targets so that the *modelled* TCP lands on the
-   nominal target (Newton iterations on the model), with the remaining predicted error per
-   target; ``urscript_joint_targets`` / ``urscript_replace_targets`` apply it to a URScript
-   program's ``movej([...])``-style joint lists.
+   ``export_notes`` says what both leave out (every effect, the base and tool corrections);
+3. ``compensate_program`` rewrites a program's joint targets so that the *modelled* TCP lands
+   on the nominal target: the joint error model (all Chebyshev orders) and every robot effect
+   of the model at each target's own state (backlash by the compensated program's approach
+   direction, compliance by the gravity torque, cyclic errors by the phase) and at stated
+   conditions (thermal at ``temp_c``, drift at ``time_s``); ``compensate_joints`` is the same
+   for a bare joint error model.  ``urscript_joint_targets`` / ``urscript_replace_targets``
+   apply it to a URScript program's ``movej([...])``-style joint lists.
 
-What is left out: base and tool corrections (``E0``, ``Etool``) belong to the instrument set-up
-and the measurement target, not to the robot; physical effects (compliance, backlash …)
-are not part of the geometric export.  ``compensate_joints`` uses the full Chebyshev model
-(all orders), so higher-order joint errors are compensated too.
+What a joint-space compensation corrects, and what not.  It works in the robot's base frame
+and on its flange *as the fit identified them* (:func:`model_tcp`: the fit's own loop,
+:func:`~quickhealth.identify.linearize.loop_pose`, with the instrument, the base correction
+``E0`` and the tool correction ``Etool`` taken out), with the user's tool on the flange.  It
+corrects everything that moves the TCP as a function of the commanded joints: the joint
+error motions and the effects on joint angles (backlash, compliance, cyclic), link lengths
+(thermal) and the base's place (drift), in position and orientation.  It cannot correct what
+self-referenced measurements cannot tell from the set-up: a rigid offset of the whole base
+(``j1.ez.c0``, ``j1.dz.c0``) and every constant error of the last joint (the measured target's
+mounting) are held at zero by the fit and live in ``E0`` / ``Etool``, which describe the
+instrument set-up and the target; a cell-frame touch-up and a TCP calibration handle those.
+An instrument effect (``depthscale``) is not the robot's error and is never compensated.
+No effect can be expressed in a URDF or a DH table: the exports leave them out and say so.
 
 SYNOPSIS::
 
     robot_c = corrected_robot(robot, spec, coeffs)
-    open("corrected.urdf", "w").write(urdf_text(robot_c))
-    comp = compensate_joints(robot, spec, coeffs, q_program)
+    open("corrected.urdf", "w").write(urdf_text(robot_c, comments=export_notes(names)))
+    comp = compensate_program(fitted, q_program, T_flange_tcp, temp_c=27.0)
     comp.q, comp.residual_pos      # new targets (rad), remaining predicted error (m)
+    comp.effects, comp.left_out    # what was compensated; what not, and why
 """
 
 from __future__ import annotations
