@@ -493,7 +493,7 @@ def _solve(
     tol_pos: float,
     tol_rot: float,
     approach_rounds: int,
-) -> tuple[Compensation, F, NDArray[np.bool_]]:
+) -> Compensation:
     """The compensation core: Newton per approach round until the approach settles."""
     q0 = np.atleast_2d(np.asarray(q_targets, float))
     Tt = np.eye(4) if T_flange_tcp is None else np.asarray(T_flange_tcp, float)
@@ -521,7 +521,7 @@ def _solve(
         app = app_new
     res_pos = np.linalg.norm(err[:, :3], axis=1)
     res_rot = np.linalg.norm(err[:, 3:], axis=1)
-    comp = Compensation(
+    return Compensation(
         q=q,
         error_before_pos=np.linalg.norm(before[:, :3], axis=1),
         residual_pos=res_pos,
@@ -532,7 +532,6 @@ def _solve(
         approach=app,
         approach_settled=settled,
     )
-    return comp, T_goal, settled
 
 
 def compensate_joints(
@@ -566,7 +565,7 @@ def compensate_joints(
     -------
     Compensation
     """
-    comp, _, _ = _solve(
+    return _solve(
         robot,
         spec,
         coeffs,
@@ -580,7 +579,6 @@ def compensate_joints(
         tol_rot=tol_rot,
         approach_rounds=1,
     )
-    return comp
 
 
 def compensate_program(
@@ -677,7 +675,7 @@ def compensate_program(
         ctx = effect_context(robot, q, app, cond["time"], cond["temp"])
         return total_perturbation([e for e, _ in used], [p for _, p in used], ctx)
 
-    comp, _, _ = _solve(
+    comp = _solve(
         robot,
         fitted.spec,
         fitted.coeffs,
