@@ -1,6 +1,6 @@
 """Acting on an identified model: corrected kinematics exports and program compensation.
 
-Three uses of the fitted error model, each a pure function:
+Uses of the fitted model, each a pure function:
 
 1. ``corrected_robot``   the geometric part (each joint's error motions averaged over its
    range, a constant ``E_i``) folded into the robot's constant link transforms, and
@@ -8,34 +8,57 @@ Three uses of the fitted error model, each a pure function:
 2. ``dh_deltas``         UR-style kinematics parameters: ``delta_theta, delta_a, delta_d,
    delta_alpha`` per joint on the manufacturer's DH table, fitted to the corrected kinematics,
    with what DH cannot express reported as a residual; ``ur_calibration_text`` formats them;
-3. ``compensate_joints`` rewrites joint targets so that the *modelled* TCP lands on the
-   nominal target (Newton iterations on the model), with the remaining predicted error per
-   target; ``urscript_joint_targets`` / ``urscript_replace_targets`` apply it to a URScript
-   program's ``movej([...])``-style joint lists.
+   ``export_notes`` says what both leave out (every effect, the base and tool corrections);
+3. ``compensate_program`` rewrites a program's joint targets so that the *modelled* TCP lands
+   on the nominal target: the joint error model (all Chebyshev orders) and every robot effect
+   of the model at each target's own state (backlash by the compensated program's approach
+   direction, compliance by the gravity torque, cyclic errors by the phase) and at stated
+   conditions (thermal at ``temp_c``, drift at ``time_s``); ``compensate_joints`` is the same
+   for a bare joint error model.  ``urscript_joint_targets`` / ``urscript_replace_targets``
+   apply it to a URScript program's ``movej([...])``-style joint lists.
 
-What is left out: base and tool corrections (``E0``, ``Etool``) belong to the instrument set-up
-and the measurement target, not to the robot; physical effects (compliance, backlash …)
-are not part of the geometric export.  ``compensate_joints`` uses the full Chebyshev model
-(all orders), so higher-order joint errors are compensated too.
+What a joint-space compensation corrects, and what not.  It works in the robot's base frame
+and on its flange *as the fit identified them* (:func:`model_tcp`: the fit's own loop,
+:func:`~quickhealth.identify.linearize.loop_pose`, with the instrument, the base correction
+``E0`` and the tool correction ``Etool`` taken out), with the user's tool on the flange.  It
+corrects everything that moves the TCP as a function of the commanded joints: the joint
+error motions and the effects on joint angles (backlash, compliance, cyclic), link lengths
+(thermal) and the base's place (drift), in position and orientation.  It cannot correct what
+self-referenced measurements cannot tell from the set-up: a rigid offset of the whole base
+(``j1.ez.c0``, ``j1.dz.c0``) and every constant error of the last joint (the measured target's
+mounting) are held at zero by the fit and live in ``E0`` / ``Etool``, which describe the
+instrument set-up and the target; a cell-frame touch-up and a TCP calibration handle those.
+An instrument effect (``depthscale``) is not the robot's error and is never compensated.
+No effect can be expressed in a URDF or a DH table: the exports leave them out and say so.
 
 SYNOPSIS::
 
     robot_c = corrected_robot(robot, spec, coeffs)
-    open("corrected.urdf", "w").write(urdf_text(robot_c))
-    comp = compensate_joints(robot, spec, coeffs, q_program)
+    open("corrected.urdf", "w").write(urdf_text(robot_c, comments=export_notes(names)))
+    comp = compensate_program(fitted, q_program, T_flange_tcp, temp_c=27.0)
     comp.q, comp.residual_pos      # new targets (rad), remaining predicted error (m)
+    comp.effects, comp.left_out    # what was compensated; what not, and why
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from enum import StrEnum
 from xml.sax.saxutils import escape as xml_escape
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from .errormodel import ErrorModelSpec, joint_error_motions
+from .effects import Effect, EffectContext, Perturbation, effect_context, total_perturbation
+from .effects.backlash import Backlash
+from .effects.cyclic import Cyclic
+from .errormodel import ErrorModelSpec, constant_motions, joint_error_motions
+from .errors import InputError
+from .fit import FittedModel
+from .linearize import forward, joint_angle_jacobian, loop_pose
+from .measurements import approach_from_order
 from .robot import RobotModel, chain, from_dh
 from .transforms import R_to_rpy, inv_T, log_so3, small_error_transform
 from .urscript import joint_targets, replace_targets
@@ -81,17 +104,42 @@ def _fmt(v: ArrayLike) -> str:
     return " ".join(f"{x:.9g}" for x in np.asarray(v, float))
 
 
-def urdf_text(robot: RobotModel, *, name: str | None = None) -> str:
+def export_notes(effects: Sequence[str]) -> list[str]:
+    """What a kinematics export (URDF, DH deltas) leaves out, one line each: the model's
+    effects by name (first line, when there are any) and the base and tool corrections."""
+    out = []
+    if effects:
+        out.append(
+            f"left out of the export: {', '.join(effects)}: effects a URDF or a DH table "
+            "cannot express (they depend on the approach, the load, the phase or the "
+            "conditions); compensate programs for them with 'quickhealth compensate'"
+        )
+    out.append(
+        "left out of the export: the base and tool corrections (the instrument set-up and "
+        "the measured target, not the robot)"
+    )
+    return out
+
+
+def _xml_comment(text: str) -> str:
+    """``text`` as the body of an XML comment (no ``--``, no control characters)."""
+    body = _attr(text).replace("--", "- -")
+    return f"<!-- {body} -->"
+
+
+def urdf_text(robot: RobotModel, *, name: str | None = None, comments: Sequence[str] = ()) -> str:
     """A URDF of the robot's kinematics: revolute joints about z, origins from the link transforms.
 
     Joint i's origin is ``C_{i-1} · Rz(o_i)`` (the zero offset folded in); a fixed joint to
     ``flange`` carries ``C_n``.  Link masses and centres of mass are written when known.
-    URDF ``rpy`` is fixed-axis x-y-z: ``R = Rz(y) · Ry(p) · Rx(r)``.
+    URDF ``rpy`` is fixed-axis x-y-z: ``R = Rz(y) · Ry(p) · Rx(r)``.  ``comments`` are written
+    as XML comments after the declaration (e.g. :func:`export_notes`).
     """
     nj = robot.n_joints
     names = list(robot.joint_names) or [f"j{i + 1}" for i in range(nj)]
     lines = [
         '<?xml version="1.0"?>',
+        *(_xml_comment(c) for c in comments),
         f'<robot name="{_attr(name or robot.name)}">',
         '  <link name="base_link"/>',
     ]
@@ -268,17 +316,18 @@ def dh_deltas(
     )
 
 
-def ur_calibration_text(cal: DhCalibration) -> str:
-    """The deltas in the layout of a UR controller's ``calibration.conf`` (SI units)."""
+def ur_calibration_text(cal: DhCalibration, notes: Sequence[str] = ()) -> str:
+    """The deltas in the layout of a UR controller's ``calibration.conf`` (SI units);
+    ``notes`` become comment lines (e.g. :func:`export_notes`)."""
 
     def vec(v: F) -> str:
         return "[" + ", ".join(f"{x:.12g}" for x in v) + "]"
 
+    extra = "".join("# " + " ".join(n.split()) + "\n" for n in notes)
     return (
         "# quickhealth: kinematics deltas on the nominal DH table (m, rad)\n"
         f"# what DH cannot express: {cal.residual_pos_rms * 1e3:.4f} mm rms position, "
-        f"{cal.residual_rot_rms * 1e3:.4f} mrad rms rotation\n"
-        "[mounting]\n"
+        f"{cal.residual_rot_rms * 1e3:.4f} mrad rms rotation\n" + extra + "[mounting]\n"
         f"delta_theta = {vec(cal.delta_theta)}\n"
         f"delta_a = {vec(cal.delta_a)}\n"
         f"delta_d = {vec(cal.delta_d)}\n"
@@ -289,12 +338,45 @@ def ur_calibration_text(cal: DhCalibration) -> str:
 # ------------------------------------------------------------------ compensate program
 
 
+class Channel(StrEnum):
+    """How an effect perturbs the loop, which decides whether a joint command can correct it."""
+
+    JOINT = "joint angle"  # dq: backlash, compliance, cyclic
+    LINKS = "link lengths"  # link_scale: thermal
+    BASE = "base motion"  # base_twist: drift
+    INSTRUMENT = "instrument"  # instr_scale_z: depthscale, the camera's error, not the robot's
+
+
+#: Why an instrument effect is never compensated (the printed and documented reason).
+INSTRUMENT_REASON = (
+    "an instrument effect: it is how the camera measures, not where the robot goes; "
+    "nothing for a robot program to correct"
+)
+
+
+def effect_channels(effect: Effect, ctx: EffectContext) -> tuple[Channel, ...]:
+    """The loop channels ``effect`` perturbs (probed with unit parameters at ``ctx``)."""
+    p = effect.perturbation(ctx, np.ones(effect.n_params))
+    got = (
+        (Channel.JOINT, p.dq),
+        (Channel.LINKS, p.link_scale),
+        (Channel.BASE, p.base_twist),
+        (Channel.INSTRUMENT, p.instr_scale_z),
+    )
+    return tuple(c for c, v in got if v is not None)
+
+
 @dataclass(frozen=True, eq=False)
 class Compensation:
     """Compensated joint targets and the predicted errors before and after (SI).
 
     ``q`` shape (n, nj) rad; ``error_before_pos``/``residual_pos`` shape (n,) m (modelled TCP
-    minus nominal target); ``residual_rot`` (n,) rad; ``converged`` (n,) bool.
+    minus nominal target); ``residual_rot`` (n,) rad; ``converged`` (n,) bool.  With effects
+    (:func:`compensate_program`): ``approach`` (n, nj) the ±1 approach directions used (those
+    of the compensated program), ``approach_settled`` (n,) False where they did not settle
+    (the correction flips the direction the program moves a backlash joint in); ``effects``
+    the compensated effects, ``left_out`` the others with the reason; ``temp_c`` / ``time_s``
+    the conditions used (None when no compensated effect needs them).
     """
 
     q: F
@@ -303,18 +385,153 @@ class Compensation:
     residual_rot: F
     converged: NDArray[np.bool_]
     n_iter: int
+    error_before_rot: F | None = None
+    approach: F | None = None
+    approach_settled: NDArray[np.bool_] | None = None
+    effects: tuple[str, ...] = ()
+    left_out: tuple[tuple[str, str], ...] = ()
+    temp_c: float | None = None
+    time_s: float | None = None
+    described: tuple[str, ...] = ()  # one phrase per compensated effect: what it used
+
+
+def joint_coefficients(spec: ErrorModelSpec, coeffs: ArrayLike) -> F:
+    """``coeffs`` with the base and tool corrections set to zero (the robot's own errors)."""
+    c = np.array(coeffs, dtype=float)
+    frame = spec.index()[:, 0]
+    c[(frame == 0) | (frame == spec.n_joints + 1)] = 0.0
+    return c
 
 
 def model_tcp(
-    robot: RobotModel, spec: ErrorModelSpec, coeffs: ArrayLike, q: ArrayLike, T_flange_tcp: F
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    coeffs: ArrayLike,
+    q: ArrayLike,
+    T_flange_tcp: F,
+    pert: Perturbation | None = None,
 ) -> F:
-    """Modelled TCP pose in the robot base frame (joint errors only), shape (n, 4, 4)."""
+    """Modelled TCP pose in the robot's (identified) base frame, shape (n, 4, 4).
+
+    The fit's own loop (:func:`~quickhealth.identify.linearize.loop_pose`) with the instrument,
+    the base and the tool correction taken out: every joint's error motions, plus the robot
+    side of the effects' perturbation ``pert`` (joint angles, link lengths, base motion; an
+    instrument depth scale is not applied).
+    """
     q = np.atleast_2d(np.asarray(q, float))
-    m = joint_error_motions(spec, np.asarray(coeffs, float), q)
-    E = small_error_transform(m[..., :3], m[..., 3:])
-    T = chain(robot, q, E_joint=E)
-    assert isinstance(T, np.ndarray)
-    return T @ T_flange_tcp
+    c = joint_coefficients(spec, coeffs)
+    p = Perturbation() if pert is None else replace(pert, instr_scale_z=None)
+    return loop_pose(robot, spec, c, np.eye(4), np.asarray(T_flange_tcp, float), q, p)
+
+
+def pose_error(T: F, T_goal: F) -> F:
+    """Pose minus goal, shape (n, 6): position (m) and the rotation vector ``log(R R_goalᵀ)``
+    (rad), both in the frame the poses are given in."""
+    dw = log_so3(T[:, :3, :3] @ np.swapaxes(T_goal[:, :3, :3], -1, -2))
+    return np.concatenate([T[:, :3, 3] - T_goal[:, :3, 3], dw], axis=1)
+
+
+PerturbFn = Callable[[F, F], Perturbation]
+
+#: Largest change of any joint in one Newton step (rad): ten times any correction a program
+#: would accept (``compensate --max-correction-deg`` allows at most 10°).
+MAX_STEP = 0.2
+
+
+def _newton(
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    c_joint: F,
+    T_tcp: F,
+    T_goal: F,
+    q_start: F,
+    perturb: PerturbFn,
+    approach: F,
+    max_iter: int,
+    tol_pos: float,
+    tol_rot: float,
+) -> tuple[F, F, int]:
+    """Newton iterations on the modelled TCP, vectorised over targets.
+
+    The Jacobian is the loop's analytic joint-angle Jacobian ``[z × (p − o), z]`` at the
+    perturbed angles (:func:`~quickhealth.identify.linearize.joint_angle_jacobian`); the
+    derivatives of the small error motions and of the effects with respect to the command
+    (≲ 1e-3 of it) are left out, so the iteration contracts by about that factor per step.
+    """
+    q = q_start.copy()
+    it = 0
+    err = np.zeros((q.shape[0], 6))
+    for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
+        T, A, _ = forward(robot, spec, c_joint, np.eye(4), T_tcp, q, perturb(q, approach))
+        assert A is not None
+        err = pose_error(T, T_goal)
+        if np.all(np.linalg.norm(err[:, :3], axis=1) < tol_pos) and np.all(
+            np.linalg.norm(err[:, 3:], axis=1) < tol_rot
+        ):
+            return q, err, it - 1
+        J = np.swapaxes(joint_angle_jacobian(T, A), 1, 2)  # (n, 6, nj)
+        step = np.einsum("nij,nj->ni", np.linalg.pinv(J, rcond=1e-8), err)
+        # near a singularity the step grows without bound: keep it to a correction's size
+        # (the target then does not converge and is reported, never jumps to another branch)
+        size = np.abs(step).max(axis=1, keepdims=True)
+        q = q - step * np.minimum(1.0, MAX_STEP / np.maximum(size, 1e-300))
+    T = model_tcp(robot, spec, c_joint, q, T_tcp, perturb(q, approach))
+    return q, pose_error(T, T_goal), it
+
+
+def _solve(
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    coeffs: ArrayLike,
+    q_targets: ArrayLike,
+    T_flange_tcp: ArrayLike | None,
+    perturb: PerturbFn,
+    approach: F | None,
+    backlash_joints: Sequence[int],
+    *,
+    max_iter: int,
+    tol_pos: float,
+    tol_rot: float,
+    approach_rounds: int,
+) -> Compensation:
+    """The compensation core: Newton per approach round until the approach settles."""
+    q0 = np.atleast_2d(np.asarray(q_targets, float))
+    Tt = np.eye(4) if T_flange_tcp is None else np.asarray(T_flange_tcp, float)
+    c = joint_coefficients(spec, coeffs)
+    T_goal = model_tcp(robot, spec, np.zeros_like(c), q0, Tt)  # nominal kinematics
+    fixed = approach is not None
+    app = approach_from_order(q0) if approach is None else np.asarray(approach, float)
+    before = pose_error(model_tcp(robot, spec, c, q0, Tt, perturb(q0, app)), T_goal)
+    bj = list(backlash_joints)
+    q, err, n_it = q0, before, 0
+    settled = np.ones(len(q0), bool)
+    rounds = max(approach_rounds, 1)
+    for r in range(rounds):
+        q, err, it = _newton(
+            robot, spec, c, Tt, T_goal, q, perturb, app, max_iter, tol_pos, tol_rot
+        )
+        n_it += it
+        if fixed or not bj:
+            break
+        # the robot approaches each target from the previous *compensated* one
+        app_new = approach_from_order(q)
+        settled = ~np.any(app_new[:, bj] != app[:, bj], axis=1)
+        if settled.all() or r == rounds - 1:
+            break
+        app = app_new
+    res_pos = np.linalg.norm(err[:, :3], axis=1)
+    res_rot = np.linalg.norm(err[:, 3:], axis=1)
+    return Compensation(
+        q=q,
+        error_before_pos=np.linalg.norm(before[:, :3], axis=1),
+        residual_pos=res_pos,
+        residual_rot=res_rot,
+        converged=(res_pos < max(tol_pos, 1e-7)) & (res_rot < max(tol_rot, 1e-7)),
+        n_iter=n_it,
+        error_before_rot=np.linalg.norm(before[:, 3:], axis=1),
+        approach=app,
+        approach_settled=settled,
+    )
 
 
 def compensate_joints(
@@ -327,65 +544,185 @@ def compensate_joints(
     max_iter: int = 10,
     tol_pos: float = 1e-9,
     tol_rot: float = 1e-9,
-    step_q: float = 1e-6,
 ) -> Compensation:
     """Joint targets whose *modelled* TCP pose equals the nominal TCP pose of ``q_targets``.
 
-    Newton iterations, vectorised over targets: the residual is the 6D pose difference
-    (position, rotation vector) and the Jacobian comes from central differences of the model.
+    The joint error model only (no effects; see :func:`compensate_program` for a fitted model
+    with its effects).  Newton iterations, vectorised over targets: the residual is the 6D
+    pose difference (position, rotation vector), the Jacobian the loop's joint-angle Jacobian.
 
     Parameters
     ----------
     robot : RobotModel
-    spec, coeffs : the identified error model
+    spec, coeffs : the identified error model (base and tool corrections are not used)
     q_targets : array, shape (n, nj), rad
         The program's joint targets (what the robot is commanded to today).
     T_flange_tcp : array (4, 4), optional
         The tool centre point on the flange (default the flange itself).
     max_iter, tol_pos (m), tol_rot (rad) : stopping rule
-    step_q : float, rad
-        Finite-difference step.
 
     Returns
     -------
     Compensation
     """
-    q0 = np.atleast_2d(np.asarray(q_targets, float))
-    Tt = np.eye(4) if T_flange_tcp is None else np.asarray(T_flange_tcp, float)
-    c = np.asarray(coeffs, float)
-    T_goal = chain(robot, q0)
-    assert isinstance(T_goal, np.ndarray)
-    T_goal = T_goal @ Tt
-    n, nj = q0.shape
-    q = q0.copy()
-    err = _pose_diff(model_tcp(robot, spec, c, q, Tt), T_goal)
-    before = np.linalg.norm(err[:, :3], axis=1)
-    it = 0
-    for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
-        J = np.empty((n, 6, nj))
-        for k in range(nj):  # loop over joints (≤ 7), vectorised over targets
-            dq = np.zeros(nj)
-            dq[k] = step_q
-            Tp = model_tcp(robot, spec, c, q + dq, Tt)
-            Tm = model_tcp(robot, spec, c, q - dq, Tt)
-            J[:, :, k] = _pose_diff(Tp, Tm) / (2 * step_q)
-        step = np.einsum("nij,nj->ni", np.linalg.pinv(J, rcond=1e-8), err)
-        q = q - step
-        err = _pose_diff(model_tcp(robot, spec, c, q, Tt), T_goal)
-        if np.all(np.linalg.norm(err[:, :3], axis=1) < tol_pos) and np.all(
-            np.linalg.norm(err[:, 3:], axis=1) < tol_rot
-        ):
-            break
-    res_pos = np.linalg.norm(err[:, :3], axis=1)
-    res_rot = np.linalg.norm(err[:, 3:], axis=1)
-    return Compensation(
-        q=q,
-        error_before_pos=before,
-        residual_pos=res_pos,
-        residual_rot=res_rot,
-        converged=(res_pos < max(tol_pos, 1e-7)) & (res_rot < max(tol_rot, 1e-7)),
-        n_iter=it,
+    return _solve(
+        robot,
+        spec,
+        coeffs,
+        q_targets,
+        T_flange_tcp,
+        lambda q, a: Perturbation(),
+        None,
+        (),
+        max_iter=max_iter,
+        tol_pos=tol_pos,
+        tol_rot=tol_rot,
+        approach_rounds=1,
     )
+
+
+def compensate_program(
+    fitted: FittedModel,
+    q_targets: ArrayLike,
+    T_flange_tcp: ArrayLike | None = None,
+    *,
+    temp_c: float | None = None,
+    time_s: float | None = None,
+    leave_out: Sequence[str] = (),
+    approach: ArrayLike | None = None,
+    max_iter: int = 12,
+    tol_pos: float = 1e-9,
+    tol_rot: float = 1e-9,
+    approach_rounds: int = 6,
+) -> Compensation:
+    """A program's joint targets compensated with the whole fitted model: joint errors and
+    every robot effect, at each target's own state and the stated conditions.
+
+    Solves, per target and vectorised over all of them, for the command whose modelled TCP
+    pose (:func:`model_tcp`: joint error motions + the effects' joint-angle, link-length and
+    base perturbations, in the identified base frame) equals the nominal TCP pose of the
+    original target.  What each effect contributes at a target:
+
+    - ``backlash:jK``: ``± b/2`` by the direction the program moves joint K into the target.
+      The program runs in the order given, so the approach is that of the *compensated*
+      program (the previous compensated target), recomputed until it settles
+      (``approach_rounds``); the first target, and joints that do not move, follow the fit's
+      rule (:func:`~quickhealth.identify.measurements.approach_from_order`: the last move's
+      direction, from below before any move).  ``approach`` (n, nj) overrides it.
+    - ``compliance:jK`` (mass or lumped form): the gravity torque at the compensated command.
+    - ``cyclic:jK:hM``: the phase ``M q_K`` at the compensated command.
+    - ``thermal``: the links grown to ``temp_c`` (°C); ``drift``: the base moved to its place at
+      ``time_s`` (s on the fitted run's clock).  Both must be given when the effect is
+      compensated: a program is run at the conditions its user states.
+    - an instrument effect (``depthscale``) is never compensated (:data:`INSTRUMENT_REASON`).
+
+    Parameters
+    ----------
+    fitted : FittedModel
+    q_targets : array (n, nj), rad, in program order
+    T_flange_tcp : array (4, 4), optional
+        The tool centre point on the flange (default the flange).
+    temp_c, time_s : float, optional
+        Conditions the program runs at (needed by ``thermal`` / ``drift``).
+    leave_out : sequence of str
+        Effect names of the model not to compensate.
+
+    Returns
+    -------
+    Compensation
+
+    Raises
+    ------
+    InputError
+        An unknown name in ``leave_out``; a compensated effect whose condition is not given.
+    """
+    robot = fitted.robot
+    q0 = np.atleast_2d(np.asarray(q_targets, float))
+    names = [e.name for e in fitted.effects]
+    unknown = [n for n in leave_out if n not in names]
+    if unknown:
+        have = ", ".join(names) or "none"
+        raise InputError(f"cannot leave out {', '.join(unknown)}: the model's effects are {have}")
+    n = len(q0)
+    cond = {
+        "temp": None if temp_c is None else np.full(n, float(temp_c)),
+        "time": None if time_s is None else np.full(n, float(time_s)),
+    }
+    probe = effect_context(robot, q0[:1], np.ones((1, robot.n_joints)), np.zeros(1), np.zeros(1))
+    used: list[tuple[Effect, F]] = []
+    left: list[tuple[str, str]] = []
+    for e, p in zip(fitted.effects, fitted.effect_params, strict=True):
+        if e.name in leave_out:
+            left.append((e.name, "left out on request"))
+            continue
+        if Channel.INSTRUMENT in effect_channels(e, probe):
+            left.append((e.name, INSTRUMENT_REASON))
+            continue
+        for col in e.requires():
+            if cond[col] is None:
+                what = (
+                    "temperature (°C)" if col == "temp" else "time (s, on the fitted run's clock)"
+                )
+                raise InputError(
+                    f"effect {e.name!r} needs the {what} the program runs at, or leave it out"
+                )
+        used.append((e, np.asarray(p, float)))
+    backlash = sorted({e.joint for e, _ in used if isinstance(e, Backlash)})
+
+    def perturb(q: F, app: F) -> Perturbation:
+        if not used:
+            return Perturbation()
+        ctx = effect_context(robot, q, app, cond["time"], cond["temp"])
+        return total_perturbation([e for e, _ in used], [p for _, p in used], ctx)
+
+    comp = _solve(
+        robot,
+        fitted.spec,
+        fitted.coeffs,
+        q0,
+        T_flange_tcp,
+        perturb,
+        None if approach is None else np.asarray(approach, float),
+        backlash,
+        max_iter=max_iter,
+        tol_pos=tol_pos,
+        tol_rot=tol_rot,
+        approach_rounds=approach_rounds,
+    )
+    needs = {col for e, _ in used for col in e.requires()}
+    return replace(
+        comp,
+        effects=tuple(e.name for e, _ in used),
+        left_out=tuple(left),
+        temp_c=float(temp_c) if "temp" in needs and temp_c is not None else None,
+        time_s=float(time_s) if "time" in needs and time_s is not None else None,
+        described=tuple(_describe(e, temp_c, time_s) for e, _ in used),
+    )
+
+
+def _describe(e: Effect, temp_c: float | None, time_s: float | None) -> str:
+    """What a compensated effect was evaluated with, in words."""
+    if "temp" in e.requires():
+        return f"{e.name} at {temp_c:g} °C"
+    if "time" in e.requires():
+        return f"{e.name} at {time_s:g} s on the fitted run's clock"
+    if isinstance(e, Backlash):
+        return (
+            f"{e.name} by the direction joint {e.joint + 1} moves into each target "
+            "(the program's own order)"
+        )
+    if isinstance(e, Cyclic):
+        return f"{e.name} by the phase at each target"
+    if str(getattr(e, "physical", "")).startswith("compliance:"):
+        return f"{e.name} by the gravity torque at each target"
+    return f"{e.name} at each target"
+
+
+def fitted_tool(fitted: FittedModel) -> F:
+    """The measurement target on the flange as the fit identified it, ``T_flange_target0 ·
+    Etool`` (4, 4): the TCP to compensate when the program's tool is the measured target."""
+    m = constant_motions(fitted.spec, fitted.coeffs, -1)
+    return np.asarray(fitted.T_flange_target0, float) @ small_error_transform(m[:3], m[3:])
 
 
 # ---------------------------------------------------------------------- URScript text

@@ -13,7 +13,8 @@ Sections, in the order a reader needs them:
 6. diagnosis        which physical effect the model misses, if any
 7. trend            the robot's figures over time against its baseline, control limits,
                     root-cause hints (when the run is archived)
-8. ISO 9283         pose accuracy AP and repeatability RP at plan poses visited repeatedly
+8. ISO 9283         pose accuracy AP and repeatability RP at plan poses visited repeatedly:
+                    position and, for pose (7D) data, orientation (a, b, c about the base axes)
 
 ``build_report`` gathers the numbers and figures from a run folder; ``render_html`` turns them
 into the page.  ``report_json`` is the page's content as JSON (also embedded in the page as
@@ -97,7 +98,13 @@ class Report:
 
 @dataclass(frozen=True)
 class PoseStats:
-    """ISO 9283-style figures of one repeatedly visited pose (position only, m)."""
+    """ISO 9283-style figures of one repeatedly visited pose (m, rad).
+
+    Position: ``accuracy`` AP_P, ``repeatability`` RP_l.  Orientation (pose data only, else
+    None), per rotation component a, b, c about the robot base's x, y, z axes:
+    ``accuracy_abc`` AP_a, AP_b, AP_c (signed mean deviation from the commanded orientation)
+    and ``repeatability_abc`` RP_a, RP_b, RP_c (the ± half-width ``3 S``).
+    """
 
     pose_id: str
     n: int
@@ -105,9 +112,18 @@ class PoseStats:
     repeatability: (
         float  # RP_l = l̄ + 3 S_l, l = distance of each attained position to the barycentre
     )
+    accuracy_abc: F | None = None  # (3,) rad
+    repeatability_abc: F | None = None  # (3,) rad
 
 
-def iso9283_pose_stats(pose_id: tuple[str, ...], attained: F, commanded: F) -> list[PoseStats]:
+def iso9283_pose_stats(
+    pose_id: tuple[str, ...],
+    attained: F,
+    commanded: F,
+    attained_R: F | None = None,
+    commanded_R: F | None = None,
+    R_meas_base: F | None = None,
+) -> list[PoseStats]:
     """Pose accuracy and repeatability (ISO 9283 §7.2.1, §7.2.3) at poses visited ≥ 2 times.
 
     Parameters
@@ -118,11 +134,28 @@ def iso9283_pose_stats(pose_id: tuple[str, ...], attained: F, commanded: F) -> l
     commanded : ndarray, shape (n, 3), m
         Commanded positions in the same frame (the nominal kinematics with the identified
         base and tool).
+    attained_R, commanded_R : ndarray, shape (n, 3, 3), optional
+        Measured and commanded orientations (same frame): adds the orientation figures.
+    R_meas_base : ndarray, shape (3, 3), optional
+        The robot base's axes in that frame: the components a, b, c are rotations about them
+        (ISO 9283 states orientation in the base coordinate system); default the frame's own.
+
+    Orientation: the attained deviation of visit j is the small rotation
+    ``δ_j = log(R_attained,j · R_commandedᵀ)`` expressed in base axes, ``(a_j − a_c, b_j − b_c,
+    c_j − c_c)`` to first order; ``AP_abc = mean_j δ_j`` (§7.2.1: ``ā − a_c`` …) and
+    ``RP_abc = 3 S`` with ``S = sqrt(Σ (δ_j − δ̄)² / (n − 1))`` per component (§7.2.3).
 
     Returns
     -------
     list of PoseStats, one per repeated pose, in first-visit order.
     """
+    from quickhealth.identify.transforms import log_so3
+
+    delta = None
+    if attained_R is not None and commanded_R is not None:
+        w = log_so3(np.asarray(attained_R) @ np.swapaxes(np.asarray(commanded_R), -1, -2))
+        R_b = np.eye(3) if R_meas_base is None else np.asarray(R_meas_base, float)
+        delta = w @ R_b  # rows: R_bᵀ w, the rotation about the base axes
     out = []
     ids = np.asarray(pose_id)
     seen: list[str] = []
@@ -139,7 +172,12 @@ def iso9283_pose_stats(pose_id: tuple[str, ...], attained: F, commanded: F) -> l
         l = np.linalg.norm(a - bary, axis=1)
         s_l = math.sqrt(float(np.sum((l - l.mean()) ** 2)) / (n - 1))
         ap = float(np.linalg.norm(bary - commanded[sel].mean(axis=0)))
-        out.append(PoseStats(p, n, ap, float(l.mean() + 3 * s_l)))
+        ap_abc = rp_abc = None
+        if delta is not None:
+            d = delta[sel]
+            ap_abc = d.mean(axis=0)
+            rp_abc = 3.0 * d.std(axis=0, ddof=1)
+        out.append(PoseStats(p, n, ap, float(l.mean() + 3 * s_l), ap_abc, rp_abc))
     return out
 
 
@@ -234,8 +272,9 @@ def _motion_state(fitted: Any, joint: int, m: int, v: F, h: F) -> str:
 
 
 def _iso_figure(stats: list[PoseStats]) -> Figure:
-    fig = Figure(figsize=(8.0, 3.2))
-    ax = fig.add_subplot(111)
+    rot = all(s.accuracy_abc is not None for s in stats)
+    fig = Figure(figsize=(8.0, 5.6 if rot else 3.2))
+    ax = fig.add_subplot(2 if rot else 1, 1, 1)
     x = np.arange(len(stats))
     ax.bar(x - 0.2, [s.accuracy * 1e3 for s in stats], 0.4, label="AP (accuracy)")
     ax.bar(x + 0.2, [s.repeatability * 1e3 for s in stats], 0.4, label="RP (repeatability)")
@@ -243,6 +282,19 @@ def _iso_figure(stats: list[PoseStats]) -> Figure:
     ax.set_ylabel("mm")
     ax.legend(fontsize=7)
     ax.set_title("ISO 9283-style pose accuracy and repeatability")
+    if rot:
+        ax2 = fig.add_subplot(2, 1, 2)
+        ap = np.array([s.accuracy_abc for s in stats]) * 1e3
+        rp = np.array([s.repeatability_abc for s in stats]) * 1e3
+        for k, (name, c) in enumerate(zip("abc", ("#4477aa", "#ee6677", "#228833"), strict=True)):
+            ax2.errorbar(
+                x + (k - 1) * 0.2, ap[:, k], yerr=rp[:, k], fmt="o", ms=3, color=c,
+                capsize=2, label=f"AP {name} ± RP {name}",
+            )  # fmt: skip
+        ax2.axhline(0.0, color="0.5", lw=0.8)
+        ax2.set_xticks(x, [s.pose_id for s in stats], fontsize=7, rotation=45)
+        ax2.set_ylabel("mrad (about base x, y, z)")
+        ax2.legend(fontsize=7)
     fig.tight_layout()
     return fig
 
@@ -668,8 +720,21 @@ def _iso_section(fitted: Any, meas: Any) -> Section:
         return Section(
             "iso9283", title, missing="no pose_id column: the plan has no repeated poses"
         )
-    commanded = fitted.nominal_pose(meas.q)[:, :3, 3]
-    stats = iso9283_pose_stats(meas.pose_id, meas.pos, commanded)
+    from quickhealth.identify.errormodel import constant_motions
+    from quickhealth.identify.transforms import small_error_transform
+
+    T_cmd = fitted.nominal_pose(meas.q)
+    rot = meas.has_orientation
+    m0 = constant_motions(fitted.spec, fitted.coeffs, 0)
+    R_base = (fitted.T_instr_base0 @ small_error_transform(m0[:3], m0[3:]))[:3, :3]
+    stats = iso9283_pose_stats(
+        meas.pose_id,
+        meas.pos,
+        T_cmd[:, :3, 3],
+        meas.R if rot else None,
+        T_cmd[:, :3, :3] if rot else None,
+        R_base,
+    )
     if not stats:
         return Section(
             "iso9283",
@@ -680,33 +745,63 @@ def _iso_section(fitted: Any, meas: Any) -> Section:
                 "pose_id on several rows)"
             ),
         )
-    rows = [("pose", "visits", "AP (mm)", "RP (mm)")]
-    rows += [
-        (s.pose_id, str(s.n), f"{s.accuracy * 1e3:.4f}", f"{s.repeatability * 1e3:.4f}")
-        for s in stats
+
+    def abc(v: Any, signed: bool) -> str:
+        return " / ".join(f"{x * 1e3:+.4f}" if signed else f"±{x * 1e3:.4f}" for x in v)
+
+    header = ("pose", "visits", "AP (mm)", "RP (mm)")
+    if rot:
+        header += ("AP a / b / c (mrad)", "RP a / b / c (mrad)")
+    rows = [header]
+    for s in stats:
+        row: tuple[str, ...] = (
+            s.pose_id,
+            str(s.n),
+            f"{s.accuracy * 1e3:.4f}",
+            f"{s.repeatability * 1e3:.4f}",
+        )
+        if rot:
+            row += (abc(s.accuracy_abc, True), abc(s.repeatability_abc, False))
+        rows.append(row)
+    lines = [
+        "AP: distance of the mean attained position from the commanded one (nominal "
+        "kinematics with the identified base and tool); RP = l̄ + 3 S_l"
+        + (
+            "; orientation (§7.2.1, §7.2.3): AP a/b/c = mean attained minus commanded "
+            "rotation about the robot base's x/y/z axes, RP a/b/c = ±3 S"
+            if rot
+            else "; position only (the data have no orientation)"
+        ),
+        f"worst AP {max(s.accuracy for s in stats) * 1e3:.4f} mm, worst RP "
+        f"{max(s.repeatability for s in stats) * 1e3:.4f} mm"
+        + (
+            f"; orientation: worst |AP a/b/c| "
+            f"{max(float(np.abs(s.accuracy_abc).max()) for s in stats) * 1e3:.4f} mrad, "
+            f"worst RP a/b/c ±{max(float(s.repeatability_abc.max()) for s in stats) * 1e3:.4f}"
+            " mrad"
+            if rot
+            else ""
+        ),
     ]
+    poses = []
+    for s in stats:
+        d: dict[str, Any] = {
+            "pose_id": s.pose_id,
+            "n": s.n,
+            "ap_mm": s.accuracy * 1e3,
+            "rp_mm": s.repeatability * 1e3,
+        }
+        if rot:
+            d["ap_abc_mrad"] = (s.accuracy_abc * 1e3).tolist()
+            d["rp_abc_mrad"] = (s.repeatability_abc * 1e3).tolist()
+        poses.append(d)
     return Section(
         "iso9283",
         title,
-        (
-            "AP: distance of the mean attained position from the commanded one (nominal "
-            "kinematics with the identified base and tool); RP = l̄ + 3 S_l; position only",
-            f"worst AP {max(s.accuracy for s in stats) * 1e3:.4f} mm, worst RP "
-            f"{max(s.repeatability for s in stats) * 1e3:.4f} mm",
-        ),
+        tuple(lines),
         table=tuple(rows),
         plots=(Plot("iso9283", "ISO 9283", _png(_iso_figure(stats))),),
-        data={
-            "poses": [
-                {
-                    "pose_id": s.pose_id,
-                    "n": s.n,
-                    "ap_mm": s.accuracy * 1e3,
-                    "rp_mm": s.repeatability * 1e3,
-                }
-                for s in stats
-            ]
-        },
+        data={"orientation": rot, "poses": poses},
     )
 
 

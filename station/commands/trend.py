@@ -9,6 +9,7 @@ quickhealth trend ROBOT [--threshold-mm X] [--figure max] [--tolerance-mm X] [--
     only the threshold counts).
 quickhealth export MODEL.json [--urdf OUT.urdf] [--ur-calibration OUT.conf] [--json OUT.json]
 quickhealth compensate MODEL.json PROGRAM --out NEW_PROGRAM [--errors ERR.csv] [--tcp-mm X,Y,Z]
+    [--temp-c C] [--time-s S] [--leave-out EFFECTS] [--max-correction-deg D]
 quickhealth report RUN_DIR [--out report.html] [--archive DIR --robot NAME]
 quickhealth reprocess [ROBOT] [--runs IDS] [--calibration CAL.json] [--scheduler ADDRESS] [--workers N]
 
@@ -150,6 +151,23 @@ def register(subparsers: Any) -> None:
         type=float,
         default=1.0,
         help="largest change of any joint of any target (1.0); a larger one is refused",
+    )
+    c.add_argument(
+        "--temp-c",
+        type=float,
+        default=None,
+        help="temperature the program runs at (needed by a model with 'thermal')",
+    )
+    c.add_argument(
+        "--time-s",
+        type=float,
+        default=None,
+        help="time the program runs at, s on the fitted run's clock (needed by 'drift')",
+    )
+    c.add_argument(
+        "--leave-out",
+        default=None,
+        help="comma-separated effects of the model not to compensate (e.g. drift)",
     )
     c.set_defaults(func=_compensate)
 
@@ -333,6 +351,7 @@ def _export(args: argparse.Namespace) -> int:
     from quickhealth.identify.compensate import (
         corrected_robot,
         dh_deltas,
+        export_notes,
         ur_calibration_text,
         urdf_text,
     )
@@ -349,6 +368,7 @@ def _export(args: argparse.Namespace) -> int:
     import numpy as np
 
     fm = read_model(args.model)  # validated: finite, sane coefficients (never a URDF of "nan")
+    notes = export_notes([e.name for e in fm.effects])
     # every document is computed before the first is written: no half export on a failure
     docs: list[tuple[str, str, str]] = []
     if args.urdf:
@@ -356,7 +376,11 @@ def _export(args: argparse.Namespace) -> int:
         if not np.all(np.isfinite(rc.links)):
             raise InputError(f"{args.model}: the corrected kinematics are not finite")
         docs.append(
-            (args.urdf, urdf_text(rc), "joint origins with the identified constant joint errors")
+            (
+                args.urdf,
+                urdf_text(rc, comments=notes),
+                "joint origins with the identified constant joint errors",
+            )
         )
     if args.ur_calibration or args.json:
         try:
@@ -369,10 +393,13 @@ def _export(args: argparse.Namespace) -> int:
             f"{cal.residual_pos_rms * 1e3:.4f} mm rms of it"
         )
         if args.ur_calibration:
-            docs.append((args.ur_calibration, ur_calibration_text(cal), "UR-style DH deltas"))
+            docs.append(
+                (args.ur_calibration, ur_calibration_text(cal, notes), "UR-style DH deltas")
+            )
         if args.json:
             doc = {
                 "units": "m, rad",
+                "effects_left_out": [e.name for e in fm.effects],
                 "delta_theta": cal.delta_theta.tolist(),
                 "delta_a": cal.delta_a.tolist(),
                 "delta_d": cal.delta_d.tolist(),
@@ -381,6 +408,8 @@ def _export(args: argparse.Namespace) -> int:
                 "residual_rot_rms_mrad": cal.residual_rot_rms * 1e3,
             }
             docs.append((args.json, json.dumps(doc, indent=1, allow_nan=False) + "\n", "deltas"))
+    if fm.effects:
+        print(notes[0])
     for path, text, what in docs:
         write_text_atomic(path, text)
         print(f"wrote {path} ({what})")
@@ -393,11 +422,14 @@ def _compensate(args: argparse.Namespace) -> int:
     Refused, one line per target: a target outside the robot's joint limits or outside the
     joint range the model was identified on (the series would extrapolate), a compensated
     target outside the joint limits, a correction above ``--max-correction-deg`` on any joint,
-    a target whose compensation did not converge.
+    a target whose compensation did not converge, a target where the correction flips the
+    direction the program moves a backlash joint in.  Refused as a whole: a model with
+    ``thermal`` / ``drift`` without ``--temp-c`` / ``--time-s`` (or ``--leave-out``).
     """
     import numpy as np
 
-    from quickhealth.identify.compensate import compensate_joints
+    from quickhealth.identify.compensate import compensate_program
+    from quickhealth.identify.effects.backlash import Backlash
     from quickhealth.identify.errors import InputError
     from quickhealth.identify.urscript import replace_targets
     from quickhealth.station import formats
@@ -406,11 +438,35 @@ def _compensate(args: argparse.Namespace) -> int:
     cap = args.max_correction_deg
     if not 0 < cap <= 10:
         raise InputError(f"--max-correction-deg must be in (0, 10], got {cap}")
+    if args.temp_c is not None and not -40.0 <= args.temp_c <= 100.0:
+        raise InputError(f"--temp-c must be a temperature in [-40, 100] degC, got {args.temp_c}")
+    if args.time_s is not None and not 0.0 <= args.time_s <= 1e7:
+        raise InputError(f"--time-s must be in [0, 1e7] s, got {args.time_s}")
     refuse_overwriting_inputs(
         [("--out", args.out), ("--errors", args.errors)], [args.model, args.program]
     )
     fm = formats.read_model(args.model)
     nj = fm.robot.n_joints
+    leave_out = [x.strip() for x in (args.leave_out or "").split(",") if x.strip()]
+    needs = {
+        col: [e.name for e in fm.effects if col in e.requires() and e.name not in leave_out]
+        for col in ("temp", "time")
+    }
+    if needs["temp"] and args.temp_c is None:
+        raise InputError(
+            f"{args.model}: the model has {needs['temp'][0]!r}: give the temperature the "
+            "program runs at with --temp-c (its link lengths refer to 20 degC), or leave it "
+            f"out with --leave-out {needs['temp'][0]}; nothing written"
+        )
+    if needs["time"] and args.time_s is None:
+        end = fm.reference_time
+        ran = f"; the fitted run ended at {end:g} s" if end is not None else ""
+        raise InputError(
+            f"{args.model}: the model has {needs['time'][0]!r} (the robot base moving against "
+            "the instrument): give the time the program runs at, on the fitted run's clock, "
+            f"with --time-s{ran}; or --leave-out {needs['time'][0]} if the instrument moved, "
+            "not the robot; nothing written"
+        )
     try:
         tcp = np.array([float(v) for v in args.tcp_mm.split(",")]) * 1e-3
     except ValueError:
@@ -447,12 +503,21 @@ def _compensate(args: argparse.Namespace) -> int:
                 )
     if problems:
         raise InputError("\n".join(f"{x}; nothing written" for x in problems))
-    comp = compensate_joints(fm.robot, fm.spec, fm.coeffs, q, T_tcp)
+    comp = compensate_program(
+        fm, q, T_tcp, temp_c=args.temp_c, time_s=args.time_s, leave_out=leave_out
+    )
     dq = np.degrees(comp.q - q)
+    settled = comp.approach_settled if comp.approach_settled is not None else np.ones(len(q), bool)
     for k in range(len(q)):
         if not np.all(np.isfinite(comp.q[k])) or not comp.converged[k]:
             problems.append(f"{where[k]}: compensation did not converge (near a singularity?)")
             continue
+        if not settled[k]:
+            problems.append(
+                f"{where[k]}: the correction reverses the direction the program moves a "
+                "backlash joint into this target (the move is smaller than the correction): "
+                "the side the gear rests on is undefined"
+            )
         j = int(np.argmax(np.abs(dq[k])))
         if abs(dq[k, j]) > cap:
             problems.append(
@@ -492,8 +557,50 @@ def _compensate(args: argparse.Namespace) -> int:
         f"{comp.residual_pos.max() * 1e3:.6f} mm max after compensation; largest correction "
         f"{np.abs(dq).max():.4f} deg (cap {cap:g})"
     )
+    for line in _compensation_notes(fm, comp, args, Backlash):
+        print(line)
     print(f"wrote {args.out}" + (f", {args.errors}" if args.errors else ""))
     return 0
+
+
+def _compensation_notes(fm: Any, comp: Any, args: argparse.Namespace, backlash: type) -> list[str]:
+    """The lines that say what the compensation used and what it left out (never silently)."""
+    import numpy as np
+
+    out = []
+    if comp.described:
+        out.append("compensated effects: " + "; ".join(comp.described))
+    for name, why in comp.left_out:
+        out.append(f"left out: {name} ({why})")
+    uses = {col for e in fm.effects if e.name in comp.effects for col in e.requires()}
+    if args.temp_c is not None and "temp" not in uses:
+        out.append(f"--temp-c {args.temp_c:g} not used: no compensated effect depends on it")
+    if args.time_s is not None and "time" not in uses:
+        out.append(f"--time-s {args.time_s:g} not used: no compensated effect depends on it")
+    end = fm.reference_time
+    if "time" in uses and end is not None and args.time_s > end:
+        out.append(
+            f"drift extrapolated linearly to {args.time_s:g} s; the fitted run ended at {end:g} s"
+        )
+    # a move smaller than the play leaves a real gear between its two sides
+    for e, p in zip(fm.effects, fm.effect_params, strict=True):
+        if not isinstance(e, backlash) or e.name not in comp.effects:
+            continue
+        out.append(
+            f"note: {e.name}: the first target counts as reached with joint {e.joint + 1} "
+            "moving in the positive direction (the fit's rule for a first pose); make the "
+            "move into it do so"
+        )
+        step = np.abs(np.diff(comp.q[:, e.joint], prepend=comp.q[0, e.joint]))[1:]
+        small = np.flatnonzero(step < abs(float(p[0])))
+        if small.size:
+            shown = ", ".join(str(int(k) + 2) for k in small[:8]) + (" …" if small.size > 8 else "")
+            out.append(
+                f"note: joint {e.joint + 1} moves less than its play "
+                f"({np.degrees(abs(float(p[0]))):.4g} deg) into target(s) {shown}: the side "
+                f"its gear rests on there is uncertain; {e.name} assumes the direction of the move"
+            )
+    return out
 
 
 # -------------------------------------------------------------------------- report

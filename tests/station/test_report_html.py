@@ -191,6 +191,10 @@ def test_report_command_extends_report_json(reported):
     assert any(h.startswith("joint 2 tilt about x grew by") for h in tr["hints"])
     assert {p["pose_id"] for p in doc["iso9283"]["poses"]} == {f"P{i:03d}" for i in range(5)}
     assert all(p["n"] == 4 and p["rp_mm"] < 0.3 for p in doc["iso9283"]["poses"])
+    iso = doc["iso9283"]  # a 7D run: orientation accuracy and repeatability too
+    assert iso["orientation"] is True
+    assert all(len(p["ap_abc_mrad"]) == 3 and len(p["rp_abc_mrad"]) == 3 for p in iso["poses"])
+    assert all(0 < v < 1.0 for p in iso["poses"] for v in p["rp_abc_mrad"])  # noise 0.1 mrad
     assert doc["diagnosis"]["verdict"] in ("adequate", "missing-effect")
     assert len(doc["coverage"]["range_share"]) == 6
 
@@ -295,6 +299,31 @@ def test_iso9283_figures_of_repeated_poses():
     assert a.n == 3 and a.accuracy == pytest.approx(1e-3)
     l = np.array([0.0, 0.2, 0.2]) * 1e-3
     assert a.repeatability == pytest.approx(l.mean() + 3 * l.std(ddof=1))
+
+
+def test_iso9283_orientation_figures_of_repeated_poses():
+    """Known rotations about the robot base's axes, seen in a frame rotated against the base:
+    AP a/b/c is the mean deviation from the commanded orientation about the base's x/y/z
+    (ISO 9283 §7.2.1), RP a/b/c three sample standard deviations (§7.2.3)."""
+    import numpy as np
+
+    from quickhealth.identify.transforms import exp_so3, rot_x, rot_z
+
+    R_meas_base = rot_z(0.7) @ rot_x(-0.4)  # the base's axes in the measurement frame
+    R_cmd_base = rot_x(0.3) @ rot_z(1.1)  # commanded orientation, base frame
+    dev = np.array([[1.0, 0.0, -2.0], [1.2, 0.5, -2.0], [0.8, -0.5, -2.0]]) * 1e-3  # a, b, c
+    R_att = exp_so3(dev @ R_meas_base.T) @ (R_meas_base @ R_cmd_base)  # about base axes
+    R_cmd = np.broadcast_to(R_meas_base @ R_cmd_base, (3, 3, 3))
+    pos = np.zeros((3, 3))
+    (st,) = iso9283_pose_stats(("A", "A", "A"), pos, pos, R_att, R_cmd, R_meas_base)
+    np.testing.assert_allclose(st.accuracy_abc, [1e-3, 0.0, -2e-3], atol=1e-9)
+    np.testing.assert_allclose(st.repeatability_abc, 3 * dev.std(axis=0, ddof=1), atol=1e-9)
+    assert st.repeatability_abc[2] == pytest.approx(0.0, abs=1e-9)
+    # without the base's axes the components are about the measurement frame's: they differ
+    (st_m,) = iso9283_pose_stats(("A", "A", "A"), pos, pos, R_att, R_cmd)
+    assert np.abs(st_m.accuracy_abc - st.accuracy_abc).max() > 2e-4
+    (st_p,) = iso9283_pose_stats(("A", "A", "A"), pos, pos)  # position-only data
+    assert st_p.accuracy_abc is None and st_p.repeatability_abc is None
 
 
 def test_report_command_without_model_is_one_line_error(tmp_path, capsys):
