@@ -318,6 +318,11 @@ def format_measurements(meas: Measurements) -> str:
                     f"measurement row {i + 1}: pose_id {str(pid)[:40]!r} has a control character "
                     "or is too long; not written"
                 )
+            if str(pid) != str(pid).strip():
+                raise InputError(
+                    f"measurement row {i + 1}: pose_id {str(pid)[:40]!r} begins or ends with a "
+                    "space, which the reader strips; not written"
+                )
     buf = io.StringIO()
     for k, v in meas.meta.items():
         buf.write(f"# {k}: {v}\n")
@@ -347,7 +352,17 @@ def format_measurements(meas: Measurements) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow([c for c, _ in cols])
     for r in range(meas.n_poses):
-        w.writerow([v[r] if isinstance(v, tuple) else repr(float(v[r])) for _, v in cols])
+        row = [v[r] if isinstance(v, tuple) else repr(float(v[r])) for _, v in cols]
+        if row and str(row[0]).lstrip().startswith("#"):
+            # a pose_id opening the line with '#' would read as a comment: quote it
+            buf.write('"' + str(row[0]).replace('"', '""') + '"')
+            if len(row) > 1:
+                buf.write(",")
+                w.writerow(row[1:])
+            else:
+                buf.write("\n")
+        else:
+            w.writerow(row)
     return buf.getvalue()
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import os
 from pathlib import Path
 
@@ -11,6 +12,8 @@ import numpy as np
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.measurements import Measurements
 
+from .common import MAX_FIT_ROWS, read_text_limited
+
 
 def read_wam_csv(path: str | os.PathLike[str], sign: float) -> Measurements:
     """The Barrett WAM laser-tracker files (step_order, x_t…, x_dif…, joint_1…7) as Measurements.
@@ -18,11 +21,12 @@ def read_wam_csv(path: str | os.PathLike[str], sign: float) -> Measurements:
     Position = desired + ``sign`` · difference (mm → m); joints deg → rad.
     """
     p = Path(path)
-    try:
-        rows = list(csv.reader(p.read_text(encoding="utf-8").splitlines()))
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    head = rows[0]
+    rows = list(csv.reader(read_text_limited(p, "measurements").splitlines()))
+    if not rows or not any(rows[0]):
+        raise InputError(f"{p}:1:1: empty file: expected the WAM header (x_t, y_t, z_t, ...)")
+    if len(rows) > MAX_FIT_ROWS + 1:
+        raise InputError(f"{p}: {len(rows) - 1} rows is over the {MAX_FIT_ROWS} row limit of a fit")
+    head = [c.strip() for c in rows[0]]
     need = ["x_t", "y_t", "z_t", "x_dif", "y_dif", "z_dif"] + [f"joint_{i}" for i in range(1, 8)]
     for c in need:
         if c not in head:
@@ -33,9 +37,14 @@ def read_wam_csv(path: str | os.PathLike[str], sign: float) -> Measurements:
         if not r:
             continue
         try:
-            data.append([float(r[ix[c]]) for c in need])
+            vals = [float(r[ix[c]]) for c in need]
         except (ValueError, IndexError):
             raise InputError(f"{p}:{lineno}:1: row is not numeric") from None
+        if not all(math.isfinite(v) for v in vals):
+            raise InputError(f"{p}:{lineno}:1: NaN or infinity in the row")
+        data.append(vals)
+    if not data:
+        raise InputError(f"{p}: no data rows after the header")
     a = np.array(data)
     pos = (a[:, 0:3] + sign * a[:, 3:6]) * 1e-3
     q = np.radians(a[:, 6:13])

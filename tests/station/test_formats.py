@@ -11,6 +11,7 @@ import qh_synth as S
 
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.fit import fit_model
+from quickhealth.identify.measurements import Measurements
 from quickhealth.identify.robot import chain
 from quickhealth.station import formats
 from quickhealth.station.provenance import provenance
@@ -306,3 +307,41 @@ def test_wam_reader_sign_and_units():
     assert m.n_joints == 7 and m.n_poses == len(a)
     np.testing.assert_allclose(m.pos * 1e3, a[:, 1:4] + a[:, 4:7])
     np.testing.assert_allclose(np.degrees(m.q), a[:, 7:14])
+
+
+@pytest.mark.parametrize(
+    ("text", "what"),
+    [
+        ("", r"wam\.csv:1:1: empty file"),
+        (
+            "step_order,x_t,y_t,z_t,x_dif,y_dif,z_dif,"
+            + ",".join(f"joint_{i}" for i in range(1, 8))
+            + "\n",
+            "no data rows",
+        ),  # fmt: skip
+        (
+            "step_order,x_t,y_t,z_t,x_dif,y_dif,z_dif,"
+            + ",".join(f"joint_{i}" for i in range(1, 8))
+            + "\n1,"
+            + ",".join(["1"] * 5 + ["nan"] + ["2"] * 7)
+            + "\n",
+            r"wam\.csv:2:1: NaN",
+        ),  # fmt: skip
+        ("\x00\x01\xff", "not UTF-8 text"),
+    ],
+)
+def test_wam_reader_refuses_with_one_line(tmp_path, text, what):
+    p = tmp_path / "wam.csv"
+    p.write_bytes(text.encode("latin-1"))
+    with pytest.raises(InputError, match=what):
+        formats.read_wam_csv(p, 1.0)
+
+
+def test_pose_ids_that_look_like_comments_or_lose_spaces(tmp_path):
+    q = np.radians(np.array([[10.0, 20, 30], [40, 50, 60]]))
+    pos = np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]])
+    m = Measurements(q=q, pos=pos, pose_id=("#1", '#"2"'))
+    back = formats.parse_measurements(formats.format_measurements(m), "f.csv", 3)
+    assert back.pose_id == ("#1", '#"2"') and back.n_poses == 2  # quoted, not comments
+    with pytest.raises(InputError, match="begins or ends with a space"):
+        formats.format_measurements(Measurements(q=q, pos=pos, pose_id=(" P1", "P2")))
