@@ -48,6 +48,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in RUN_DIR")
     p.add_argument(
+        "--force",
+        action="store_true",
+        help="run into an --out folder that holds a plan or a fit of other data",
+    )
+    p.add_argument(
         "--archive",
         default=None,
         help="after a complete run: fit it (identify fit) and register it in this archive "
@@ -103,8 +108,20 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {str(out)!r}: '..' is not allowed in a run folder path")
     if args.robot_name is not None:
         safe_name(args.robot_name, "robot name")
-    from quickhealth.station.fsio import refuse_overwriting_inputs
+    from quickhealth.station.fsio import (
+        claim_output_folder,
+        foreign_results,
+        refuse_overwriting_inputs,
+        result_files,
+    )
 
+    # a run folder holds one run (and, later, its fit): never a plan, nor a fit of other data
+    foreign = foreign_results(out, "run")
+    if args.resume and result_files(out)["run"]:
+        foreign = [f for f in foreign if not f.startswith("a fit")]  # this run's own fit
+    forced = claim_output_folder(out, "run", foreign, force=args.force)
+    if forced:
+        print(f"--force: running into {out}, which holds {forced}", file=sys.stderr)
     refuse_overwriting_inputs(  # the run's own files never replace the plan, cell or calibration
         [("--out", out / n) for n in ("measurements.csv", "run.json", "journal.jsonl", "run.log")],
         [p for p in (args.cell, args.plan, args.calibration) if p and Path(p).is_file()],

@@ -169,3 +169,16 @@ def test_sim_controller_refuses_bad_options(capsys):
     assert "--speed-factor" in capsys.readouterr().err
     assert main(["sim-controller", "--q0-deg", "1,2,x"]) == 2
     assert "--q0-deg" in capsys.readouterr().err
+
+
+def test_run_into_a_plan_folder_is_refused_without_force(plan_path, tmp_path, capsys):
+    out = tmp_path / "plan"
+    out.mkdir()
+    (out / "plan.json").write_text(plan_path.read_text())
+    before = sorted(p.name for p in out.iterdir())
+    argv = ["run", "--cell", "reference", "--plan", str(plan_path), "--out", str(out), "--sim"]
+    code = main(argv)
+    _one_line_error(
+        capsys, code, "holds a plan (plan.json): choose another folder, or give --force"
+    )
+    assert sorted(p.name for p in out.iterdir()) == before  # nothing written, nothing moved
