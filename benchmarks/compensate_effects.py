@@ -37,25 +37,13 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from quickhealth.identify.compensate_trial import (  # noqa: E402
+    FAMILIES,
     TRIAL_TEMP_C,
     TRIAL_TIME_S,
     TcpErrors,
     TrialRow,
     run_trial,
 )
-
-#: Effect families and sizes (SI): those of tests/station/test_every_effect_cli.py, each a few
-#: times the noise floor in held-out RMS.
-#: The last row fits the compliance with the link masses withheld (the lumped form).
-FAMILIES: list[tuple[str | None, float, bool]] = [
-    (None, 0.0, False),
-    ("backlash:j3", 4e-4, False),
-    ("compliance:j2", 2.5e-5, False),
-    ("cyclic:j1:h9", 2e-4, False),
-    ("thermal", 5e-5, False),
-    ("drift", 2e-7, False),
-    ("compliance:j2", 2.5e-5, True),
-]
 
 
 def reference_plans(n_train: int = 300, n_program: int = 120) -> tuple[np.ndarray, np.ndarray]:

@@ -81,6 +81,20 @@ F = NDArray[np.float64]
 TRIAL_TEMP_C = 30.0
 TRIAL_TIME_S = 900.0
 
+#: The trial's cases: (effect name or None for the geometric model, size in SI, masses
+#: withheld).  The sizes are those of the every-effect CLI test, each a few times the noise
+#: floor in held-out RMS; the last row fits the compliance with the link masses withheld (the
+#: lumped form).
+FAMILIES: tuple[tuple[str | None, float, bool], ...] = (
+    (None, 0.0, False),
+    ("backlash:j3", 4e-4, False),
+    ("compliance:j2", 2.5e-5, False),
+    ("cyclic:j1:h9", 2e-4, False),
+    ("thermal", 5e-5, False),
+    ("drift", 2e-7, False),
+    ("compliance:j2", 2.5e-5, True),
+)
+
 
 @dataclass(frozen=True, eq=False)
 class TcpErrors:

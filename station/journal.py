@@ -36,10 +36,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from quickhealth.identify.errors import InputError
 
+from .formats.common import json_plain
 from .fsio import fsync_dir, write_atomic
 
 JOURNAL = "journal.jsonl"
@@ -191,7 +190,7 @@ class Journal:
             from .provenance import provenance
 
             rec = {**rec, "provenance": provenance()}
-        rec = _plain(rec)
+        rec = json_plain(rec, finite_only=True)
         line = dict(rec)
         line["crc"] = _crc(rec)
         data = (
@@ -213,23 +212,3 @@ class Journal:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _plain(x: Any) -> Any:
-    """numpy values to plain JSON values (finite numbers only)."""
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        if not np.isfinite(v):
-            raise ValueError("journal values must be finite")
-        return v
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (np.bool_,)):
-        return bool(x)
-    return x

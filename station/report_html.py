@@ -49,6 +49,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from quickhealth.identify.errors import InputError  # noqa: E402
+from quickhealth.station.formats.common import json_plain as _plain  # noqa: E402
 
 F = NDArray[np.float64]
 
@@ -865,23 +866,6 @@ def report_json(rep: Report) -> dict[str, Any]:
             for s in rep.sections
         },
     }
-
-
-def _plain(x: Any) -> Any:
-    """JSON-able copy: numpy to Python, NaN/inf to None."""
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.bool_ | bool):
-        return bool(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.floating | float):
-        return float(x) if math.isfinite(x) else None
-    return x
 
 
 _CSS = """

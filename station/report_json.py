@@ -16,6 +16,7 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
+from quickhealth.station.formats.common import json_plain as _plain
 from quickhealth.station.formats.report import REPORT_SCHEMA as SCHEMA
 from quickhealth.station.formats.report import check_report
 
@@ -157,24 +158,3 @@ def with_sections(doc: Mapping[str, Any], sections: Mapping[str, Mapping[str, An
             new[key] = s["data"]
     new["provenance"] = provenance()
     return json.dumps(_plain(new), indent=1, allow_nan=False) + "\n"
-
-
-def _plain(x: Any) -> Any:
-    """JSON-able copy: numpy to Python, NaN/inf to None."""
-    import math
-
-    import numpy as np
-
-    if isinstance(x, Mapping):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.bool_ | bool):
-        return bool(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.floating | float):
-        return float(x) if math.isfinite(x) else None
-    return x

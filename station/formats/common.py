@@ -13,6 +13,7 @@ import json
 import math
 import os
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -98,6 +99,29 @@ def load_json_limited(path: str | os.PathLike[str], what: str = "json") -> Any:
         raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
     except (ValueError, RecursionError) as exc:  # e.g. an integer of 100 000 digits
         raise InputError(f"{p}: not a usable {what} file: {str(exc).splitlines()[0]}") from None
+
+
+def json_plain(x: Any, *, finite_only: bool = False) -> Any:
+    """A JSON-able copy of ``x``: numpy scalars and arrays to Python values, tuples to lists,
+    keys to strings; NaN and infinity to ``None``, or ``ValueError`` with ``finite_only`` (the
+    journal, whose records must never hold a non-finite number)."""
+    if isinstance(x, Mapping):
+        return {str(k): json_plain(v, finite_only=finite_only) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [json_plain(v, finite_only=finite_only) for v in x]
+    if isinstance(x, np.ndarray):
+        return json_plain(x.tolist(), finite_only=finite_only)
+    if isinstance(x, np.bool_ | bool):
+        return bool(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.floating | float):
+        if math.isfinite(x):
+            return float(x)
+        if finite_only:
+            raise ValueError(f"a non-finite number ({x}) where only finite ones are allowed")
+        return None
+    return x
 
 
 def finite_float(text: str) -> float:

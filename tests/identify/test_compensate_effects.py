@@ -17,7 +17,7 @@ from quickhealth.identify.compensate import (
     fitted_tool,
     model_tcp,
 )
-from quickhealth.identify.compensate_trial import TRIAL_TEMP_C, TRIAL_TIME_S, run_trial
+from quickhealth.identify.compensate_trial import FAMILIES, TRIAL_TEMP_C, TRIAL_TIME_S, run_trial
 from quickhealth.identify.effects import parse_effects
 from quickhealth.identify.errormodel import ErrorModelSpec
 from quickhealth.identify.errors import InputError
@@ -167,16 +167,6 @@ def test_lumped_compliance_is_compensated_without_masses() -> None:
 
 
 # ---------------------------------------------------------------- the twin runs the program
-
-FAMILIES = [
-    (None, 0.0, False),
-    ("backlash:j3", 4e-4, False),
-    ("compliance:j2", 2.5e-5, False),
-    ("cyclic:j1:h9", 2e-4, False),
-    ("thermal", 5e-5, False),
-    ("drift", 2e-7, False),
-    ("compliance:j2", 2.5e-5, True),
-]
 
 
 @pytest.fixture(scope="module")
