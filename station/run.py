@@ -779,8 +779,8 @@ def run_plan(
         stopped = str(exc)
         try:
             station.robot.stop()
-        except HardwareError:
-            pass
+        except HardwareError as stop_exc:  # not confirmed: the arm may still be moving
+            stopped = f"{stopped}; {stop_exc}"
     try:
         r.drain()
     finally:

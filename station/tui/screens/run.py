@@ -33,6 +33,8 @@ STATE_WORDS = {
     "running": "[cyan]Running[/]  [b]p[/b] pause · [b]a[/b] abort",
     "paused": "[yellow]Paused[/] after this pose  [b]p[/b] resume · [b]a[/b] abort",
     "aborted": "[red]Aborted[/]: robot stopped, measured poses kept. [b]r[/b] resumes the run.",
+    "aborted-unconfirmed": "[b red]Aborted, but the stop was NOT confirmed[/]: the arm may "
+    "still be moving (below).",
     "fault": "[b red]Stopped by a fault[/] (below)",
     "finished": "[green]Finished[/]: press [b]4[/b] for the results.",
 }
@@ -55,6 +57,9 @@ class RunScreen(Screen[None]):
     ]
 
     progress: reactive[RunProgress | None] = reactive(None)
+    # What the screen's own worker is doing with the station now ("reconnect", "pre-flight")
+    # or None: r and c refuse while the other runs, so the two never go at once.
+    busy: str | None = None
 
     def compose(self) -> ComposeResult:
         yield NavBar("run")
@@ -63,6 +68,7 @@ class RunScreen(Screen[None]):
                 yield ProgressBar(id="run-bar", show_eta=False)
                 yield Static("", id="run-eta")
             yield Static(STATE_WORDS["idle"], id="run-state")
+            yield Static("", id="run-busy")
             yield Static("", id="fault", classes="fault")
             yield Static("Current pose: –", id="run-current")
             yield Static("Last measurement: –", id="run-last")
@@ -78,6 +84,7 @@ class RunScreen(Screen[None]):
         table.add_column("Reproj px", key="reproj")
         table.add_column("Note", key="note")
         self.query_one("#fault").display = False
+        self.query_one("#run-busy").display = False
         self._fill_table()
 
     def _fill_table(self) -> None:
@@ -104,11 +111,31 @@ class RunScreen(Screen[None]):
         if station.running:
             self.notify("The run is already going.", severity="warning")
             return
+        if self._refuse_while_busy("The run"):
+            return
+        self.busy = "pre-flight"
         self._preflight_then_ask()
+
+    def _refuse_while_busy(self, what: str) -> bool:
+        if self.busy is None:
+            return False
+        line = f"{what} waits: the {self.busy} is still going."
+        busy_line = self.query_one("#run-busy", Static)
+        busy_line.update(f"[yellow]{line}[/]")
+        busy_line.display = True
+        self.notify(line, severity="warning")
+        return True
+
+    def _idle(self) -> None:
+        self.busy = None
+        self.query_one("#run-busy", Static).display = False
 
     @work(thread=True, exclusive=True, group="run-preflight")
     def _preflight_then_ask(self) -> None:
-        pf = self.app.station.preflight()  # type: ignore[attr-defined]
+        try:
+            pf = self.app.station.preflight()  # type: ignore[attr-defined]
+        finally:
+            self.app.call_from_thread(self._idle)
         self.app.call_from_thread(self._ask, pf)
 
     def _ask(self, pf) -> None:  # type: ignore[no-untyped-def]
@@ -160,7 +187,13 @@ class RunScreen(Screen[None]):
             self.app.station.abort()  # type: ignore[attr-defined]
         except Exception as exc:  # noqa: BLE001 - shown to the technician
             self.app.call_from_thread(
-                self.notify, f"Abort: could not confirm the stop: {exc}", severity="error"
+                self.notify,
+                f"Abort: the stop was NOT confirmed: {exc}",
+                severity="error",
+                timeout=30,
+            )
+            self.app.call_from_thread(
+                self.query_one("#run-state", Static).update, STATE_WORDS["aborted-unconfirmed"]
             )
             return
         self.app.call_from_thread(self.notify, "Abort: robot stopped.", severity="warning")
@@ -170,10 +203,13 @@ class RunScreen(Screen[None]):
         if p is None or p.state not in ("fault", "aborted"):
             self.notify("Nothing to reconnect: the run is not stopped by a fault.")
             return
+        if self._refuse_while_busy("Reconnecting"):
+            return
+        self.busy = "reconnect"
         self.query_one("#run-state", Static).update("Reconnecting…")
         self._reconnect()
 
-    @work(thread=True, exclusive=True, group="run-preflight")
+    @work(thread=True, exclusive=True, group="run-reconnect")
     def _reconnect(self) -> None:
         try:
             self.app.station.reconnect()  # type: ignore[attr-defined]
@@ -183,6 +219,8 @@ class RunScreen(Screen[None]):
                 self.query_one("#run-state", Static).update, STATE_WORDS["fault"]
             )
             return
+        finally:
+            self.app.call_from_thread(self._idle)
         self.app.call_from_thread(self._reconnected)
 
     def _reconnected(self) -> None:
@@ -203,7 +241,10 @@ class RunScreen(Screen[None]):
         bar.update(total=max(1, p.total), progress=p.done)
         eta = "" if p.state != "running" else f"ETA {fmt_duration(p.eta_s)}"
         self.query_one("#run-eta", Static).update(f"{p.done}/{p.total}  {eta}")
-        self.query_one("#run-state", Static).update(STATE_WORDS.get(p.state, p.state))
+        words = STATE_WORDS.get(p.state, p.state)
+        if p.state == "aborted" and p.fault is not None:
+            words = STATE_WORDS["aborted-unconfirmed"]
+        self.query_one("#run-state", Static).update(words)
         fault = self.query_one("#fault", Static)
         if p.fault is not None:
             fault.update(
