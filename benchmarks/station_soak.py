@@ -126,7 +126,8 @@ def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
     from quickhealth.identify.errors import HardwareError
     from quickhealth.station.journal import JOURNAL
     from quickhealth.station.planning import load_plan
-    from quickhealth.station.run import run_plan, sim_station
+    from quickhealth.station.run import run_plan
+    from quickhealth.station.sim.cell import sim_station
 
     rng = random.Random(seed)
     plan = load_plan(plan_path)
