@@ -53,6 +53,7 @@ POLL_S = 0.004  # receiver and move-watch period, s
 ACT_WITHIN_S = 0.05  # s the commander has to begin acting on a stop before the parent is told
 STOP_STALE_S = 0.1  # s without new RTDE data after which stopJ cannot be confirmed over RTDE
 STOP_DECEL = 4.0  # rad/s², stopJ's deceleration
+STOP_CONFIRM_S = 0.5  # s after stopJ returned for the stream to show the target joints still
 FAREWELL_ID = -2  # the id of the last line the process writes (its threads' states)
 RECOVERY_HINT = "clear the cause, release the stop on the teach pendant, then rerun with --resume"
 
@@ -122,6 +123,9 @@ class Client:
         self.moving_seq = -1  # sequence number of the move being watched
         self.acted = threading.Condition()
         self.stop_acted = -1  # sequence number of the last stop the commander acted on
+        # The outcome of the last stop performed, and the request it served: the stop job
+        # that follows a stop made by the move watch reports it instead of stopping again.
+        self.stop_outcome: tuple[int, str | Refused] = (-1, "")
         self._busy: tuple[str, float] = ("", 0.0)
         self.rc: Any = None
 
@@ -228,14 +232,15 @@ class Client:
                     self.reply(rid, True)
                 elif op == "stop":
                     answered = self._act(job.seq, job.req)
-                    try:
-                        how = self.stop()
-                    except Refused as exc:
-                        if not answered:
-                            self.reply(rid, error=exc)
-                        continue
-                    if not answered:
-                        self.reply(rid, how)
+                    seq, outcome = self.stop_outcome
+                    if seq < job.seq:  # not stopped for this request yet: stop now
+                        outcome = self._stop_for(job.seq)
+                    if answered:
+                        pass
+                    elif isinstance(outcome, Refused):
+                        self.reply(rid, error=outcome)
+                    else:
+                        self.reply(rid, outcome)
                 elif op == "close":
                     self.close_control()
                     self.reply(rid, True)
@@ -256,14 +261,21 @@ class Client:
             self.acted.notify_all()
             return bool(req is not None and req.get("answered"))
 
-    def _stop_move(self) -> None:
-        """Stop the move being watched on the operator's request (a stop job follows and
-        reports whether the stop was confirmed)."""
-        self._act(self.stop_seq)
+    def _stop_for(self, seq: int) -> str | Refused:
+        """Stop the arm for stop request ``seq``; the outcome is kept for that request."""
         try:
-            self.stop()
-        except Refused:
-            pass
+            outcome: str | Refused = self.stop()
+        except Refused as exc:
+            outcome = exc
+        self.stop_outcome = (seq, outcome)
+        return outcome
+
+    def _stop_move(self) -> None:
+        """Stop the move being watched on the operator's request (the stop job that follows
+        reports whether the stop was confirmed)."""
+        seq = self.stop_seq
+        self._act(seq)
+        self._stop_for(seq)
         raise Refused("MoveStopped", "the move was stopped by the operator")
 
     def check_stream(self) -> Snapshot:
@@ -400,11 +412,35 @@ class Client:
             )
         if not s.program_running:
             return "the control program is not running: nothing drives the arm"
-        if self._cxx("stop", self.rc.stopJ, STOP_DECEL, False):
-            return "stopJ confirmed by the controller"
-        if not self.snap.program_running:  # a protective stop or a program stop meanwhile
-            return "the control program stopped: nothing drives the arm"
-        raise Refused("HardwareError", "the controller did not confirm the stop (stopJ failed)")
+        self._cxx("stop", self.rc.stopJ, STOP_DECEL, False)  # returns nothing (ur-rtde 1.6)
+        return self._confirm_still()
+
+    def _confirm_still(self) -> str:
+        """After stopJ: the stream must show the controller's target joints standing still
+        (two successive packets alike), or the program no longer running."""
+        deadline = time.monotonic() + STOP_CONFIRM_S
+        ref = self.snap
+        while True:
+            time.sleep(POLL_S)
+            s = self.snap
+            if not s.connected:
+                raise Refused("ConnectionLost", "the link dropped before the stop was confirmed")
+            if not s.program_running:  # a protective stop or a program stop meanwhile
+                return "the control program stopped: nothing drives the arm"
+            if s.timestamp != ref.timestamp:
+                if (
+                    s.target_q
+                    and max(abs(a - b) for a, b in zip(s.target_q, ref.target_q, strict=True))
+                    < 1e-7
+                ):
+                    return "stopJ done: the controller's target joints stand still"
+                ref = s
+            if time.monotonic() > deadline:
+                raise Refused(
+                    "HardwareError",
+                    f"stopJ was sent, but after {STOP_CONFIRM_S:.1f} s the stream does not show "
+                    "the arm standing still",
+                )
 
     def close_control(self) -> None:
         try:
