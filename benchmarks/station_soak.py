@@ -23,8 +23,9 @@ its standard output the moment it injects it, so the faults of a worker that the
 still count: as injected and not survived.  At the end of every run its journal is read: a
 pose of the plan without a record is *lost*, a pose captured twice is *measured twice*.
 Prints: faults injected and survived, poses lost, poses measured twice, interpreter crashes
-(target: all survived, 0, 0, 0).  At most ``--max-runs`` runs are made (default: three
-times the runs the faults need), so workers that keep failing end the soak, as a FAIL.
+(target: all survived, 0, 0, 0).  Every healthy run injects at least one fault, so at most
+``--max-runs`` runs are made (default: as many as faults), and three runs in a row that
+inject nothing (workers failing before their first fault) end the soak too, as a FAIL.
 
     .venv/bin/python benchmarks/station_soak.py [--faults 200] [--seed 0] [--max-runs N]
 """
@@ -233,7 +234,7 @@ def main() -> int:
         "--max-runs",
         type=int,
         default=None,
-        help="stop after this many runs of the plan (default: 3 x the runs the faults need)",
+        help="stop after this many runs of the plan (default: as many as --faults)",
     )
     ap.add_argument("--worker", type=Path, help=argparse.SUPPRESS)
     ap.add_argument("--plan", type=Path, help=argparse.SUPPRESS)
@@ -252,11 +253,13 @@ def main() -> int:
     survived: Counter[str] = Counter()
     lost = twice = crashes = failures = runs = 0
     aborts: list[dict[str, float]] = []
-    max_runs = args.max_runs or 3 * max(1, -(-args.faults // max(1, args.per_run)))
+    max_runs = args.max_runs or max(1, args.faults)
+    barren = 0  # runs in a row that injected no fault
     t0 = time.monotonic()
     while sum(injected.values()) < args.faults:
-        if runs >= max_runs:
-            print(f"  stopped after {runs} runs (--max-runs): the workers keep failing", flush=True)
+        if runs >= max_runs or barren >= 3:
+            why = "--max-runs" if runs >= max_runs else "3 runs in a row injected no fault"
+            print(f"  stopped after {runs} runs ({why}): the workers keep failing", flush=True)
             break
         runs += 1
         run_dir = work / f"run{runs:03d}"
@@ -302,6 +305,7 @@ def main() -> int:
                 log.write_text(err)
                 print(f"  run {runs}: worker exit {proc.returncode}: {tail}", flush=True)
                 print(f"    (its output: {log})", flush=True)
+        barren = 0 if pending else barren + 1
         lo, tw, ended = journal_check(run_dir, n_poses)
         lost += lo
         twice += tw

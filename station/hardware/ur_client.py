@@ -18,8 +18,9 @@ thread, and nothing else ever calls into it:
   cancels every move received before it (a move already on the way when the operator
   aborted never starts).
 
-The stop's reply is a promise kept honestly: ``ok`` only when ``stopJ`` returned true on a
-live, fresh stream, or when the stream shows that no program drives the arm.  It fails at
+The stop's reply is a promise kept honestly: ``ok`` only when ``stopJ`` was done and the
+stream then shows the controller's target joints standing still, or when the stream shows
+that no program drives the arm.  It fails at
 once when the link is down or the stream has not advanced for :data:`STOP_STALE_S`, and
 when the commander has not begun acting on the stop within :data:`ACT_WITHIN_S` (it is
 inside a C++ call that does not return: a handshake on a frozen stream); the parent then
@@ -249,6 +250,10 @@ class Client:
                     raise Refused("HardwareError", f"unknown command {op!r}")
             except Refused as exc:
                 self.reply(rid, error=exc)
+            except Exception as exc:  # noqa: BLE001 - a bug here must not silence the commander
+                self.reply(
+                    rid, error=Refused("HardwareError", f"{op}: {type(exc).__name__}: {exc}")
+                )
 
     def _stop_requested(self) -> bool:
         return self.stop_seq > self.moving_seq >= 0
@@ -429,7 +434,7 @@ class Client:
                 return "the control program stopped: nothing drives the arm"
             if s.timestamp != ref.timestamp:
                 if (
-                    s.target_q
+                    len(s.target_q) == len(ref.target_q) > 0
                     and max(abs(a - b) for a, b in zip(s.target_q, ref.target_q, strict=True))
                     < 1e-7
                 ):
