@@ -157,7 +157,8 @@ def run_demo(
     from quickhealth.identify.errors import HardwareError, QuickhealthError
     from quickhealth.station.archive import Archive, trend_for
     from quickhealth.station.planning import load_plan
-    from quickhealth.station.run import run_plan, sim_station
+    from quickhealth.station.run import run_plan
+    from quickhealth.station.sim.cell import sim_station
 
     t_start = time.monotonic()
     out = Path(out)

@@ -30,6 +30,7 @@ SYNOPSIS
 from __future__ import annotations
 
 import json
+import logging
 import math
 import shutil
 import threading
@@ -61,6 +62,8 @@ from .journal import JOURNAL, SCHEMA, Journal, JournalState, read_journal, write
 from .provenance import software_version
 
 F = NDArray[np.float64]
+log = logging.getLogger(__name__)
+DEVICE_CLOSE_TIMEOUT_S = 5.0  # s a device's owner may take to finish its jobs and close it
 
 
 @dataclass(frozen=True)
@@ -175,8 +178,8 @@ class Station:
     def __post_init__(self) -> None:
         # One owner per device: the run, the pre-flight and the TUI's polls all go through a
         # worker thread and its queue (the robot's owner is its client process).
-        self.motor = owned(self.motor, "pan-motor")
-        self.camera = owned(self.camera, "stereo-camera")
+        self.motor = owned(self.motor, "pan motor")
+        self.camera = owned(self.camera, "stereo camera")
 
     def predicted_plate(self, q: F, pan: float) -> F:
         """Nominal ``T_instr_plate`` at joints ``q`` and pan angle ``pan``."""
@@ -185,11 +188,31 @@ class Station:
         )
 
     def close(self) -> None:
-        """Release all hardware (robot last: it stops the arm)."""
-        for dev in (self.motor, self.camera):
-            if isinstance(dev, DeviceOwner):
-                dev.shutdown()
+        """Release all hardware (robot last: it stops the arm).
+
+        The pan motor and the camera are closed by their owners' workers, never from here: a
+        worker still inside its device after :data:`DEVICE_CLOSE_TIMEOUT_S` leaves the device
+        open (a warning says which), and a closer that would close such a device directly
+        (``motor.close`` in ``closers``) is skipped."""
+        owners = [d for d in (self.motor, self.camera) if isinstance(d, DeviceOwner)]
+        for dev in owners:
+            try:
+                closed = dev.close(DEVICE_CLOSE_TIMEOUT_S)
+            except Exception as exc:  # noqa: BLE001 - keep closing the rest
+                log.warning("closing the %s failed: %s", dev.name, exc)
+                continue
+            if not closed:
+                inside = dev.busy()
+                log.warning(
+                    "the %s is still inside %s() after %.0f s: left open (its owner thread "
+                    "alone may touch it; the process exit releases it)",
+                    dev.name,
+                    inside[0] if inside else "a call",
+                    DEVICE_CLOSE_TIMEOUT_S,
+                )
         for f in reversed(self.closers):
+            if any(getattr(f, "__self__", None) is dev.device for dev in owners):
+                continue  # that device was closed by its owner (or is left to it)
             try:
                 f()
             except Exception:  # noqa: BLE001 - keep closing the rest
@@ -800,8 +823,8 @@ def run_plan(
         stopped = str(exc)
         try:
             station.robot.stop()
-        except HardwareError:
-            pass
+        except HardwareError as stop_exc:  # not confirmed: the arm may still be moving
+            stopped = f"{stopped}; {stop_exc}"
     try:
         r.drain()
     finally:
@@ -942,49 +965,6 @@ def write_outputs(
     }
     write_text_atomic(run_dir / "run.json", json.dumps(summary, indent=1) + "\n")
     return path
-
-
-def sim_station(
-    cell: str = "reference",
-    *,
-    twin_seed: int = 1,
-    image_scale: float = 0.5,
-    q0_deg: list[float] | None = None,
-    speed_factor: float = 1.0,
-    degrade: dict[str, float] | None = None,
-    camera_seed: int = 0,
-) -> tuple[Station, Any]:
-    """A :class:`Station` on the built-in simulated cell, and the :class:`SimCell` behind it.
-
-    ``station.close()`` stops the simulators too.  ``degrade`` changes the twin's true
-    error coefficients (``{"j2.ex.c0": 5e-4}``, m or rad): a worn robot for demos and tests.
-    """
-    from .hardware.simcell import start_sim_cell
-    from .planning import load_cell
-
-    c = load_cell(cell)
-    if q0_deg is None and getattr(c, "home", None) is not None:
-        q0_deg = [float(v) for v in np.degrees(c.home)]
-    sc = start_sim_cell(
-        cell,
-        twin_seed=twin_seed,
-        image_scale=image_scale,
-        q0_deg=q0_deg,
-        speed_factor=speed_factor,
-        degrade=degrade,
-        camera_seed=camera_seed,
-    )
-    w = sc.world
-    st = Station.on_simulated_world(
-        c,
-        w,
-        sc.robot,
-        sc.motor,
-        sc.camera,
-        instrument=f"simulated stereo camera ({w.rig.left.image_size[0] * image_scale:.0f} px wide)",
-        closers=[sc.close],
-    )
-    return st, sc
 
 
 def ur_station(

@@ -84,7 +84,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    from quickhealth.station.hardware.simcontroller import add_arguments
+    from quickhealth.station.sim.process import add_arguments
 
     add_arguments(s)
     s.set_defaults(func=sim_controller)
@@ -92,7 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def sim_controller(args: argparse.Namespace) -> int:
     """Serve the simulator in the foreground."""
-    from quickhealth.station.hardware.simcontroller import run_from_args
+    from quickhealth.station.sim.process import run_from_args
 
     return run_from_args(args)
 
@@ -188,7 +188,8 @@ def _sim_setting(
 
 def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: ignore[no-untyped-def]
     from quickhealth.identify.errors import HardwareError
-    from quickhealth.station.run import run_plan, sim_station, ur_station
+    from quickhealth.station.run import run_plan, ur_station
+    from quickhealth.station.sim.cell import sim_station
 
     out.mkdir(parents=True, exist_ok=True)
     log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115

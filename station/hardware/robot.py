@@ -7,7 +7,10 @@
   asynchronously and watched there, so a protective stop, a lost connection or a frozen RTDE
   stream ends the move within a fraction of a second with a
   :class:`~quickhealth.identify.errors.HardwareError` that says what to do, never a hang; a
-  stop jumps the queue and ends a move within one 4 ms watch cycle.
+  stop jumps the queue and ends a move within one 4 ms watch cycle.  A stop the client cannot
+  confirm (link down, stream frozen, client stuck or killed) is sent to the controller's
+  dashboard server instead (``stop``: the program and the arm stop); one confirmed by neither
+  raises :class:`~quickhealth.identify.errors.HardwareError`: the arm may still be moving.
 - ``quickhealth.station.sim.fake_robot.FakeRobot`` — pure Python, same timing model as the
   controller simulator, with the same faults; for fast unit tests.
 
@@ -211,6 +214,7 @@ def _pose_to_T(p: ArrayLike) -> F:
 # ---------------------------------------------------------------------------------------
 
 RECOVERY_HINT = "clear the cause, release the stop on the teach pendant, then rerun with --resume"
+DASHBOARD_PORT = 29999  # the UR dashboard server (a line protocol), fixed on every controller
 
 
 class MoveStopped(HardwareError):
@@ -250,7 +254,9 @@ class _Child:
         self._ids = iter(range(1, 1 << 62))
         self._waiting: dict[int, tuple[threading.Event, list[dict]]] = {0: (threading.Event(), [])}
         self.dead: str | None = None
-        threading.Thread(target=self._read, name="ur-client-replies", daemon=True).start()
+        self.farewell: dict | None = None  # the client's last words after close (its threads)
+        self._reader = threading.Thread(target=self._read, name="ur-client-replies", daemon=True)
+        self._reader.start()
         hello = self.wait(0, connect_timeout)
         if hello is None:
             self.kill()
@@ -262,15 +268,23 @@ class _Child:
             raise ConnectionLost(str(hello.get("message", "cannot connect")))
 
     def _read(self) -> None:
+        from .ur_client import FAREWELL_ID
+
         assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            try:
-                msg = json.loads(line)
-                ev, box = self._waiting[int(msg["id"])]
-            except (ValueError, KeyError, TypeError):
-                continue
-            box.append(msg)
-            ev.set()
+        try:
+            for line in self.proc.stdout:
+                try:
+                    msg = json.loads(line)
+                    if int(msg["id"]) == FAREWELL_ID:
+                        self.farewell = dict(msg["value"])
+                        continue
+                    ev, box = self._waiting[int(msg["id"])]
+                except (ValueError, KeyError, TypeError):
+                    continue
+                box.append(msg)
+                ev.set()
+        except (OSError, ValueError):
+            pass  # the pipe was closed under us: the process is being killed
         self.proc.wait()
         with self._lock:
             self.dead = f"the ur-rtde client process ended (status {self.proc.returncode})"
@@ -313,9 +327,13 @@ class _Child:
 
     def kill(self) -> None:
         """End the process now (a stuck C++ call is never disconnected from another thread)."""
+        import threading
+
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait()
+        if threading.current_thread() is not self._reader:
+            self._reader.join(2.0)  # its last lines (the farewell) read before the pipe closes
         for f in (self.proc.stdin, self.proc.stdout):
             try:
                 f.close()  # type: ignore[union-attr]
@@ -341,7 +359,8 @@ class UrRobot:
     number of threads here (the run, an abort, the TUI's status polls) may call it and never
     two threads are inside a ur-rtde object.  A client stuck inside a C++ call (a controller
     that stopped answering) is killed and replaced by :meth:`reconnect`; it can never take
-    this interpreter down.
+    this interpreter down.  The dashboard connection (:meth:`stop`'s fallback) is opened,
+    used and closed by one stop at a time, under its own lock: it too has one owner.
 
     Parameters
     ----------
@@ -356,7 +375,8 @@ class UrRobot:
     """
 
     COMMAND_TIMEOUT = 5.0  # s one call into the controller may take before the client is killed
-    STOP_WAIT = 1.0  # s a stop may take to be confirmed
+    STOP_WAIT = 1.0  # s a stop may take to be confirmed over RTDE (deceleration included)
+    DASHBOARD_TIMEOUT = 1.0  # s each step of the dashboard's stop may take
     CONNECT_TIMEOUT = 20.0  # s to connect both interfaces (the script upload included)
 
     def __init__(
@@ -376,36 +396,45 @@ class UrRobot:
         self.stale_after = float(stale_after)
         self.move_timeout = float(move_timeout)
         self.sample_period = 1.0 / self.frequency
-        self._gate = threading.Lock()  # orders moves against stops and reconnects
+        self._gate = threading.Lock()  # orders moves against stops; only ever held briefly
+        self._connecting = threading.RLock()  # one (re)connect at a time; a stop never waits on it
+        self._dashboard = threading.Lock()  # the owner of the dashboard connection: one stop
         self._halted = False
         self._child: _Child | None = None
-        self._connect()
+        self._child = self._new_child()
 
     # -- the client process ---------------------------------------------------------------
-    def _connect(self) -> None:
+    def _new_child(self) -> _Child:
         argv = [
             self.host,
             f"--frequency={self.frequency}",
             f"--stale-after={self.stale_after}",
             f"--move-timeout={self.move_timeout}",
         ]
-        self._child = _Child(argv, self.CONNECT_TIMEOUT)
+        return _Child(argv, self.CONNECT_TIMEOUT)
 
     def connect(self) -> None:
         """Connect when not connected (a lost link, a killed client); otherwise nothing."""
-        child = self._child
-        if child is None or child.dead is not None:
-            self.reconnect()
+        with self._connecting:
+            child = self._child
+            if child is None or child.dead is not None:
+                self.reconnect()
 
     def reconnect(self) -> None:
         """Replace the client process: after a link drop, a frozen stream or a controller
-        restart.  Raises :class:`ConnectionLost` while the controller is still away."""
-        with self._gate:
-            old, self._child = self._child, None
+        restart (the new client uploads the control program again).  Raises
+        :class:`ConnectionLost` while the controller is still away.
+
+        A stop meanwhile is not held up (it goes to the dashboard while there is no client),
+        and stays in force: moves wait for :meth:`clear_stop` (the start of a run)."""
+        with self._connecting:
+            with self._gate:
+                old, self._child = self._child, None
             if old is not None:
                 old.close(1.0)
-            self._halted = False
-            self._connect()
+            child = self._new_child()  # may take seconds: no lock a stop needs is held
+            with self._gate:
+                self._child = child
 
     def _live(self) -> _Child:
         child = self._child
@@ -528,25 +557,78 @@ class UrRobot:
     def stop(self) -> None:
         """Stop the arm now (ahead of anything queued) and refuse moves until :meth:`clear_stop`.
 
-        Returns once the controller confirmed the stop, or after :attr:`STOP_WAIT` s: then the
-        client is killed, which drops its connections (the controller stops the program).
+        Returns once the stop is confirmed: by the client over RTDE (``stopJ`` done on a live
+        stream, or no program running) within :attr:`STOP_WAIT` s, else by the controller's
+        dashboard server (``stop`` answered ``Stopped``), which is also where the stop goes
+        at once when there is no live client (link lost, frozen stream, client killed or stuck).
+
+        Raises
+        ------
+        HardwareError
+            Neither confirmed the stop: the arm may still be moving.
         """
         with self._gate:
             self._halted = True
             child = self._child
-            if child is None or child.dead is not None:
-                return
-            try:
-                rid = child.send("stop")
-            except ConnectionLost:
-                return
-        try:
-            msg = child.wait(rid, self.STOP_WAIT)
-        except ConnectionLost:
+        why = self._stop_over_rtde(child)
+        if why is None:
             return
+        try:
+            self._dashboard_stop()
+            return
+        except HardwareError as exc:
+            raise HardwareError(
+                f"the stop of the arm could not be confirmed ({why}; {exc}): the arm may still "
+                "be moving: press the emergency stop"
+            ) from None
+
+    def _stop_over_rtde(self, child: _Child | None) -> str | None:
+        """Ask the client to stop the arm; None when confirmed, else why not."""
+        if child is None or child.dead is not None:
+            return "no ur-rtde client (link lost or client killed)"
+        try:
+            rid = child.send("stop")
+            msg = child.wait(rid, self.STOP_WAIT)
+        except ConnectionLost as exc:
+            return str(exc)
         if msg is None:
             child.forget(rid)
             self._discard(child)
+            return f"the ur-rtde client did not confirm within {self.STOP_WAIT:.0f} s (killed)"
+        if msg.get("ok"):
+            return None
+        if msg.get("error") in ("ConnectionLost", "StreamFrozen"):
+            self._discard(child)  # a lost or frozen link needs a new client: reconnect
+        return str(msg.get("message", "the client refused the stop"))
+
+    def _dashboard_stop(self) -> None:
+        """``stop`` through the dashboard server (29999); raises HardwareError unless confirmed.
+
+        One short connection per stop, opened, used and closed by the caller under
+        ``_dashboard``: no other thread is ever inside it."""
+        import socket
+
+        where = f"the dashboard server at {self.host}:{DASHBOARD_PORT}"
+        with self._dashboard:
+            try:
+                with socket.create_connection(
+                    (self.host, DASHBOARD_PORT), timeout=self.DASHBOARD_TIMEOUT
+                ) as sock:
+                    f = sock.makefile("rwb", buffering=0)
+                    if not f.readline():
+                        raise HardwareError(f"{where} closed the connection")
+                    f.write(b"stop\n")
+                    reply = f.readline().decode("ascii", "replace").strip()
+                    if reply.lower().startswith("stopped"):
+                        return
+                    # "Failed to execute: stop" when nothing runs: then nothing drives the arm.
+                    f.write(b"programstate\n")
+                    state = f.readline().decode("ascii", "replace").strip()
+                    if state.upper().startswith("STOPPED"):
+                        return
+                    raise HardwareError(f"{where} did not stop the program ({reply!r}, {state!r})")
+            except OSError as exc:
+                raise HardwareError(f"{where} cannot be reached ({exc})") from None
 
     def clear_stop(self) -> None:
         """Allow moves again after :meth:`stop` (the start of a run)."""

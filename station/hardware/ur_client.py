@@ -13,14 +13,26 @@ thread, and nothing else ever calls into it:
   snapshots until the controller says it ended), ``stop`` and ``close``;
 - the **main** thread reads requests.  ``state`` is answered at once from the latest
   snapshot; ``stop`` is queued ahead of everything else and also flags the move being
-  watched, which stops the arm within one 4 ms watch cycle.  A stop cancels every move
-  received before it (a move already on the way when the operator aborted never starts).
+  watched, which stops the arm within one 4 ms watch cycle (the wait for a re-uploaded
+  control program and the last check before a move is sent watch the flag too).  A stop
+  cancels every move received before it (a move already on the way when the operator
+  aborted never starts).
+
+The stop's reply is a promise kept honestly: ``ok`` only when ``stopJ`` was done and the
+stream then shows the controller's target joints standing still, or when the stream shows
+that no program drives the arm.  It fails at
+once when the link is down or the stream has not advanced for :data:`STOP_STALE_S`, and
+when the commander has not begun acting on the stop within :data:`ACT_WITHIN_S` (it is
+inside a C++ call that does not return: a handshake on a frozen stream); the parent then
+stops the program through the dashboard server instead.
 
 Replies: ``{"id": n, "ok": true, "value": ...}`` or ``{"id": n, "ok": false, "error":
-CLASS, "message": TEXT}`` where CLASS names one of the driver's exception classes.  The
-child never needs to be disconnected from another thread: when a C++ call hangs (a controller
-that stopped answering) the parent kills the whole process, and the operating system closes
-its sockets.
+CLASS, "message": TEXT}`` where CLASS names one of the driver's exception classes.  Before
+the process ends after ``close`` it writes ``{"id": -2, "ok": true, "value": {"threads":
+[...]}}``: the threads still alive then (none, unless one was stuck inside the client).  The
+child never needs to be disconnected from another thread: when a C++ call hangs (a
+controller that stopped answering) the parent kills the whole process, and the operating
+system closes its sockets.
 """
 
 from __future__ import annotations
@@ -39,6 +51,11 @@ from typing import Any
 from .urtypes import RobotMode, RuntimeState, SafetyMode
 
 POLL_S = 0.004  # receiver and move-watch period, s
+ACT_WITHIN_S = 0.05  # s the commander has to begin acting on a stop before the parent is told
+STOP_STALE_S = 0.1  # s without new RTDE data after which stopJ cannot be confirmed over RTDE
+STOP_DECEL = 4.0  # rad/s², stopJ's deceleration
+STOP_CONFIRM_S = 0.5  # s after stopJ returned for the stream to show the target joints still
+FAREWELL_ID = -2  # the id of the last line the process writes (its threads' states)
 RECOVERY_HINT = "clear the cause, release the stop on the teach pendant, then rerun with --resume"
 
 
@@ -105,6 +122,11 @@ class Client:
         self.rr_error: str | None = None
         self.stop_seq = -1  # sequence number of the last stop request
         self.moving_seq = -1  # sequence number of the move being watched
+        self.acted = threading.Condition()
+        self.stop_acted = -1  # sequence number of the last stop the commander acted on
+        # The outcome of the last stop performed, and the request it served: the stop job
+        # that follows a stop made by the move watch reports it instead of stopping again.
+        self.stop_outcome: tuple[int, str | Refused] = (-1, "")
         self._busy: tuple[str, float] = ("", 0.0)
         self.rc: Any = None
 
@@ -210,8 +232,16 @@ class Client:
                         self.moving_seq = -1
                     self.reply(rid, True)
                 elif op == "stop":
-                    self.stop()
-                    self.reply(rid, True)
+                    answered = self._act(job.seq, job.req)
+                    seq, outcome = self.stop_outcome
+                    if seq < job.seq:  # not stopped for this request yet: stop now
+                        outcome = self._stop_for(job.seq)
+                    if answered:
+                        pass
+                    elif isinstance(outcome, Refused):
+                        self.reply(rid, error=outcome)
+                    else:
+                        self.reply(rid, outcome)
                 elif op == "close":
                     self.close_control()
                     self.reply(rid, True)
@@ -220,9 +250,38 @@ class Client:
                     raise Refused("HardwareError", f"unknown command {op!r}")
             except Refused as exc:
                 self.reply(rid, error=exc)
+            except Exception as exc:  # noqa: BLE001 - a bug here must not silence the commander
+                self.reply(
+                    rid, error=Refused("HardwareError", f"{op}: {type(exc).__name__}: {exc}")
+                )
 
     def _stop_requested(self) -> bool:
         return self.stop_seq > self.moving_seq >= 0
+
+    def _act(self, seq: int, req: dict[str, Any] | None = None) -> bool:
+        """Note that the commander acts on stop ``seq`` now; True when the main thread already
+        answered that stop (it was not acted on in time)."""
+        with self.acted:
+            self.stop_acted = max(self.stop_acted, seq)
+            self.acted.notify_all()
+            return bool(req is not None and req.get("answered"))
+
+    def _stop_for(self, seq: int) -> str | Refused:
+        """Stop the arm for stop request ``seq``; the outcome is kept for that request."""
+        try:
+            outcome: str | Refused = self.stop()
+        except Refused as exc:
+            outcome = exc
+        self.stop_outcome = (seq, outcome)
+        return outcome
+
+    def _stop_move(self) -> None:
+        """Stop the move being watched on the operator's request (the stop job that follows
+        reports whether the stop was confirmed)."""
+        seq = self.stop_seq
+        self._act(seq)
+        self._stop_for(seq)
+        raise Refused("MoveStopped", "the move was stopped by the operator")
 
     def check_stream(self) -> Snapshot:
         s = self.snap
@@ -244,6 +303,8 @@ class Client:
         q = [float(v) for v in req["q"]]
         speed, accel = float(req["speed"]), float(req["accel"])
         self.check_ready()
+        if self._stop_requested():  # the stop came while the program was being restarted
+            self._stop_move()
         fn = self.rc.moveJ if req["leg"] == "joint" else self.rc.moveL_FK
         if not self._cxx("the move", fn, q, speed, accel, True):
             self.raise_for_state("the controller refused the move")
@@ -252,8 +313,7 @@ class Client:
         time.sleep(0.01)
         while True:
             if self._stop_requested():
-                self.stop()
-                raise Refused("MoveStopped", "the move was stopped by the operator")
+                self._stop_move()
             s = self.check_stream()
             if not s.ready or not s.program_running:
                 self.raise_for_state("the move did not finish")
@@ -265,15 +325,22 @@ class Client:
                 ):
                     return
                 # Not there yet: the two RTDE connections may lag each other by a packet, or
-                # the progress register still shows the previous move.  Persisting = stopped.
-                if idle_since is None:
+                # the progress register still shows the previous move.  Persisting = stopped;
+                # but a stream that does not advance says nothing (the client reads a progress
+                # register whose write counter stands still as "idle"): the freeze check decides.
+                if s.still_for > STOP_STALE_S:
+                    idle_since = None
+                elif idle_since is None:
                     idle_since = time.monotonic()
                 elif time.monotonic() - idle_since > 0.25:
                     self.raise_for_state("the move ended away from its target")
             else:
                 idle_since = None
             if time.monotonic() - t0 > self.move_timeout:
-                self.stop()
+                try:
+                    self.stop()
+                except Refused:
+                    pass
                 raise Refused(
                     "HardwareError",
                     f"a move took longer than {self.move_timeout:.0f} s: check the robot",
@@ -289,6 +356,8 @@ class Client:
             self._cxx("restart the control program", self.rc.reuploadScript)
             deadline = time.monotonic() + 5.0
             while not self._cxx("program state", self.rc.isProgramRunning):
+                if self._stop_requested():
+                    self._stop_move()
                 if time.monotonic() > deadline:
                     raise Refused(
                         "ProgramStopped", "the control program on the robot does not start"
@@ -300,8 +369,10 @@ class Client:
         # cause a moment to show before settling for a generic message.
         deadline = time.monotonic() + 0.2
         while True:
-            s = self.check_stream()
-            if not s.ready or not s.program_running or time.monotonic() > deadline:
+            s = self.check_stream()  # a stream that stopped advancing ends here as frozen
+            if not s.ready or not s.program_running:
+                break
+            if time.monotonic() > deadline and s.still_for <= STOP_STALE_S:
                 break
             time.sleep(POLL_S)
         s = self.snap
@@ -330,9 +401,51 @@ class Client:
             )
         raise Refused("HardwareError", f"{what}: the controller reports no cause")
 
-    def stop(self) -> None:
-        if self.snap.connected and self._cxx("connection state", self.rc.isConnected):
-            self._cxx("stop", self.rc.stopJ, 4.0, False)
+    def stop(self) -> str:
+        """Stop the arm over RTDE and say how it was confirmed; :class:`Refused` when it cannot
+        be confirmed (the parent then stops the program through the dashboard server)."""
+        s = self.snap
+        if not s.connected or not self._cxx("connection state", self.rc.isConnected):
+            raise Refused(
+                "ConnectionLost",
+                f"the stop could not be sent: the RTDE link to {self.host} is down",
+            )
+        if s.still_for > STOP_STALE_S:
+            raise Refused(
+                "StreamFrozen",
+                f"the stop cannot be confirmed over RTDE: no new data for {s.still_for:.2f} s",
+            )
+        if not s.program_running:
+            return "the control program is not running: nothing drives the arm"
+        self._cxx("stop", self.rc.stopJ, STOP_DECEL, False)  # returns nothing (ur-rtde 1.6)
+        return self._confirm_still()
+
+    def _confirm_still(self) -> str:
+        """After stopJ: the stream must show the controller's target joints standing still
+        (two successive packets alike), or the program no longer running."""
+        deadline = time.monotonic() + STOP_CONFIRM_S
+        ref = self.snap
+        while True:
+            time.sleep(POLL_S)
+            s = self.snap
+            if not s.connected:
+                raise Refused("ConnectionLost", "the link dropped before the stop was confirmed")
+            if not s.program_running:  # a protective stop or a program stop meanwhile
+                return "the control program stopped: nothing drives the arm"
+            if s.timestamp != ref.timestamp:
+                if (
+                    len(s.target_q) == len(ref.target_q) > 0
+                    and max(abs(a - b) for a, b in zip(s.target_q, ref.target_q, strict=True))
+                    < 1e-7
+                ):
+                    return "stopJ done: the controller's target joints stand still"
+                ref = s
+            if time.monotonic() > deadline:
+                raise Refused(
+                    "HardwareError",
+                    f"stopJ was sent, but after {STOP_CONFIRM_S:.1f} s the stream does not show "
+                    "the arm standing still",
+                )
 
     def close_control(self) -> None:
         try:
@@ -346,6 +459,25 @@ class Client:
             pass
 
     # -- main thread: requests -----------------------------------------------------------
+    def _answer_if_not_acted(self, seq: int, rid: int, req: dict[str, Any]) -> None:
+        """A stop the commander does not begin within ACT_WITHIN_S is answered now, as not
+        confirmed: the commander is inside a C++ call, and the parent must not wait for it.
+        The queued stop still runs (and cancels the move) when the commander is back."""
+        with self.acted:
+            if self.acted.wait_for(lambda: self.stop_acted >= seq, ACT_WITHIN_S):
+                return
+            req["answered"] = True
+        busy, since = self._busy
+        inside = f"inside {busy} for {time.monotonic() - since:.2f} s" if busy else "busy"
+        self.reply(
+            rid,
+            error=Refused(
+                "HardwareError",
+                f"the stop could not be sent within {ACT_WITHIN_S * 1000:.0f} ms: the control "
+                f"interface is {inside}",
+            ),
+        )
+
     def serve(self, stdin: Any) -> int:
         seq = itertools.count()
         for line in stdin:
@@ -360,6 +492,7 @@ class Client:
             elif op == "stop":
                 self.stop_seq = n
                 self.jobs.put(_Job(0, n, req))
+                self._answer_if_not_acted(n, rid, req)
             elif op == "close":
                 self.jobs.put(_Job(2, n, req))
                 return 0
@@ -408,7 +541,12 @@ def main(argv: list[str] | None = None) -> int:
     cx.join(5.0)  # a commander stuck inside the client is not waited for: the process ends
     c.closing.set()
     rx.join(2.0)
-    sys.stdout.flush()
+    # Last words: which threads are still alive (inside a client) as the process ends.
+    alive = [t.name for t in threading.enumerate() if t is not threading.main_thread()]
+    try:
+        c.reply(FAREWELL_ID, {"threads": alive})
+    except OSError:
+        pass  # the parent is gone
     os._exit(0)
 
 

@@ -23,7 +23,10 @@ only to copy state, on absolute deadlines at the requested rate (125 Hz for a CB
 Faults (control port ``{"cmd": "fault", "kind": ...}``, now, ``after_s`` or
 ``after_moves``): ``protective_stop``, ``emergency_stop``, ``program_stop``,
 ``freeze_stream``, ``drop_connection``, ``restart`` (every link dropped, connections
-refused for ``down_s`` s, program stopped, registers reset) and ``clear``.
+refused for ``down_s`` s, program stopped, registers reset), ``slow_program_start``
+(``delay_s``: an uploaded script runs that long after it arrived) and ``clear``.  The
+control port's ``state`` lists the stop commands received (``stopj``, ``dashboard`` …) with
+their ``time.monotonic()`` (the host's clock, shared by every process): stop latency.
 
 Nothing here is imported by the drivers in :mod:`quickhealth.station.hardware`; the drivers
 talk to the simulator over the same sockets as to a real controller.

@@ -61,6 +61,7 @@ FAULT_KINDS = (
     "freeze_stream",
     "drop_connection",
     "restart",
+    "slow_program_start",
     "clear",
 )
 
@@ -139,6 +140,10 @@ class Controller:
         self.pending_faults: list[dict[str, Any]] = []
         self.n_moves = 0
         self.n_restarts = 0
+        # Every stop command received: (time.monotonic(), how).  The clock is the host's
+        # CLOCK_MONOTONIC, shared by every process: a client measures its stop latency with it.
+        self.stops: list[tuple[float, str]] = []
+        self.program_start_delay = 0.0  # s from a script upload to the program running
         self.log: list[str] = []
         self.stop_event = threading.Event()
         self.world: Any = None  # the simulated cell's ground truth (world.SimWorld)
@@ -303,12 +308,14 @@ class Controller:
             else:  # moveJ: nothing to plan
                 self._install(job, joint_path(q0, np.asarray(job.target)), t)
         elif cmd in (CMD_STOPJ, CMD_STOPL):
+            self.note_stop("stopj" if cmd == CMD_STOPJ else "stopl")
             self._cancel_planning()
             self.arm.halt(t)
             self.async_motion = None
             self.outputs["output_int_register_2"] = -1
             self.outputs["output_int_register_0"] = 2
         elif cmd == CMD_STOP_SCRIPT:
+            self.note_stop("stop_script")
             self._cancel_planning()
             self.arm.halt(t)
             self.runtime_state = RuntimeState.STOPPED
@@ -393,6 +400,12 @@ class Controller:
             self.outputs["output_int_register_2"] = -1
             self.say("program running")
 
+    def note_stop(self, how: str) -> None:
+        """Record a stop command as received now (for the clients' stop-latency figures)."""
+        with self.lock:
+            self.stops.append((time.monotonic(), how))
+            del self.stops[:-100]
+
     def stop_program(self) -> None:
         with self.lock:
             self._cancel_planning()
@@ -442,6 +455,8 @@ class Controller:
         """Queue a fault: ``{"kind": ..., "after_moves": n}`` or ``{"kind": ..., "after_s": s}``.
 
         ``restart`` takes ``down_s`` (default 2 s): how long new connections are refused.
+        ``slow_program_start`` takes ``delay_s``: from now on (until ``clear``) an uploaded
+        script starts running that long after it arrived, as on a busy real controller.
         """
         kind = spec.get("kind")
         if kind not in FAULT_KINDS:
@@ -450,6 +465,10 @@ class Controller:
             down = spec.get("down_s", RESTART_DOWN_S)
             if not isinstance(down, int | float) or not 0.0 <= float(down) <= 600.0:
                 raise ValueError("restart: down_s must be a number of seconds in 0..600")
+        if kind == "slow_program_start":
+            delay = spec.get("delay_s")
+            if not isinstance(delay, int | float) or not 0.0 <= float(delay) <= 60.0:
+                raise ValueError("slow_program_start: delay_s must be a number of seconds in 0..60")
         with self.lock:
             spec = dict(spec)
             if "after_s" in spec:
@@ -491,11 +510,14 @@ class Controller:
             self.drop_connections()
         elif kind == "restart":
             self._restart(float(spec.get("down_s", RESTART_DOWN_S)))
+        elif kind == "slow_program_start":
+            self.program_start_delay = float(spec["delay_s"])
         elif kind == "clear":  # back to a healthy controller (tests): faults and stops gone
             self.frozen = None
             self.refuse_connections = False
             self.refuse_until = 0.0
             self.pending_faults.clear()
+            self.program_start_delay = 0.0
             self.safety_mode = SafetyMode.NORMAL
             self.robot_mode = RobotMode.RUNNING
 

@@ -81,7 +81,7 @@ class SimControllerHandle:
 
         Kinds: ``protective_stop``, ``emergency_stop``, ``program_stop``, ``freeze_stream``,
         ``drop_connection`` (``refuse=False`` to accept reconnections at once), ``restart``
-        (``down_s=``, default 2 s) and ``clear``.
+        (``down_s=``, default 2 s), ``slow_program_start`` (``delay_s=``) and ``clear``.
         """
         self.request("fault", kind=kind, **when)
 

@@ -270,9 +270,11 @@ def dashboard(ctrl: Controller, conn: socket.socket) -> None:
             elif cmd == "running":
                 reply(f"Program running: {str(playing).lower()}")
             elif cmd == "stop":
+                ctrl.note_stop("dashboard")
                 ctrl.stop_program()
                 reply("Stopped")
             elif cmd == "pause":
+                ctrl.note_stop("dashboard pause")
                 ctrl.stop_program()
                 reply("Pausing program")
             elif cmd == "play":
@@ -337,6 +339,10 @@ def script(ctrl: Controller, conn: socket.socket) -> None:
             first = text.strip().splitlines()[0][:60]
             ctrl.say(f"script received: {len(buf)} bytes, {first!r}")
             if text.lstrip().startswith(("def ", "sec ")):
+                delay = ctrl.program_start_delay
+                if delay > 0:  # a slow controller (fault ``slow_program_start``)
+                    ctrl.say(f"program starts in {delay:.1f} s")
+                    time.sleep(delay)
                 ctrl.start_program()
             buf = b""
     close_socket(conn)
@@ -388,6 +394,7 @@ def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
                 "runtime_state": int(ctrl.runtime_state),
                 "n_moves": ctrl.n_moves,
                 "n_restarts": ctrl.n_restarts,
+                "stops": [{"at_monotonic": t, "via": how} for t, how in ctrl.stops[-20:]],
                 "frozen": ctrl.frozen is not None,
                 "accepting": ctrl.accepting(),
                 "version": list(ctrl.version),

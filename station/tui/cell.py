@@ -33,6 +33,8 @@ WHAT_TO_DO = {
     "frozen-stream": "the controller stopped streaming: restart its RTDE interface "
     "(or the controller)",
     "program-stopped": "start the control program on the teach pendant again",
+    "stop-unconfirmed": "press the emergency stop now and check the arm; then find why the "
+    "controller could not be reached",
     "error": "read the message, fix the cause",
 }
 PREFLIGHT_ORDER = ("robot", "plan", "home", "cameras", "pan motor", "disk")
@@ -349,9 +351,20 @@ class CellControl:
         """Stop the robot now, then end the run (blocks up to a second: call from a worker).
 
         The robot's stop jumps its owner's queue, ends the move under way and refuses any
-        move sent after it until the run is started again; the run then ends at once."""
+        move sent after it until the run is started again; the run then ends at once.
+
+        A stop the robot could not confirm raises its HardwareError and stays as the fault
+        shown with the aborted run: the arm may still be moving."""
         try:
             self.station.robot.stop()
+        except HardwareError as exc:
+            with self._lock:
+                self.fault = Fault(
+                    "stop-unconfirmed",
+                    f"The stop was not confirmed: {exc}",
+                    WHAT_TO_DO["stop-unconfirmed"],
+                )
+            raise
         finally:
             with self._lock:
                 self._abort = True

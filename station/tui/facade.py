@@ -352,9 +352,9 @@ class Station:
         the_plan = load_plan(plan) if plan is not None else make_plan(c, n_poses, 0)
         if sim:
             tell("starting the simulated cell (UR controller simulator, pan motor, cameras)…")
-            hw, simcell = station_run.sim_station(
-                cell, image_scale=image_scale, speed_factor=speed_factor
-            )
+            from quickhealth.station.sim.cell import sim_station
+
+            hw, simcell = sim_station(cell, image_scale=image_scale, speed_factor=speed_factor)
         else:
             tell(f"connecting to the robot at {robot_ip}…")
             if not (robot_ip and motor_port and cameras and calibration):

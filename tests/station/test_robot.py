@@ -18,7 +18,7 @@ from quickhealth.station.hardware.robot import (
     StreamFrozen,
     check_move,
 )
-from quickhealth.station.hardware.simcontroller import trapezoid_duration, trapezoid_fraction
+from quickhealth.station.sim.arm import trapezoid_duration, trapezoid_fraction
 from quickhealth.station.sim.fake_robot import FakeRobot
 
 Q1 = np.radians([10.0, -80.0, 80.0, -90.0, -90.0, 10.0])

@@ -26,7 +26,8 @@ from quickhealth.station.formats import read_measurements
 from quickhealth.station.hardware.world import build_world
 from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_plan
-from quickhealth.station.run import RunSettings, run_plan, sim_station
+from quickhealth.station.run import RunSettings, run_plan
+from quickhealth.station.sim.cell import sim_station
 
 pytestmark = [pytest.mark.slow]
 

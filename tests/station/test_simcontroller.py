@@ -12,7 +12,9 @@ import time
 import numpy as np
 import pytest
 
-from quickhealth.station.hardware import simcontroller as sc
+from quickhealth.station.hardware.urtypes import SafetyMode
+from quickhealth.station.sim import wire
+from quickhealth.station.sim.process import start_sim_controller
 
 # The timeout includes waiting for the UR ports (one simulator per host).
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)]
@@ -21,7 +23,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)]
 @pytest.fixture(scope="module")
 def sim():
     # start_sim_controller takes the host-wide port lock: simulator tests never overlap
-    h = sc.start_sim_controller(control_port=30091, speed_factor=4.0)
+    h = start_sim_controller(control_port=30091, speed_factor=4.0)
     try:
         yield h
     finally:
@@ -40,14 +42,14 @@ def _listening(port: int) -> list[str]:
 
 def test_every_server_listens_on_loopback_only(sim):
     mine = "".join(f"{int(b):02X}" for b in reversed(sim.host.split(".")))  # /proc/net/tcp order
-    for port in (sc.RTDE_PORT, sc.DASHBOARD_PORT, sc.SCRIPT_PORT, 30091):
+    for port in (wire.RTDE_PORT, wire.DASHBOARD_PORT, wire.SCRIPT_PORT, 30091):
         where = _listening(port)
         assert mine in where, port
         assert all(a.endswith("7F") for a in where), (port, where)  # 127.x.y.z, nothing else
 
 
 def test_dashboard_speaks_the_protocol(sim):
-    with socket.create_connection((sim.host, sc.DASHBOARD_PORT), timeout=5) as s:
+    with socket.create_connection((sim.host, wire.DASHBOARD_PORT), timeout=5) as s:
         f = s.makefile("rwb", buffering=0)
         assert f.readline() == b"Connected: Universal Robots Dashboard Server\n"
         for cmd, want in (
@@ -99,8 +101,8 @@ def test_real_client_moves_the_simulated_arm(sim):
         sim.fault("protective_stop", after_s=0.05)
         assert not c.moveJ(np.zeros(6).tolist(), 0.3, 0.5)
         time.sleep(0.05)  # the receive connection may lag the control one by a packet
-        assert r.isProtectiveStopped() and r.getSafetyMode() == sc.SAFETY_PROTECTIVE_STOP
-        with socket.create_connection((sim.host, sc.DASHBOARD_PORT), timeout=5) as s:
+        assert r.isProtectiveStopped() and r.getSafetyMode() == SafetyMode.PROTECTIVE_STOP
+        with socket.create_connection((sim.host, wire.DASHBOARD_PORT), timeout=5) as s:
             f = s.makefile("rwb", buffering=0)
             f.readline()
             f.write(b"unlock protective stop\n")

@@ -15,6 +15,7 @@ from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_cell
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.facade import Station, make_plan
+from quickhealth.station.tui.screens.confirm import ConfirmScreen
 
 
 @pytest.fixture(scope="module")
@@ -204,3 +205,136 @@ def test_a_protective_stop_is_named_with_what_to_do() -> None:
     robot.release()
     robot.inject("connection_drop")
     assert classify(robot, "lost the RTDE connection").kind == "connection-lost"
+
+
+@pytest.mark.slow
+async def test_station_screen_refuses_preflight_and_connect_during_a_run(
+    tmp_path: Path, plan
+) -> None:  # type: ignore[no-untyped-def]
+    """f and c on the Station screen would reach into the devices the run is using: while a
+    run goes (here: paused between poses) both refuse, and neither touches a device."""
+    station = sim_station(tmp_path, plan)
+    cell = station.cell
+    calls: list[str] = []
+    for name in ("preflight", "connect", "connections"):
+        real = getattr(cell, name)
+
+        def spy(*a, _real=real, _name=name, **k):  # type: ignore[no-untyped-def]
+            calls.append(_name)
+            return _real(*a, **k)
+
+        setattr(cell, name, spy)
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(100, 30)) as pilot:
+        await settle(app, pilot)
+        await pilot.press("3")
+        await settle(app, pilot)
+        await start_run(app, pilot)
+        await wait_for(
+            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 1
+        )
+        await pilot.press("p")
+        await wait_for(app, pilot, lambda: app.screen.progress.state == "paused")
+        # (the run's worker waits while paused: no settle(), which waits for every worker)
+        await pilot.press("1")
+        await pilot.pause(0.5)
+        verdict = text(app, "#verdict")
+        calls.clear()
+        moves = cell.station.robot.n_moves
+        for key in ("f", "c"):
+            await pilot.press(key)
+            await pilot.pause(0.5)
+        assert type(app.screen).__name__ == "StationScreen"
+        assert calls == [], calls  # no pre-flight, no connect: the devices stay the run's
+        assert text(app, "#verdict") == verdict
+        said = [n.message for n in app._notifications]
+        assert any("pre-flight waits until the run is stopped" in m for m in said), said
+        assert any("Reconnecting waits until the run is stopped" in m for m in said), said
+        assert station.running and cell.station.robot.n_moves == moves
+        await pilot.press("3")
+        await pilot.pause(0.2)
+        await pilot.press("p")
+        await wait_for(app, pilot, lambda: ended(app))
+        await settle(app, pilot)
+        assert app.screen.progress.state == "finished"
+
+
+@pytest.mark.slow
+async def test_r_waits_while_a_reconnect_goes(tmp_path: Path, plan) -> None:  # type: ignore[no-untyped-def]
+    """The reconnect after a fault and r's pre-flight both use the robot: r during a
+    reconnect is refused with a line on the screen, and works once the reconnect is done."""
+    import threading
+
+    station = sim_station(tmp_path, plan)
+    robot = station.cell.station.robot
+    robot.inject("connection_drop", after_moves=3)
+    go_on = threading.Event()
+
+    def slow_connect() -> None:  # the controller takes a while to answer again
+        go_on.wait(20.0)
+        robot.release()
+
+    robot.connect = slow_connect  # type: ignore[attr-defined]
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(100, 30)) as pilot:
+        await settle(app, pilot)
+        await pilot.press("3")
+        await settle(app, pilot)
+        await start_run(app, pilot)
+        await wait_for(app, pilot, lambda: ended(app))
+        await pilot.pause()
+        assert app.screen.progress.state == "fault"
+        await pilot.press("c")
+        await pilot.pause(0.2)
+        assert "Reconnecting" in text(app, "#run-state")
+        await pilot.press("r")
+        await pilot.pause(0.3)
+        assert not isinstance(app.screen, ConfirmScreen)  # no pre-flight, no question
+        busy = app.screen.query_one("#run-busy")
+        assert busy.display and "reconnect is still going" in text(app, "#run-busy")
+        go_on.set()
+        await settle(app, pilot)
+        assert "Connected again" in text(app, "#run-state")
+        assert not app.screen.query_one("#run-busy").display
+        await start_run(app, pilot)
+        await wait_for(app, pilot, lambda: ended(app))
+        await settle(app, pilot)
+        assert app.screen.progress.state == "finished"
+
+
+@pytest.mark.slow
+async def test_an_abort_whose_stop_is_not_confirmed_says_so(tmp_path: Path, plan) -> None:  # type: ignore[no-untyped-def]
+    """The robot could not confirm the stop (controller unreachable): the Run screen never
+    says "robot stopped"; it says the stop was NOT confirmed and what to do."""
+    from quickhealth.identify.errors import HardwareError
+
+    station = sim_station(tmp_path, plan)
+    robot = station.cell.station.robot
+    real_stop = robot.stop
+
+    def unconfirmed_stop() -> None:
+        real_stop()  # the fake arm halts, but the controller never says so
+        raise HardwareError(
+            "the stop of the arm could not be confirmed (no ur-rtde client; the dashboard "
+            "server cannot be reached): the arm may still be moving: press the emergency stop"
+        )
+
+    robot.stop = unconfirmed_stop  # type: ignore[method-assign]
+    app = QuickhealthApp(station)
+    async with app.run_test(size=(100, 30)) as pilot:
+        await settle(app, pilot)
+        await pilot.press("3")
+        await settle(app, pilot)
+        await start_run(app, pilot)
+        await wait_for(
+            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 1
+        )
+        await pilot.press("a")
+        await wait_for(app, pilot, lambda: ended(app))
+        await settle(app, pilot)
+        p = app.screen.progress
+        assert p.state == "aborted" and p.fault is not None and p.fault.kind == "stop-unconfirmed"
+        state = text(app, "#run-state")
+        assert "NOT confirmed" in state and "robot stopped" not in state
+        shown = text(app, "#fault")
+        assert "could not be confirmed" in shown and "emergency stop" in shown

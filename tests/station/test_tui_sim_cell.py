@@ -6,7 +6,6 @@ reconnects and two continues in the middle; at the end the journal holds every p
 
 from __future__ import annotations
 
-import threading
 import time
 
 import pytest
@@ -68,9 +67,10 @@ async def test_whole_loop_with_abort_restart_reconnect_and_continue(tmp_path) ->
                 app, pilot, lambda: app.screen.progress.done >= len(aborted_at) + 2, timeout=90
             )
 
-            # 2. the controller restarts mid-run: every connection drops, it is away a second
-            sim.fault("drop_connection")
-            threading.Timer(1.0, sim.fault, args=("clear",)).start()
+            # 2. the controller restarts mid-run: every connection drops, new ones are refused
+            # for a second, the program stops and the registers are reset
+            restarts = sim.state()["n_restarts"]
+            sim.fault("restart", down_s=1.0)
             await wait_for(app, pilot, lambda: ended(app))
             await settle(app, pilot)
             p = app.screen.progress
@@ -78,6 +78,9 @@ async def test_whole_loop_with_abort_restart_reconnect_and_continue(tmp_path) ->
             assert p.fault.kind in ("connection-lost", "frozen-stream"), p.fault
             assert app.screen.query_one("#fault").display
             await reconnect(app, pilot)
+            st = sim.state()  # a restarted controller, its program uploaded and running again
+            assert st["n_restarts"] == restarts + 1 and st["accepting"], st
+            assert st["runtime_state"] == 2, st
             await start_run(app, pilot)
             await wait_for(app, pilot, lambda: ended(app), timeout=150)
             await settle(app, pilot)

@@ -28,6 +28,10 @@ STATUS_MARK = {
     "failed": "[red]✗ failed[/]",
     "skipped": "[yellow]skipped[/]",
 }
+# an abort whose stop the controller did not confirm (display only: the state is ABORTED)
+ABORTED_UNCONFIRMED_WORDS = (
+    "[b red]Aborted, but the stop was NOT confirmed[/]: the arm may still be moving (below)."
+)
 STATE_WORDS = {
     CellState.IDLE: "Ready: press [b]r[/b] to start the run.",
     CellState.RUNNING: "[cyan]Running[/]  [b]p[/b] pause · [b]a[/b] abort",
@@ -55,6 +59,9 @@ class RunScreen(Screen[None]):
     ]
 
     progress: reactive[RunProgress | None] = reactive(None)
+    # What the screen's own worker is doing with the station now ("reconnect", "pre-flight")
+    # or None: r and c refuse while the other runs, so the two never go at once.
+    busy: str | None = None
 
     def compose(self) -> ComposeResult:
         yield NavBar("run")
@@ -63,6 +70,7 @@ class RunScreen(Screen[None]):
                 yield ProgressBar(id="run-bar", show_eta=False)
                 yield Static("", id="run-eta")
             yield Static(STATE_WORDS[CellState.IDLE], id="run-state")
+            yield Static("", id="run-busy")
             yield Static("", id="fault", classes="fault")
             yield Static("Current pose: –", id="run-current")
             yield Static("Last measurement: –", id="run-last")
@@ -78,6 +86,7 @@ class RunScreen(Screen[None]):
         table.add_column("Reproj px", key="reproj")
         table.add_column("Note", key="note")
         self.query_one("#fault").display = False
+        self.query_one("#run-busy").display = False
         self._fill_table()
 
     def _fill_table(self) -> None:
@@ -104,11 +113,31 @@ class RunScreen(Screen[None]):
         if station.running:
             self.notify("The run is already going.", severity="warning")
             return
+        if self._refuse_while_busy("The run"):
+            return
+        self.busy = "pre-flight"
         self._preflight_then_ask()
+
+    def _refuse_while_busy(self, what: str) -> bool:
+        if self.busy is None:
+            return False
+        line = f"{what} waits: the {self.busy} is still going."
+        busy_line = self.query_one("#run-busy", Static)
+        busy_line.update(f"[yellow]{line}[/]")
+        busy_line.display = True
+        self.notify(line, severity="warning")
+        return True
+
+    def _idle(self) -> None:
+        self.busy = None
+        self.query_one("#run-busy", Static).display = False
 
     @work(thread=True, exclusive=True, group="run-preflight")
     def _preflight_then_ask(self) -> None:
-        pf = self.app.station.preflight()  # type: ignore[attr-defined]
+        try:
+            pf = self.app.station.preflight()  # type: ignore[attr-defined]
+        finally:
+            self.app.call_from_thread(self._idle)
         self.app.call_from_thread(self._ask, pf)
 
     def _ask(self, pf) -> None:  # type: ignore[no-untyped-def]
@@ -160,7 +189,13 @@ class RunScreen(Screen[None]):
             self.app.station.abort()  # type: ignore[attr-defined]
         except Exception as exc:  # noqa: BLE001 - shown to the technician
             self.app.call_from_thread(
-                self.notify, f"Abort: could not confirm the stop: {exc}", severity="error"
+                self.notify,
+                f"Abort: the stop was NOT confirmed: {exc}",
+                severity="error",
+                timeout=30,
+            )
+            self.app.call_from_thread(
+                self.query_one("#run-state", Static).update, ABORTED_UNCONFIRMED_WORDS
             )
             return
         self.app.call_from_thread(self.notify, "Abort: robot stopped.", severity="warning")
@@ -170,10 +205,13 @@ class RunScreen(Screen[None]):
         if p is None or p.state not in (CellState.FAULT, CellState.ABORTED):
             self.notify("Nothing to reconnect: the run is not stopped by a fault.")
             return
+        if self._refuse_while_busy("Reconnecting"):
+            return
+        self.busy = "reconnect"
         self.query_one("#run-state", Static).update("Reconnecting…")
         self._reconnect()
 
-    @work(thread=True, exclusive=True, group="run-preflight")
+    @work(thread=True, exclusive=True, group="run-reconnect")
     def _reconnect(self) -> None:
         try:
             self.app.station.reconnect()  # type: ignore[attr-defined]
@@ -183,6 +221,8 @@ class RunScreen(Screen[None]):
                 self.query_one("#run-state", Static).update, STATE_WORDS[CellState.FAULT]
             )
             return
+        finally:
+            self.app.call_from_thread(self._idle)
         self.app.call_from_thread(self._reconnected)
 
     def _reconnected(self) -> None:
@@ -203,7 +243,10 @@ class RunScreen(Screen[None]):
         bar.update(total=max(1, p.total), progress=p.done)
         eta = "" if p.state != CellState.RUNNING else f"ETA {fmt_duration(p.eta_s)}"
         self.query_one("#run-eta", Static).update(f"{p.done}/{p.total}  {eta}")
-        self.query_one("#run-state", Static).update(STATE_WORDS.get(p.state, p.state))
+        words = STATE_WORDS.get(p.state, p.state)
+        if p.state == CellState.ABORTED and p.fault is not None:
+            words = ABORTED_UNCONFIRMED_WORDS
+        self.query_one("#run-state", Static).update(words)
         fault = self.query_one("#fault", Static)
         if p.fault is not None:
             fault.update(

@@ -1,14 +1,21 @@
 """The built-in simulated cell (``--sim``): controller simulator, emulated pan motor, cameras.
 
 :func:`start_sim_cell` starts the UR controller simulator in its own process, the pan-motor
-emulator on a pseudo-terminal, and connects the *real* drivers to them: :class:`~.robot.UrRobot`
-on ur-rtde and :class:`~.motor.SerialPanMotor` on pyserial.  The simulated stereo camera
-renders what is really there: it asks the controller simulator for the arm's true target
-pose (the digital twin at the actual joints) and the motor emulator for the true pan angle.
+emulator on a pseudo-terminal, and connects the *real* drivers to them:
+:class:`~quickhealth.station.hardware.robot.UrRobot` on ur-rtde and
+:class:`~quickhealth.station.hardware.motor.SerialPanMotor` on pyserial.  The simulated
+stereo camera renders what is really there: it asks the controller simulator for the arm's
+true target pose (the digital twin at the actual joints) and the motor emulator for the
+true pan angle.  :func:`sim_station` wraps it all in a run's
+:class:`~quickhealth.station.run.Station`.
+
+The simulator uses the drivers, never the reverse: nothing in
+:mod:`quickhealth.station.hardware` or :mod:`quickhealth.station.run` imports this package.
 
 SYNOPSIS
     >>> with start_sim_cell(image_scale=0.25) as cell:          # doctest: +SKIP
     ...     cell.robot.move(q); cell.motor.move_to(0.2); frame = cell.camera.capture()
+    >>> station, cell = sim_station("reference", image_scale=0.5)  # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -19,15 +26,15 @@ from typing import Any
 
 import numpy as np
 
-from quickhealth.station.sim.process import SimControllerHandle, start_sim_controller
-from quickhealth.station.sim.wire import CONTROL_PORT
+from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
+from quickhealth.station.hardware.motor import SerialPanMotor
+from quickhealth.station.hardware.motor_emulator import MotorEmulator
+from quickhealth.station.hardware.robot import UrRobot
+from quickhealth.station.hardware.target import T_target_plate
+from quickhealth.station.hardware.world import SimWorld, build_world
 
-from .cameras import SimStereoCamera, scaled_rig
-from .motor import SerialPanMotor
-from .motor_emulator import MotorEmulator
-from .robot import UrRobot
-from .target import T_target_plate
-from .world import SimWorld, build_world
+from .process import SimControllerHandle, start_sim_controller
+from .wire import CONTROL_PORT
 
 
 @dataclass
@@ -49,11 +56,22 @@ class SimCell:
 
     def close(self) -> None:
         """Disconnect the drivers first (ur-rtde must never outlive its server), then stop."""
-        for f in (self.robot.close, self.motor.close, self.camera.close):
+        for f in (self.motor.close, self.camera.close):
             try:
                 f()
             except Exception:  # noqa: BLE001 - best effort while tearing down
                 pass
+        self.stop_simulators()
+
+    def stop_simulators(self) -> None:
+        """Close the robot's client, then stop the controller simulator and the motor emulator.
+
+        A :class:`~quickhealth.station.run.Station` built by :func:`sim_station` calls this
+        after its device owners closed the pan motor and the camera."""
+        try:
+            self.robot.close()
+        except Exception:  # noqa: BLE001 - best effort while tearing down
+            pass
         self.controller.stop()
         self.emulator.stop()
 
@@ -121,3 +139,47 @@ def start_sim_cell(
         emu.stop()
         raise
     return SimCell(world, sim, emu, robot, motor, camera)
+
+
+def sim_station(
+    cell: str = "reference",
+    *,
+    twin_seed: int = 1,
+    image_scale: float = 0.5,
+    q0_deg: list[float] | None = None,
+    speed_factor: float = 1.0,
+    degrade: dict[str, float] | None = None,
+    camera_seed: int = 0,
+) -> tuple[Any, SimCell]:
+    """A run's :class:`~quickhealth.station.run.Station` on the built-in simulated cell, and
+    the :class:`SimCell` behind it.
+
+    ``station.close()`` stops the simulators too.  ``degrade`` changes the twin's true
+    error coefficients (``{"j2.ex.c0": 5e-4}``, m or rad): a worn robot for demos and tests.
+    """
+    from quickhealth.station.planning import load_cell
+    from quickhealth.station.run import Station
+
+    c = load_cell(cell)
+    if q0_deg is None and getattr(c, "home", None) is not None:
+        q0_deg = [float(v) for v in np.degrees(c.home)]
+    sc = start_sim_cell(
+        cell,
+        twin_seed=twin_seed,
+        image_scale=image_scale,
+        q0_deg=q0_deg,
+        speed_factor=speed_factor,
+        degrade=degrade,
+        camera_seed=camera_seed,
+    )
+    w = sc.world
+    st = Station.on_simulated_world(
+        c,
+        w,
+        sc.robot,
+        sc.motor,
+        sc.camera,
+        instrument=f"simulated stereo camera ({w.rig.left.image_size[0] * image_scale:.0f} px wide)",
+        closers=[sc.stop_simulators],
+    )
+    return st, sc
