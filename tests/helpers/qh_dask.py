@@ -116,7 +116,7 @@ class DaskCluster:
                     os.killpg(p.pid, signal.SIGTERM)
                 except ProcessLookupError:
                     pass
-        t_end = time.monotonic() + 10
+        t_end = time.monotonic() + 2  # a dask process that ignores SIGTERM this long is killed
         for p in procs:
             try:
                 p.wait(timeout=max(0.1, t_end - time.monotonic()))
