@@ -29,6 +29,7 @@ import errno
 import fnmatch
 import io
 import os
+import re
 import secrets
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -122,6 +123,34 @@ def write_atomic(
         raise
     if sync_dir:
         fsync_dir(p.parent)
+
+
+_TEMP_NAME = re.compile(r"^\..+\.(\d+)\.[0-9a-f]{8}\.tmp$")  # write_atomic's temporary files
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def remove_stale_temp_files(folder: str | os.PathLike[str]) -> list[str]:
+    """Delete the temporary files :func:`write_atomic` left in ``folder`` when its process was
+    killed between writing and renaming (``kill -9``, a power cut): those whose writer's
+    process no longer exists.  Their final files were never renamed into place, so nothing
+    of value is lost.  Returns the names removed."""
+    d = Path(folder)
+    gone = []
+    for f in sorted(d.iterdir()) if d.is_dir() else []:
+        m = _TEMP_NAME.match(f.name)
+        if m and f.is_file() and not _pid_alive(int(m.group(1))):
+            f.unlink(missing_ok=True)
+            gone.append(f.name)
+    return gone
 
 
 def make_dirs(path: str | os.PathLike[str]) -> Path:

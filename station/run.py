@@ -53,6 +53,7 @@ from quickhealth.identify.transforms import R_to_rpy, inv_T, log_so3
 from quickhealth.vision.boards import TargetDescription
 from quickhealth.vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
 
+from .fsio import remove_stale_temp_files
 from .hardware.cameras import StereoCamera, StereoFrame
 from .hardware.motor import PanMotor
 from .hardware.owner import DeviceOwner, owned
@@ -762,6 +763,9 @@ def run_plan(
         run_dir.mkdir(parents=True, exist_ok=True)
         state = JournalState()
     (run_dir / "images").mkdir(exist_ok=True)
+    if resume:  # half-written files of the killed run (its images are captured again)
+        for folder in (run_dir, run_dir / "images"):
+            remove_stale_temp_files(folder)
     r = _Runner(station, plan, run_dir, settings, progress, cancel)
     # A capture counts once its images are on disk (they are written after the record).
     imaged = {

@@ -260,3 +260,24 @@ def test_residuals_and_predictions_quote_a_nasty_pose_id(data, tmp_path):
     assert r_mm == pytest.approx(np.linalg.norm(fm.residual_pos, axis=1) * 1e3, abs=2e-6)
     # the measurement file itself reads back to the same ids
     assert formats.read_measurements(data["dir"] / "meas.csv", 6).pose_id == meas.pose_id
+
+
+def test_stale_temp_files_of_a_killed_writer_are_removed(tmp_path):
+    """What kill -9 between write and rename leaves (write_atomic's own naming) is swept on
+    --resume; a live writer's temporary file and a user's files are left alone."""
+    import subprocess
+    import sys
+
+    from quickhealth.station.fsio import remove_stale_temp_files, write_atomic
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True).stdout.strip()  # fmt: skip
+    stale = tmp_path / f".0003_P003_L.png.{dead}.cf306f5d.tmp"
+    live = tmp_path / f".journal.jsonl.{os.getpid()}.0badf00d.tmp"
+    for p in (stale, live, tmp_path / ".notes.tmp", tmp_path / "0001_P001_L.png"):
+        p.write_bytes(b"x")
+    write_atomic(tmp_path / "done.json", "{}")
+    assert remove_stale_temp_files(tmp_path) == [stale.name]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [live.name, ".notes.tmp", "0001_P001_L.png", "done.json"]
+    )
