@@ -37,6 +37,16 @@ async def start_run(app: QuickhealthApp, pilot) -> None:  # type: ignore[no-unty
     await pilot.pause()
 
 
+async def run_until_first_pose(app: QuickhealthApp, pilot) -> None:  # type: ignore[no-untyped-def]
+    """From any screen: open the Run screen (``3``), start the run and wait until one pose is done."""
+    await pilot.press("3")
+    await settle(app, pilot)
+    await start_run(app, pilot)
+    await wait_for(
+        app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 1
+    )
+
+
 async def wait_for(app: QuickhealthApp, pilot, cond, timeout: float = 60.0) -> None:  # type: ignore[no-untyped-def]
     t0 = time.monotonic()
     while not cond():

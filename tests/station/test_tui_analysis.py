@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from textual.widgets import Static
+from qh_tui import settle, text
 from textual.worker import WorkerState
 
 from quickhealth.identify.twin import make_twin, random_joints
@@ -29,18 +29,6 @@ def hidden_effect_files(tmp: Path, n_train: int = 60, n_held: int = 60) -> tuple
     write_measurements(train, twin.measure(q[:n_train], seed=13, meta={"run_id": "hidden"}))
     write_measurements(held, twin.measure(q[n_train:], seed=14))
     return train, held
-
-
-async def settle(app: QuickhealthApp, pilot) -> None:  # type: ignore[no-untyped-def]
-    """Let every worker finish and the screen refresh."""
-    for _ in range(3):
-        await pilot.pause()
-        await app.workers.wait_for_complete()
-    await pilot.pause()
-
-
-def text_of(app: QuickhealthApp, selector: str) -> str:
-    return str(app.screen.query_one(selector, Static).render())
 
 
 @pytest.mark.slow
@@ -68,14 +56,14 @@ async def test_diagnose_loop_on_hidden_effect_lowers_heldout_error(tmp_path: Pat
         await pilot.press("a")
         await settle(app, pilot)
         refit = screen.refit
-        assert refit is not None, text_of(app, "#before-after")
+        assert refit is not None, text(app, "#before-after")
         assert refit.effects_after == ("backlash:j2",)
         assert refit.after_mm < 0.7 * refit.before_mm
-        shown = text_of(app, "#before-after")
+        shown = text(app, "#before-after")
         assert "Held-out error" in shown
         assert f"{refit.before_mm:.3f}" in shown and f"{refit.after_mm:.3f}" in shown
         # the model now has the effect; the new diagnosis no longer asks for it
-        assert "backlash:j2" in text_of(app, "#diag-verdict")
+        assert "backlash:j2" in text(app, "#diag-verdict")
         assert all(c.effect != "backlash:j2" for c in screen.diagnosis.candidates)
         assert (station.run_dir / "refit_backlash_j2.png").is_file()
 
@@ -108,14 +96,14 @@ async def test_results_history_and_ui_live_while_the_fit_runs(tmp_path: Path) ->
         h = app.screen.health
         assert h is not None and h.n_poses == 60
         assert h.verdict == "healthy" and 0 < h.mean_mm < h.max_mm < 5.0
-        summary = text_of(app, "#summary")
+        summary = text(app, "#summary")
         assert "HEALTHY" in summary and f"{h.max_mm:7.3f}" in summary
         assert len(h.worst) >= 3 and h.worst[0].err_mm >= h.worst[-1].err_mm
         for name in ("model.json", "report.json", "workspace_error.png", "joint_curves.png"):
             assert (station.run_dir / name).is_file(), name
         await pilot.press("j")  # next joint in the curve plot
         assert app.screen.joint == 1
-        assert text_of(app, "#curve-title").startswith("j2")
+        assert text(app, "#curve-title").startswith("j2")
         await pilot.press("6")
         await settle(app, pilot)
         hist = app.screen.history

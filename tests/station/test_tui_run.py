@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from qh_tui import ended, journal_indices, settle, start_run, text, wait_for
+from qh_tui import ended, journal_indices, run_until_first_pose, settle, start_run, text, wait_for
 
 from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_cell
@@ -105,12 +105,7 @@ async def test_abort_stops_the_robot_first_and_keeps_the_journal(tmp_path: Path,
     app = QuickhealthApp(station)
     async with app.run_test(size=(80, 24)) as pilot:
         await settle(app, pilot)
-        await pilot.press("3")
-        await settle(app, pilot)
-        await start_run(app, pilot)
-        await wait_for(
-            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 1
-        )
+        await run_until_first_pose(app, pilot)
         # p pauses after the current pose: the arm stays still until p again
         await pilot.press("p")
         await wait_for(app, pilot, lambda: app.screen.progress.state == "paused")
@@ -227,12 +222,7 @@ async def test_station_screen_refuses_preflight_and_connect_during_a_run(
     app = QuickhealthApp(station)
     async with app.run_test(size=(100, 30)) as pilot:
         await settle(app, pilot)
-        await pilot.press("3")
-        await settle(app, pilot)
-        await start_run(app, pilot)
-        await wait_for(
-            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 1
-        )
+        await run_until_first_pose(app, pilot)
         await pilot.press("p")
         await wait_for(app, pilot, lambda: app.screen.progress.state == "paused")
         # (the run's worker waits while paused: no settle(), which waits for every worker)
@@ -323,12 +313,7 @@ async def test_an_abort_whose_stop_is_not_confirmed_says_so(tmp_path: Path, plan
     app = QuickhealthApp(station)
     async with app.run_test(size=(100, 30)) as pilot:
         await settle(app, pilot)
-        await pilot.press("3")
-        await settle(app, pilot)
-        await start_run(app, pilot)
-        await wait_for(
-            app, pilot, lambda: app.screen.progress is not None and app.screen.progress.done >= 1
-        )
+        await run_until_first_pose(app, pilot)
         await pilot.press("a")
         await wait_for(app, pilot, lambda: ended(app))
         await settle(app, pilot)
