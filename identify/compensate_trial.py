@@ -58,14 +58,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .compensate import Compensation, compensate_program, fitted_tool, pose_error
-from .effects import effect_context, parse_effects, total_perturbation
+from .effects import parse_effects, total_perturbation
 from .fit import FittedModel, fit_model
 from .linearize import (
     InstrumentNoise,
     coefficient_columns,
     effect_jacobian,
     forward,
-    loop_pose,
     motion_jacobian,
     sensitivities,
 )
@@ -211,19 +210,7 @@ def executed_errors(twin: Twin, q_command: F, T_goal: F, temp_c: float, time_s: 
     against ``T_goal`` (n, 4, 4), both in the instrument frame, without the instrument's own
     errors (an effect that perturbs only the instrument is not applied)."""
     n = len(q_command)
-    ctx = effect_context(twin.robot, q_command, None, np.full(n, time_s), np.full(n, temp_c))
-    params = [np.asarray(twin.truth.effects[e.name]) for e in twin.effects]
-    pert = total_perturbation(twin.effects, params, ctx)
-    t = twin.truth
-    T = loop_pose(
-        twin.robot,
-        t.spec,
-        t.coeffs,
-        t.T_instr_base,
-        t.T_flange_target,
-        ctx.q,
-        replace(pert, instr_scale_z=None),
-    )
+    T = twin.true_pose(q_command, np.full(n, time_s), np.full(n, temp_c), seen=False)
     e = pose_error(T, T_goal)
     return TcpErrors(np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1))
 

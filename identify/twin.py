@@ -25,7 +25,7 @@ SYNOPSIS::
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -190,16 +190,23 @@ class Twin:
         time: ArrayLike | None = None,
         temp: ArrayLike | None = None,
         approach: ArrayLike | None = None,
+        *,
+        seen: bool = True,
     ) -> F:
         """Noise-free true ``T_instr_target`` (n, 4, 4) for encoder angles ``q`` (rad).
 
         ``q`` is in execution order: unless ``approach`` is given, each joint's approach
         direction comes from the previous row (the first row counts as approached from
         below).  ``time`` (s) and ``temp`` (°C) are needed when the twin has effects that
-        use them.  A depth-scale effect is applied: this is the pose the instrument *sees*.
+        use them.  With ``seen`` (the default) a depth-scale effect is applied: this is the
+        pose the instrument *sees*; ``seen=False`` is where the target really is (the
+        instrument's own errors left out).
         """
         ctx = self.context(q, time, temp, approach)
         self._check_columns(ctx)
+        pert = self.perturbation(ctx)
+        if not seen:
+            pert = replace(pert, instr_scale_z=None)
         t = self.truth
         return loop_pose(
             self.robot,
@@ -208,7 +215,7 @@ class Twin:
             t.T_instr_base,
             t.T_flange_target,
             ctx.q,
-            self.perturbation(ctx),
+            pert,
         )
 
     def measure(
