@@ -268,7 +268,6 @@ def result_files(folder: str | os.PathLike[str]) -> dict[str, list[str]]:
 
 def claim_output_folder(
     folder: str | os.PathLike[str],
-    kind: str,
     other: Sequence[str] = (),
     *,
     force: bool = False,
@@ -280,8 +279,6 @@ def claim_output_folder(
     ----------
     folder : path
         The output folder (may not exist yet).
-    kind : str
-        ``"plan"`` or ``"fit"``: the results the command writes (:data:`RESULT_FILES`).
     other : sequence of str
         What in the folder belongs to another kind or another run, each a few words naming
         the files (:func:`foreign_results`, plus the caller's own findings such as "the fit
@@ -315,19 +312,15 @@ def claim_output_folder(
     return what
 
 
-def foreign_results(
-    folder: str | os.PathLike[str], kind: str, own: Iterable[str] = ()
-) -> list[str]:
-    """What in ``folder`` is a result of another kind than ``kind`` (for
-    :func:`claim_output_folder`), each as "a run (journal.jsonl, measurements.csv)"; the names
-    in ``own`` (files the command knows to be of its own run) are left out."""
-    mine = set(own)
-    out = []
-    for k, names in result_files(folder).items():
-        theirs = [n for n in names if n not in mine]
-        if k != kind and theirs:
-            out.append(f"{_KIND_WORDS[k]} ({', '.join(theirs)})")
-    return out
+def foreign_results(folder: str | os.PathLike[str], kind: str) -> list[str]:
+    """What in ``folder`` is a result of another kind than ``kind`` (``"plan"``, ``"run"`` or
+    ``"fit"``; for :func:`claim_output_folder`), each as "a run (journal.jsonl,
+    measurements.csv)"."""
+    return [
+        f"{_KIND_WORDS[k]} ({', '.join(names)})"
+        for k, names in result_files(folder).items()
+        if k != kind and names
+    ]
 
 
 def replacing_line(

@@ -143,7 +143,7 @@ def _fit(args: argparse.Namespace) -> int:
         [args.meas, args.robot if Path(args.robot).is_file() else None],
     )
     _, other = fit_folder_owner(out, Path(args.meas))
-    forced = claim_output_folder(out, "fit", other, force=args.force)
+    forced = claim_output_folder(out, other, force=args.force)
     meas = formats.read_measurements(args.meas, robot.n_joints)
     formats.check_poses_for_fit(meas, robot, args.meas)
     noise = InstrumentNoise(

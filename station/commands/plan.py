@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     cell_file = Path(args.cell) if Path(args.cell).is_file() else None
     refuse_overwriting_inputs([("--out", out / n) for n in files], [cell_file])
     foreign = foreign_results(out, "plan")
-    claim_output_folder(out, "plan", foreign, force=args.force)  # before the planning work
+    claim_output_folder(out, foreign, force=args.force)  # before the planning work
     cell = load_cell(args.cell)
 
     tty = sys.stderr.isatty()
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     plan = plan_from_dict(doc, "plan.json")  # the program is made from the validated document
     script = render_urscript(plan)
     other = _other_plan(out / "plan.json", doc["hash"])
-    forced = claim_output_folder(out, "plan", foreign + other, force=args.force)
+    forced = claim_output_folder(out, foreign + other, force=args.force)
     replaced = [n for n in files if (out / n).exists()]
     why = "the same plan" if "plan.json" in replaced else ""
     said = replacing_line(out, replaced, why, forced)

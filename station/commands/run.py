@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     foreign = foreign_results(out, "run")
     if args.resume and result_files(out)["run"]:
         foreign = [f for f in foreign if not f.startswith("a fit")]  # this run's own fit
-    forced = claim_output_folder(out, "run", foreign, force=args.force)
+    forced = claim_output_folder(out, foreign, force=args.force)
     if forced:
         print(f"--force: running into {out}, which holds {forced}", file=sys.stderr)
     refuse_overwriting_inputs(  # the run's own files never replace the plan, cell or calibration

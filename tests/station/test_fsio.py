@@ -238,7 +238,7 @@ def test_plan_again_into_its_folder(tmp_path, capsys):
 def test_claim_output_folder_refuses_a_file(tmp_path):
     (tmp_path / "f").write_text("x")
     with pytest.raises(InputError, match="--out exists and is not a folder"):
-        fsio.claim_output_folder(tmp_path / "f", "fit")
+        fsio.claim_output_folder(tmp_path / "f")
 
 
 # ---------------------------------------------------------------------------------- CSV
