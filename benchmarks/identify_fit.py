@@ -15,7 +15,6 @@ import argparse
 import os
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 # BLAS threads must be set before numpy loads OpenBLAS.  Default 1: on two cores shared with
@@ -60,11 +59,11 @@ def main() -> None:
     cases = [
         ("true orders, full pose", truth.spec, train),
         ("order 6 everywhere, full pose", ErrorModelSpec.uniform(6, 6, S.Q_LO, S.Q_HI), train),
-        ("true orders, position only", truth.spec, replace(train, rpy=None)),
+        ("true orders, position only", truth.spec, train.position_only()),
         (
             "order 6 everywhere, position only",
             ErrorModelSpec.uniform(6, 6, S.Q_LO, S.Q_HI),
-            replace(train, rpy=None),
+            train.position_only(),
         ),
     ]
     print(f"single ML fit, 150 poses, median of {args.repeats} (target <= 0.5 s)")

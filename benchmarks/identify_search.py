@@ -17,7 +17,6 @@ import argparse
 import os
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 # BLAS threads must be set before numpy loads OpenBLAS.  Default 1: on two cores shared with
@@ -63,7 +62,7 @@ def sweep(S, n: int) -> None:
         truth = S.paper_truth(seed)
         train = S.measure(truth, S.random_q(150, 100 + seed), 200 + seed)
         test = S.measure(truth, S.random_q(300, 300 + seed), 400 + seed)
-        for data, hits, rs in ((train, "7d", ratios), (replace(train, rpy=None), "pos", ratios_p)):
+        for data, hits, rs in ((train, "7d", ratios), (train.position_only(), "pos", ratios_p)):
             sel = select_orders(truth.robot, data, max_order=6)
             T = sel.fitted.predict(test.q)
             rms = np.sqrt(np.mean(np.sum((test.pos - T[:, :3, 3]) ** 2, axis=1)))
@@ -102,7 +101,7 @@ def main() -> None:
     test = S.measure(truth, S.random_q(300, 3), 4)
     print("BIC search up to order 6, 150 poses (target <= 10 s)")
     run("paper case, full pose", truth, train, test, S)
-    run("paper case, position only", truth, replace(train, rpy=None), test, S)
+    run("paper case, position only", truth, train.position_only(), test, S)
     flat = S.paper_truth(5, orders_j1=[0] * 6)
     run(
         "noise only (geometric errors), full pose",

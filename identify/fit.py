@@ -478,7 +478,7 @@ def initial_setup(robot: RobotModel, meas: Measurements, n_iter: int = 30) -> tu
             break
         t = t_new
     Rt = np.eye(3)
-    if meas.rpy is not None:
+    if meas.has_orientation:
         Rm = meas.R
         M = (np.swapaxes(Rf, -1, -2) @ T_ib[:3, :3].T[None] @ Rm).mean(0)
         U, _, Vt = np.linalg.svd(M)

@@ -388,7 +388,8 @@ def _channel(sens: Sensitivities, name: str) -> F:
 def rotation_noise_cov(meas: Measurements, sigma_rot: float) -> F:
     """Covariance (n, 3, 3) of the measured orientation as a rotation vector (instrument frame).
 
-    Per-row ``spitch, syaw, sroll`` (CONTRACTS.md: uncertainties of the *angles*) are mapped
+    Per-row ``srot`` (one angle, any axis) is isotropic, ``Σ = srot² I``.  Per-row
+    ``spitch, syaw, sroll`` (CONTRACTS.md: uncertainties of the *angles*) are mapped
     through the roll-yaw-pitch rates, ``Σ = E diag(σ²) Eᵀ`` with
     ``ω = Rz(r)Ry(y) x̂ ṗ + Rz(r) ŷ ẏ + ẑ ṙ``.  The instrument default ``sigma_rot`` is the
     noise per axis of the rotation vector, ``Σ = σ² I``: an instrument's orientation noise
@@ -396,6 +397,8 @@ def rotation_noise_cov(meas: Measurements, sigma_rot: float) -> F:
     up to 3× at yaw ±75° and the reported covariance too small, χ²/dof 1.2 on pure noise).
     """
     n = meas.n_poses
+    if meas.sigma_rot is not None:  # one angle per row: isotropic, no Euler singularity
+        return np.asarray(meas.sigma_rot, float)[:, None, None] ** 2 * np.eye(3)
     if meas.sigma_rpy is None:
         return np.broadcast_to(np.eye(3) * sigma_rot**2, (n, 3, 3)).copy()
     rpy = meas.rpy

@@ -43,7 +43,12 @@ class Measurements:
     pos : ndarray, shape (n, 3), m
         Target point in the instrument frame.
     rpy : ndarray, shape (n, 3), rad, or None
-        (pitch, yaw, roll) with ``R = Rz(roll) · Ry(yaw) · Rx(pitch)``; None = position only.
+        (pitch, yaw, roll) with ``R = Rz(roll) · Ry(yaw) · Rx(pitch)``, when the orientation
+        came as angles (CSV v1 ``pitch, yaw, roll``).
+    rot : ndarray, shape (n, 3, 3), or None
+        Measured orientation as rotation matrices ``R_instr_target``: the form every
+        computation uses (no Euler singularity).  Given directly (a file's quaternion columns),
+        or made from ``rpy``.  Both None = position only.
     time : ndarray, shape (n,), s, or None
     temp : ndarray, shape (n,), °C, or None
     pan : ndarray, shape (n,), rad, or None
@@ -52,6 +57,9 @@ class Measurements:
         Per-row standard uncertainty of the position.
     sigma_rpy : ndarray, shape (n, 3), rad, or None
         Per-row standard uncertainty of the angles.
+    sigma_rot : ndarray, shape (n,), rad, or None
+        Per-row standard uncertainty of the orientation as one angle: a small rotation about
+        any axis (CSV v1 ``srot``); isotropic on the rotation vector, free of singularities.
     pose_id : tuple of str, or None
     meta : dict of str to str
         ``# key: value`` metadata (robot serial, instrument, run id …).
@@ -69,6 +77,8 @@ class Measurements:
     pan: F | None = None
     sigma_pos: F | None = None
     sigma_rpy: F | None = None
+    sigma_rot: F | None = None
+    rot: F | None = None
     pose_id: tuple[str, ...] | None = None
     meta: dict[str, str] = field(default_factory=dict)
     excluded: NDArray[np.bool_] | None = None
@@ -83,7 +93,17 @@ class Measurements:
             v = getattr(self, name)
             if v is not None and v.shape != (n, 3):
                 raise ValueError(f"{name} must have shape ({n}, 3), got {v.shape}")
-        for name in ("time", "temp", "pan"):
+        if self.rpy is not None:  # the angles rule when given (``replace`` keeps an old rot)
+            object.__setattr__(
+                self, "rot", rpy_to_R(self.rpy[:, 0], self.rpy[:, 1], self.rpy[:, 2])
+            )
+        if self.rot is not None and self.rot.shape != (n, 3, 3):
+            raise ValueError(f"rot must have shape ({n}, 3, 3), got {self.rot.shape}")
+        if self.sigma_rot is not None and self.rot is None:
+            raise ValueError("sigma_rot needs an orientation")
+        if self.sigma_rpy is not None and self.rpy is None:
+            raise ValueError("sigma_rpy needs the orientation as angles (rpy)")
+        for name in ("time", "temp", "pan", "sigma_rot"):
             v = getattr(self, name)
             if v is not None and v.shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {v.shape}")
@@ -105,14 +125,18 @@ class Measurements:
     @property
     def has_orientation(self) -> bool:
         """True for full-pose (7D) data, False for position-only data."""
-        return self.rpy is not None
+        return self.rot is not None
 
     @property
     def R(self) -> F:
         """Measured orientations, shape (n, 3, 3)."""
-        if self.rpy is None:
+        if self.rot is None:
             raise ValueError("position-only measurements have no orientation")
-        return rpy_to_R(self.rpy[:, 0], self.rpy[:, 1], self.rpy[:, 2])
+        return self.rot
+
+    def position_only(self) -> Measurements:
+        """The same poses without their orientation (as a laser tracker's 3-DoF data)."""
+        return replace(self, rpy=None, rot=None, sigma_rpy=None, sigma_rot=None)
 
     def approach_sign(self) -> F:
         """Approach direction of every joint, from the previous row: see :func:`approach_from_order`."""
@@ -135,6 +159,8 @@ class Measurements:
             pan=take(self.pan),
             sigma_pos=take(self.sigma_pos),
             sigma_rpy=take(self.sigma_rpy),
+            sigma_rot=take(self.sigma_rot),
+            rot=take(self.rot),
             pose_id=pid,
             excluded=take(self.excluded),
         )

@@ -64,6 +64,82 @@ def R_to_rpy(R: ArrayLike) -> F:
     return np.stack([pitch, yaw, roll], axis=-1)
 
 
+def quat_to_R(q: ArrayLike) -> F:
+    """Unit quaternions ``(..., 4)`` as ``(w, x, y, z)`` (Hamilton, active) to rotations.
+
+    The quaternion is normalised first; a zero quaternion gives NaN (the caller validates).
+    """
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = (q[..., k] for k in range(4))
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def R_to_quat(R: ArrayLike) -> F:
+    """Rotations ``(..., 3, 3)`` to unit quaternions ``(w, x, y, z)`` with ``w ≥ 0``.
+
+    Shepperd's method: the largest of the four squared components is taken as the pivot, so
+    the result is accurate for every rotation (no division by a small number).
+    """
+    R = np.asarray(R, dtype=float)
+    tr = np.trace(R, axis1=-2, axis2=-1)
+    d = np.stack([tr, R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]], -1)
+    k = np.argmax(d, axis=-1)
+    r = R
+    # pivot w
+    s = np.sqrt(np.maximum(1.0 + tr, 1e-300)) * 2.0
+    cand_w = np.stack(
+        [
+            0.25 * s,
+            (r[..., 2, 1] - r[..., 1, 2]) / s,
+            (r[..., 0, 2] - r[..., 2, 0]) / s,
+            (r[..., 1, 0] - r[..., 0, 1]) / s,
+        ],
+        -1,
+    )
+    s = np.sqrt(np.maximum(1.0 + r[..., 0, 0] - r[..., 1, 1] - r[..., 2, 2], 1e-300)) * 2.0
+    cand_x = np.stack(
+        [
+            (r[..., 2, 1] - r[..., 1, 2]) / s,
+            0.25 * s,
+            (r[..., 0, 1] + r[..., 1, 0]) / s,
+            (r[..., 0, 2] + r[..., 2, 0]) / s,
+        ],
+        -1,
+    )
+    s = np.sqrt(np.maximum(1.0 - r[..., 0, 0] + r[..., 1, 1] - r[..., 2, 2], 1e-300)) * 2.0
+    cand_y = np.stack(
+        [
+            (r[..., 0, 2] - r[..., 2, 0]) / s,
+            (r[..., 0, 1] + r[..., 1, 0]) / s,
+            0.25 * s,
+            (r[..., 1, 2] + r[..., 2, 1]) / s,
+        ],
+        -1,
+    )
+    s = np.sqrt(np.maximum(1.0 - r[..., 0, 0] - r[..., 1, 1] + r[..., 2, 2], 1e-300)) * 2.0
+    cand_z = np.stack(
+        [
+            (r[..., 1, 0] - r[..., 0, 1]) / s,
+            (r[..., 0, 2] + r[..., 2, 0]) / s,
+            (r[..., 1, 2] + r[..., 2, 1]) / s,
+            0.25 * s,
+        ],
+        -1,
+    )
+    cands = np.stack([cand_w, cand_x, cand_y, cand_z], -2)
+    out = np.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
+    out = out / np.linalg.norm(out, axis=-1, keepdims=True)
+    return np.where(out[..., :1] < 0, -out, out)
+
+
 def small_error_transform(d: ArrayLike, e: ArrayLike) -> F:
     """Eq. 1 of METHOD.md: ``E = Trans(δx, δy, δz) · Rot(εx, εy, εz)``.
 

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.measurements import Measurements
 from quickhealth.identify.robot import RobotModel
+from quickhealth.identify.transforms import R_to_quat, quat_to_R
 
 from .common import (
     MAX_CELL_CHARS,
@@ -48,7 +49,15 @@ OPTIONAL_COLUMNS = (
     "syaw",
     "sroll",
     "pose_id",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    "srot",
 )
+
+#: How far from 1 a quaternion's norm may be (rounding of written cells) before it is refused.
+QUAT_NORM_TOL = 1e-3
 
 
 def check_joint_limits(
@@ -200,14 +209,33 @@ def parse_measurements(
             f"{name}:{header_line}:{col[extra_q] + 1}: column {extra_q!r}, but the robot has "
             f"{n_joints} joints"
         )
-    for group in (("pitch", "yaw", "roll"), ("sx", "sy", "sz"), ("spitch", "syaw", "sroll")):
+    for group in (
+        ("pitch", "yaw", "roll"),
+        ("sx", "sy", "sz"),
+        ("spitch", "syaw", "sroll"),
+        ("qw", "qx", "qy", "qz"),
+    ):
         present = [g for g in group if g in col]
-        if present and len(present) != 3:
+        if present and len(present) != len(group):
             missing = [g for g in group if g not in col]
             raise InputError(
                 f"{name}:{header_line}:{col[present[0]] + 1}: column {present[0]!r} needs "
                 f"{', '.join(repr(m) for m in missing)} too"
             )
+    for a, b, what in (
+        ("pitch", "qw", "orientation"),
+        ("spitch", "srot", "orientation uncertainty"),
+    ):
+        if a in col and b in col:
+            raise InputError(
+                f"{name}:{header_line}:{col[b] + 1}: {what} given twice ({a!r} and {b!r} "
+                "columns): keep one"
+            )
+    if "srot" in col and "pitch" not in col and "qw" not in col:
+        raise InputError(
+            f"{name}:{header_line}:{col['srot'] + 1}: orientation uncertainty 'srot' without an "
+            "orientation (pitch, yaw, roll or qw, qx, qy, qz)"
+        )
     if not rows:
         raise InputError(f"{name}:{header_line + 1}:1: no data rows")
     if len(rows) > MAX_ROWS:
@@ -266,10 +294,22 @@ def parse_measurements(
         pos = np.full((len(rows), 3), np.nan)
     else:
         pos = np.stack([numbers(c) for c in ("x", "y", "z")], axis=1) * 1e-3
-    rpy = None
+    rpy = rot = None
     if "pitch" in col:
         looks_like_radians(("pitch", "yaw", "roll"), "orientation angles", 1.0)
         rpy = np.radians(np.stack([numbers(c) for c in ("pitch", "yaw", "roll")], axis=1))
+    if "qw" in col:
+        quat = np.stack([numbers(c) for c in ("qw", "qx", "qy", "qz")], axis=1)
+        norm = np.linalg.norm(quat, axis=1)
+        bad = np.flatnonzero(np.abs(norm - 1.0) > QUAT_NORM_TOL)
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(
+                f"{name}:{rows[i][0]}:{col['qw'] + 1}: quaternion (qw, qx, qy, qz) has norm "
+                f"{norm[i]:.6g}, not 1: not a rotation"
+                + (f" ({bad.size} rows in all)" if bad.size > 1 else "")
+            )
+        rot = quat_to_R(quat)
     sig_pos = (
         np.stack([numbers(c, True) for c in ("sx", "sy", "sz")], axis=1) * 1e-3
         if "sx" in col
@@ -284,11 +324,14 @@ def parse_measurements(
         raise InputError(
             f"{name}:{header_line}:{col['spitch'] + 1}: angle uncertainties without angle columns"
         )
+    sig_rot = np.radians(numbers("srot", True)) if "srot" in col else None
     pose_id = tuple(cells[col["pose_id"]] for _, cells in rows) if "pose_id" in col else None
     return Measurements(
         q=q,
         pos=pos,
         rpy=rpy,
+        rot=rot,
+        sigma_rot=sig_rot,
         time=numbers("time") if "time" in col else None,
         temp=numbers("temp") if "temp" in col else None,
         pan=np.radians(numbers("pan")) if "pan" in col else None,
@@ -337,6 +380,10 @@ def format_measurements(meas: Measurements) -> str:
     if meas.rpy is not None:
         for i, c in enumerate(("pitch", "yaw", "roll")):
             cols.append((c, np.degrees(meas.rpy[:, i])))
+    elif meas.rot is not None:  # orientation as rotations: the quaternion form (no singularity)
+        quat = R_to_quat(meas.rot)
+        for i, c in enumerate(("qw", "qx", "qy", "qz")):
+            cols.append((c, quat[:, i]))
     for c in ("time", "temp"):
         v = getattr(meas, c)
         if v is not None:
@@ -349,6 +396,8 @@ def format_measurements(meas: Measurements) -> str:
     if meas.sigma_rpy is not None:
         for i, c in enumerate(("spitch", "syaw", "sroll")):
             cols.append((c, np.degrees(meas.sigma_rpy[:, i])))
+    if meas.sigma_rot is not None:
+        cols.append(("srot", np.degrees(meas.sigma_rot)))
     w = csv.writer(buf, lineterminator="\n")
     w.writerow([c for c, _ in cols])
     for r in range(meas.n_poses):

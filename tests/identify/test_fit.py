@@ -123,7 +123,7 @@ def test_paper_case_full_pose_heldout_and_joint1_curves(paper_case):
 
 def test_paper_case_position_only(paper_case):
     truth, train, test = paper_case
-    pos_only = replace(train, rpy=None)
+    pos_only = train.position_only()
     fitted = fit_model(truth.robot, pos_only, truth.spec)
     assert fitted.residual_rot is None and fitted.rms_rot is None
     ratio = _heldout_rms(fitted, test) / NOISE_FLOOR_3D
@@ -262,7 +262,7 @@ def test_effect_parameters_are_fitted_with_their_prior():
     rng = np.random.default_rng(13)
     pos = T[:, :3, 3] + rng.normal(0, 3e-5, (len(q), 3))
     pos[:, 2] *= 1 + s_true
-    meas = replace(meas0, pos=pos, rpy=None)
+    meas = replace(meas0, pos=pos).position_only()
     eff = _BacklashAndDepth()
     fitted = fit_model(truth.robot, meas, truth.spec, effects=[eff])
     b, s = fitted.effect_params[0]

@@ -115,6 +115,83 @@ def test_bad_input_gives_one_line_file_line_column(tmp_path, text, where, what):
     assert what in msg
 
 
+QUAT = """q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz,srot
+10,-80,90,-100,90,0,100.5,-200.25,1800.125,0.5,-0.5,0.5,0.5,0.01
+-20,-60,70,-90,80,45,110.5,-210.25,1810.125,1,0,0,0,0.02
+35,-100,110,-120,100,-30,90.0,-190.0,1790.0,0.7071068,0,-0.7071068,0,0.03
+"""
+
+
+def test_quaternion_orientation_near_yaw_minus_90_roundtrips_without_singularity(tmp_path):
+    """The T-Mac of the shared UR10 set sits 0.3-0.7 deg from yaw = -90 deg, where the
+    pitch/yaw/roll angles are singular: the quaternion form keeps the rotation exactly, and
+    srot is one isotropic angle on the rotation vector."""
+    from quickhealth.identify.linearize import rotation_noise_cov
+    from quickhealth.identify.transforms import rpy_to_R
+
+    rng = np.random.default_rng(3)
+    n = 40
+    rpy = np.c_[
+        rng.uniform(-3, 3, n), np.radians(-90 + rng.uniform(0.3, 0.7, n)), rng.uniform(-3, 3, n)
+    ]
+    R = rpy_to_R(rpy[:, 0], rpy[:, 1], rpy[:, 2])
+    m = Measurements(
+        q=np.radians(rng.uniform(-90, 90, (n, 6))),
+        pos=rng.normal(0, 1, (n, 3)),
+        rot=R,
+        sigma_rot=np.full(n, np.radians(0.002)),
+    )
+    p = tmp_path / "q.csv"
+    formats.write_measurements(p, m)
+    header = p.read_text().splitlines()[0].split(",")
+    assert {"qw", "qx", "qy", "qz", "srot"} <= set(header) and "pitch" not in header
+    back = formats.read_measurements(p, 6)
+    assert np.abs(back.R - R).max() < 1e-12
+    assert back.rpy is None and back.sigma_rot == pytest.approx(m.sigma_rot)
+    cov = rotation_noise_cov(back, 1e-4)
+    assert cov == pytest.approx(np.radians(0.002) ** 2 * np.broadcast_to(np.eye(3), (n, 3, 3)))
+
+
+def test_quaternion_columns_read(tmp_path):
+    m = formats.read_measurements(_write(tmp_path, QUAT), 6)
+    assert m.has_orientation and m.rpy is None
+    assert m.R[1] == pytest.approx(np.eye(3))
+    assert m.R[2] @ [1, 0, 0] == pytest.approx([0, 0, 1], abs=1e-6)  # -90 deg about y
+    assert m.sigma_rot == pytest.approx(np.radians([0.01, 0.02, 0.03]))
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "what"),
+    [
+        (QUAT.replace("1,0,0,0,0.02", "1,0,0.5,0,0.02"), ":3:10:", "norm 1.11803, not 1"),
+        (QUAT.replace("1,0,0,0,0.02", "0,0,0,0,0.02"), ":3:10:", "norm 0, not 1"),
+        (QUAT.replace(",qz,srot", ",qzz,srot"), ":1:10:", "needs 'qz'"),
+        (QUAT.replace("0.02\n", "-0.02\n"), ":3:14:", "uncertainty -0.02 must be > 0"),
+        (
+            "q1,q2,q3,q4,q5,q6,x,y,z,srot\n1,2,3,4,5,6,7,8,9,0.1\n",
+            ":1:10:",
+            "uncertainty 'srot' without an orientation",
+        ),
+        (
+            QUAT.replace(",srot", ",srot,pitch,yaw,roll")
+            .replace("\n1", ",1,2,3\n1")
+            .replace("0.01\n", "0.01,1,2,3\n")
+            .replace("0.02\n", "0.02,1,2,3\n")
+            .replace("0.03\n", "0.03,1,2,3\n"),
+            ":1:10:",
+            "orientation given twice",
+        ),
+    ],
+)
+def test_quaternion_bad_input_one_line(tmp_path, text, where, what):
+    p = _write(tmp_path, text)
+    with pytest.raises(InputError) as exc:
+        formats.read_measurements(p, 6)
+    msg = str(exc.value)
+    assert "\n" not in msg and msg.startswith(f"{p}{where}"), msg
+    assert what in msg, msg
+
+
 def test_joint_angles_in_radians_are_refused(tmp_path):
     rows = ["q1,q2,q3,q4,q5,q6,x,y,z"]
     rng = np.random.default_rng(0)
