@@ -63,7 +63,7 @@ from .linearize import (
 )
 from .measurements import Measurements
 from .robot import RobotModel
-from .transforms import kabsch, make_T, skew
+from .transforms import exp_so3, kabsch, make_T, skew
 
 __all__ = [
     "FittedModel",
@@ -453,37 +453,130 @@ def whitened_problem(fitted: FittedModel, meas: Measurements) -> tuple[F, F, lis
 
 
 def initial_setup(robot: RobotModel, meas: Measurements, n_iter: int = 30) -> tuple[F, F]:
-    """Robust start for base and tool: ``(T_instr_base0, T_flange_target0)``.
+    """Robust start for base and tool from the data alone: ``(T_instr_base0, T_flange_target0)``.
 
-    Kabsch of the nominal flange positions onto the measured points, then alternating least
-    squares: tool point (linear), base pose (Kabsch with the tool), and for full-pose data
-    the tool rotation (polar decomposition of the mean ``R_bfᵀ R_ibᵀ R_meas``).
+    Closed form first, so no start guess is needed however far and turned the instrument is:
+
+    - full pose: hand-eye registration ``R_meas,i = R_B R_flange,i R_X`` as one homogeneous
+      linear system in the 18 entries of ``R_B`` and ``R_Xᵀ`` (its null vector, projected on
+      SO(3)), then base and tool translations by linear least squares;
+    - position only: ``p_i = R_B (R_flange,i t + p_flange,i) + p_B`` is linear in ``R_B``,
+      ``p_B`` and the nine products ``R_B e_j t_k``: one 13-column least-squares problem per
+      coordinate; ``R_B`` projected on SO(3), ``t`` read from the products.
+
+    Then a few Gauss-Newton steps on the positions polish base and tool point with the
+    nominal kinematics.  Data too poor for the closed form (every flange orientation nearly
+    the same) fall back to Kabsch of the flange positions with alternating least squares.
     """
     T_bf = robot.fk(meas.q)
     if T_bf.ndim == 2:
         T_bf = T_bf[None]
     Rf, pf = T_bf[:, :3, :3], T_bf[:, :3, 3]
     P = meas.pos
+    closed = _hand_eye(Rf, pf, meas.R, P) if meas.has_orientation else _point_hand_eye(Rf, pf, P)
+    if closed is None:
+        Rb, pb, t = _kabsch_alternating(Rf, pf, P, n_iter)
+    else:
+        Rb, pb, t = closed
+    Rb, pb, t = _polish_positions(Rf, pf, P, Rb, pb, t)
+    Rt = np.eye(3)
+    if meas.has_orientation:  # tool rotation: polar decomposition of the mean R_fᵀ R_bᵀ R_meas
+        M = (np.swapaxes(Rf, -1, -2) @ Rb.T[None] @ meas.R).mean(0)
+        Rt = _nearest_rotation(M)
+    return make_T(Rb, pb), make_T(Rt, t)
+
+
+def _nearest_rotation(M: F) -> F:
+    """The rotation closest to ``M`` in the Frobenius norm (polar decomposition)."""
+    U, _, Vt = np.linalg.svd(M)
+    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+
+
+def _hand_eye(Rf: F, pf: F, Rm: F, P: F) -> tuple[F, F, F] | None:
+    """Closed-form ``R_m,i = R_B R_f,i R_X`` and ``p_i = R_B (R_f,i t + p_f,i) + p_B``."""
+    n = Rf.shape[0]
+    # R_m R_Xᵀ − R_B R_f = 0, column-major vec: (I ⊗ R_m) vec(R_Xᵀ) − (R_fᵀ ⊗ I) vec(R_B) = 0
+    A = np.concatenate(
+        [
+            np.einsum("ab,nij->naibj", np.eye(3), Rm).reshape(n, 9, 9),
+            -np.einsum("nji,ab->niajb", Rf, np.eye(3)).reshape(n, 9, 9),
+        ],
+        axis=2,
+    )
+    G = np.einsum("nki,nkj->ij", A, A)
+    w, V = np.linalg.eigh(G)
+    if not w[1] > 1e-8 * max(w[-1], 1e-300):  # a two-dimensional null space: not determined
+        return None
+    v = V[:, 0]
+    Rxt = v[:9].reshape(3, 3, order="F")
+    Rb = v[9:].reshape(3, 3, order="F")
+    sign = np.sign(np.linalg.det(Rb)) or 1.0
+    Rb = _nearest_rotation(sign * Rb)
+    Rx = _nearest_rotation(sign * Rxt).T
+    del Rx  # the rotation is refined from the mean after the translations (initial_setup)
+    X = np.concatenate([Rb[None] @ Rf, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
+    sol = np.linalg.lstsq(X.reshape(-1, 6), (P - pf @ Rb.T).reshape(-1), rcond=None)[0]
+    return Rb, sol[3:], sol[:3]
+
+
+def _point_hand_eye(Rf: F, pf: F, P: F) -> tuple[F, F, F] | None:
+    """Closed-form base and tool point from positions: linear in ``R_B``, ``p_B``, ``R_B e_j t_k``."""
+    n = Rf.shape[0]
+    X = np.concatenate([pf, np.ones((n, 1)), Rf.reshape(n, 9)], axis=1)  # (n, 13)
+    sv = np.linalg.svd(X, compute_uv=False)
+    if n < 13 or not sv[-1] > 1e-6 * sv[0]:  # flange orientations too alike
+        return None
+    theta = np.linalg.lstsq(X, P, rcond=None)[0]  # (13, 3): column a = row a of the model
+    Rb = _nearest_rotation(theta[:3].T)
+    pb = theta[3]
+    K = theta[4:].reshape(3, 3, 3)  # K[j, k] = R_B e_j t_k
+    t = np.einsum("aj,jka->k", Rb, K) / 3.0
+    return Rb, pb, t
+
+
+def _kabsch_alternating(Rf: F, pf: F, P: F, n_iter: int) -> tuple[F, F, F]:
+    """Fallback start: Kabsch of the flange positions, then alternating least squares."""
     T_ib = kabsch(pf, P)
     t = np.zeros(3)
     for _ in range(n_iter):
         Rb, pb = T_ib[:3, :3], T_ib[:3, 3]
-        # tool point: Rb Rf_i t = P_i - pb - Rb pf_i
         A = (Rb[None] @ Rf).reshape(-1, 3)
         b = (P - pb - pf @ Rb.T).reshape(-1)
         t_new = np.linalg.lstsq(A, b, rcond=None)[0]
         T_ib = kabsch(pf + (Rf @ t_new), P)
-        if np.linalg.norm(t_new - t) < 1e-9:
-            t = t_new
-            break
+        done = np.linalg.norm(t_new - t) < 1e-9
         t = t_new
-    Rt = np.eye(3)
-    if meas.has_orientation:
-        Rm = meas.R
-        M = (np.swapaxes(Rf, -1, -2) @ T_ib[:3, :3].T[None] @ Rm).mean(0)
-        U, _, Vt = np.linalg.svd(M)
-        Rt = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    return T_ib, make_T(Rt, t)
+        if done:
+            break
+    return T_ib[:3, :3], T_ib[:3, 3], t
+
+
+def _polish_positions(Rf: F, pf: F, P: F, Rb: F, pb: F, t: F, n_iter: int = 6) -> tuple[F, F, F]:
+    """Gauss-Newton on ``p_i = R_B (R_f,i t + p_f,i) + p_B`` (base rotation, base and tool
+    translation), from a close start; a step that does not lower the residual ends it."""
+    n = Rf.shape[0]
+
+    def resid(Rb_: F, pb_: F, t_: F) -> F:
+        return P - ((Rf @ t_ + pf) @ Rb_.T + pb_)
+
+    r = resid(Rb, pb, t)
+    cost = float(np.sum(r * r))
+    for _ in range(n_iter):
+        y = (Rf @ t + pf) @ Rb.T  # R_B y_i
+        J = np.concatenate(
+            [-skew(y), np.broadcast_to(np.eye(3), (n, 3, 3)), Rb[None] @ Rf], axis=2
+        ).reshape(-1, 9)
+        step = np.linalg.lstsq(J, r.reshape(-1), rcond=None)[0]
+        Rb2 = exp_so3(step[:3]) @ Rb
+        pb2, t2 = pb + step[3:6], t + step[6:]
+        r2 = resid(Rb2, pb2, t2)
+        c2 = float(np.sum(r2 * r2))
+        if not c2 < cost:
+            break
+        Rb, pb, t, r, cost = Rb2, pb2, t2, r2, c2
+        if np.linalg.norm(step) < 1e-12:
+            break
+    return Rb, pb, t
 
 
 # --------------------------------------------------------------------------- internals
