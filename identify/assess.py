@@ -20,12 +20,16 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from .effects import Effect, parse_effects
 from .errormodel import ErrorModelSpec
+from .errors import InputError
 from .fit import FittedModel, ParameterPrior, fit_model
 from .linearize import InstrumentNoise
 from .measurements import Measurements
 from .robot import RobotModel
+from .sanity import NumericalError, check_plausible, weakest_directions
 from .select import Selection, select_orders
 from .workspace import JointCurves, WorkspaceError, all_joint_curves, workspace_error
 
@@ -132,6 +136,7 @@ def assess(
         fitted = selection.fitted
     else:
         fitted = fit_model(robot, measurements, spec, eff, noise, prior)
+    fitted = believable(fitted, measurements)
     return evaluate(
         measurements,
         fitted,
@@ -139,6 +144,51 @@ def assess(
         workspace_samples=workspace_samples,
         curve_points=curve_points,
     )
+
+
+def believable(fitted: FittedModel, measurements: Measurements) -> FittedModel:
+    """``fitted`` if every reader of models will accept it, else one actionable error.
+
+    A fit that stopped before converging gets one longer refit from where it stopped.
+
+    Raises
+    ------
+    NumericalError
+        Still not converged, or numbers that are not finite (exit 3).
+    InputError
+        The data cannot support a model: its TCP correction is beyond any real robot
+        (:func:`~quickhealth.identify.sanity.check_plausible`); names the parameters the
+        data determine least (exit 2).
+    """
+    if not fitted.converged:
+        fitted = fit_model(
+            fitted.robot,
+            measurements,
+            fitted.spec,
+            fitted.effects,
+            fitted.noise,
+            fitted.prior,
+            init=fitted,
+            hold=fitted.held,
+            max_iter=400,
+        )
+    if not (np.all(np.isfinite(fitted.params)) and np.isfinite(fitted.chi2)):
+        raise NumericalError("the fit produced numbers that are not finite: no model written")
+    if not fitted.converged:
+        raise NumericalError(
+            f"the fit did not converge after {fitted.n_iter} iterations (chi2 "
+            f"{fitted.chi2_data:.6g}): no model written; look for rows far from the rest "
+            "(residuals.csv of a fit with --max-order 0) or lower --max-order"
+        )
+    try:
+        check_plausible(fitted, "the data cannot support a model")
+    except InputError as exc:
+        weak = ", ".join(weakest_directions(fitted))
+        raise InputError(
+            f"{exc}; check the units (mm, deg), the robot description and that every joint "
+            f"moves; the least determined parameters: {weak}"
+        ) from None
+    return fitted
 
 
 def evaluate(

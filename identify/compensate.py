@@ -54,7 +54,7 @@ from scipy.optimize import least_squares
 from .effects import Effect, EffectContext, Perturbation, effect_context, total_perturbation
 from .effects.backlash import Backlash
 from .effects.cyclic import Cyclic
-from .errormodel import ErrorModelSpec, constant_motions, joint_error_motions
+from .errormodel import ErrorModelSpec, joint_error_motions
 from .errors import InputError
 from .fit import FittedModel
 from .linearize import forward, joint_angle_jacobian, loop_pose
@@ -438,11 +438,37 @@ PerturbFn = Callable[[F, F], Perturbation]
 MAX_STEP = 0.2
 
 
+@dataclass(frozen=True, eq=False)
+class _Frames:
+    """Where the modelled TCP sits: ``left · loop(coeffs, right) · post`` in the base frame
+    the program's poses are written in.  Without a fitted model: the joint coefficients only
+    in the identified base frame (``left = I``, ``right`` the TCP).  With one: the whole loop
+    (base, tool, joints) seen from the registered base and tool
+    (:attr:`~quickhealth.identify.fit.FittedModel.registration`), so the compensation does
+    not depend on how the fit split error between base, tool and joint constants."""
+
+    coeffs: F
+    left: F
+    right: F
+    post: F
+
+    def tcp(self, robot: RobotModel, spec: ErrorModelSpec, q: F, pert: Perturbation) -> F:
+        """Modelled TCP poses (n, 4, 4)."""
+        return loop_pose(robot, spec, self.coeffs, self.left, self.right, q, pert) @ self.post
+
+    def forward(
+        self, robot: RobotModel, spec: ErrorModelSpec, q: F, pert: Perturbation
+    ) -> tuple[F, F]:
+        """Modelled TCP poses and the loop's frames before every error transform."""
+        T, A, _ = forward(robot, spec, self.coeffs, self.left, self.right, q, pert)
+        assert A is not None
+        return T @ self.post, A
+
+
 def _newton(
     robot: RobotModel,
     spec: ErrorModelSpec,
-    c_joint: F,
-    T_tcp: F,
+    frames: _Frames,
     T_goal: F,
     q_start: F,
     perturb: PerturbFn,
@@ -462,8 +488,7 @@ def _newton(
     it = 0
     err = np.zeros((q.shape[0], 6))
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
-        T, A, _ = forward(robot, spec, c_joint, np.eye(4), T_tcp, q, perturb(q, approach))
-        assert A is not None
+        T, A = frames.forward(robot, spec, q, perturb(q, approach))
         err = pose_error(T, T_goal)
         if np.all(np.linalg.norm(err[:, :3], axis=1) < tol_pos) and np.all(
             np.linalg.norm(err[:, 3:], axis=1) < tol_rot
@@ -475,7 +500,7 @@ def _newton(
         # (the target then does not converge and is reported, never jumps to another branch)
         size = np.abs(step).max(axis=1, keepdims=True)
         q = q - step * np.minimum(1.0, MAX_STEP / np.maximum(size, 1e-300))
-    T = model_tcp(robot, spec, c_joint, q, T_tcp, perturb(q, approach))
+    T = frames.tcp(robot, spec, q, perturb(q, approach))
     return q, pose_error(T, T_goal), it
 
 
@@ -493,22 +518,32 @@ def _solve(
     tol_pos: float,
     tol_rot: float,
     approach_rounds: int,
+    fitted: FittedModel | None = None,
 ) -> Compensation:
     """The compensation core: Newton per approach round until the approach settles."""
     q0 = np.atleast_2d(np.asarray(q_targets, float))
     Tt = np.eye(4) if T_flange_tcp is None else np.asarray(T_flange_tcp, float)
-    c = joint_coefficients(spec, coeffs)
-    T_goal = model_tcp(robot, spec, np.zeros_like(c), q0, Tt)  # nominal kinematics
+    if fitted is None:
+        frames = _Frames(joint_coefficients(spec, coeffs), np.eye(4), Tt, np.eye(4))
+    else:
+        T_rb, T_rt = fitted.registration
+        frames = _Frames(
+            np.asarray(fitted.coeffs, float),
+            inv_T(T_rb) @ fitted.T_instr_base0,
+            np.asarray(fitted.T_flange_target0, float),
+            inv_T(T_rt) @ Tt,
+        )
+    T_goal = robot.fk(q0).reshape(-1, 4, 4) @ Tt  # nominal kinematics
     fixed = approach is not None
     app = approach_from_order(q0) if approach is None else np.asarray(approach, float)
-    before = pose_error(model_tcp(robot, spec, c, q0, Tt, perturb(q0, app)), T_goal)
+    before = pose_error(frames.tcp(robot, spec, q0, perturb(q0, app)), T_goal)
     bj = list(backlash_joints)
     q, err, n_it = q0, before, 0
     settled = np.ones(len(q0), bool)
     rounds = max(approach_rounds, 1)
     for r in range(rounds):
         q, err, it = _newton(
-            robot, spec, c, Tt, T_goal, q, perturb, app, max_iter, tol_pos, tol_rot
+            robot, spec, frames, T_goal, q, perturb, app, max_iter, tol_pos, tol_rot
         )
         n_it += it
         if fixed or not bj:
@@ -688,6 +723,7 @@ def compensate_program(
         tol_pos=tol_pos,
         tol_rot=tol_rot,
         approach_rounds=approach_rounds,
+        fitted=fitted,
     )
     needs = {col for e, _ in used for col in e.requires()}
     return replace(
@@ -719,10 +755,9 @@ def _describe(e: Effect, temp_c: float | None, time_s: float | None) -> str:
 
 
 def fitted_tool(fitted: FittedModel) -> F:
-    """The measurement target on the flange as the fit identified it, ``T_flange_target0 ·
-    Etool`` (4, 4): the TCP to compensate when the program's tool is the measured target."""
-    m = constant_motions(fitted.spec, fitted.coeffs, -1)
-    return np.asarray(fitted.T_flange_target0, float) @ small_error_transform(m[:3], m[3:])
+    """The measurement target on the flange of the registered nominal robot (4, 4): the TCP
+    to compensate when the program's tool is the measured target."""
+    return fitted.registration[1]
 
 
 # ---------------------------------------------------------------------- URScript text

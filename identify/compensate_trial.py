@@ -17,16 +17,15 @@ assert on the same numbers):
    remaining TCP error is its true, noise-free target pose against the program's nominal
    pose.
 
-**Where the nominal pose is.**  A joint-space compensation works in the robot's base frame as
-the fit identified it, on the flange as the fit identified it: errors that look exactly like
-a rigid move of the whole base (a joint-1 zero offset, ``j1.ez.c0``) or of the tool (every
-constant of the last joint) cannot be told from the set-up by self-referenced measurements
-and are held at zero (``FittedModel.unidentifiable``).  The yardstick uses the same frame,
-taken from a *reference fit* that no noise disturbs: the twin's true model structure (its
-orders and its true effects) fitted to its noise-free poses, which reproduces the twin to
-~1e-8 m and so defines the identified base and tool exactly as a perfect measurement would.
-The nominal pose of target k is that fit's ``nominal_pose(q_k)`` (base frame at time 0, the
-links at 20 °C); every column of the table is measured against it.
+**Where the nominal pose is.**  A joint-space compensation works in the frames of the nominal
+robot registered to the model (:attr:`~quickhealth.identify.fit.FittedModel.registration`:
+the base and tool that bring the nominal kinematics closest to the model over its identified
+ranges), so it does not depend on how the fit split error between base, tool and joint
+constants.  The yardstick uses the same frame, taken from a *reference fit* that no noise
+disturbs: the twin's true model structure (its orders and its true effects) fitted to its
+noise-free poses, which reproduces the twin to ~1e-8 m.  The nominal pose of target k is that
+fit's ``nominal_pose(q_k)`` (registered base and tool, the links at 20 °C, the instrument at
+time 0); every column of the table is measured against it.
 
 **What the instrument noise allows** (the allowance): what remains when the model has the
 right effects and only the noise limits it.  Two parts:

@@ -39,12 +39,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .effects import Effect, EffectContext, Perturbation, effect_context, total_perturbation
-from .errormodel import MOTIONS, ErrorModelSpec, chebyshev_u
+from .effects.thermal import T_REF_C
+from .errormodel import MOTIONS, ErrorModelSpec, chebyshev_u, constant_motions
 from .errors import InputError
 from .linearize import (
     InstrumentNoise,
@@ -63,7 +65,7 @@ from .linearize import (
 )
 from .measurements import Measurements
 from .robot import RobotModel
-from .transforms import exp_so3, kabsch, make_T, skew
+from .transforms import exp_so3, kabsch, log_so3, make_T, skew, small_error_transform
 
 __all__ = [
     "FittedModel",
@@ -80,6 +82,9 @@ __all__ = [
 ]
 
 F = NDArray[np.float64]
+
+#: Joint commands the base-and-tool registration of the health figures is computed over.
+REGISTRATION_SAMPLES = 1000
 
 
 # --------------------------------------------------------------------------- configuration
@@ -228,19 +233,42 @@ class FittedModel:
         return T
 
     def tcp_error(self, q: ArrayLike, **kwargs: ArrayLike | None) -> F:
-        """Predicted TCP position error (m), shape (n,): model minus nominal kinematics.
+        """Predicted TCP position error (m), shape (n,): the robot's model minus its nominal
+        kinematics after the best rigid registration of base and tool (:attr:`registration`).
 
-        Both with the identified base and tool; instrument-side effects (depth scale, drift)
-        are not robot errors and are left out.
+        Gauge-free: error that base, tool and the joints' constant terms can trade between
+        them does not change it.  Instrument-side effects (depth scale, drift) are not robot
+        errors and are left out.
         """
         return np.linalg.norm(self.tcp_error_vector(q, **kwargs), axis=-1)
 
     def tcp_error_vector(self, q: ArrayLike, **kwargs: ArrayLike | None) -> F:
-        """Model minus nominal target position (m, instrument frame), shape (n, 3)."""
+        """Model minus registered nominal target position (m, instrument frame), shape (n, 3)."""
         q = np.atleast_2d(np.asarray(q, float))
-        pert = self._perturbation(q, kwargs.get("time"), kwargs.get("temp"), kwargs.get("approach"))
+        T = self.robot_pose(q, **kwargs)
+        return T[:, :3, 3] - self.nominal_pose(q)[:, :3, 3]
+
+    def tcp_rotation_error(self, q: ArrayLike, **kwargs: ArrayLike | None) -> F:
+        """Model minus registered nominal target orientation, rotation vectors (rad), (n, 3)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        T = self.robot_pose(q, **kwargs)
+        N = self.nominal_pose(q)
+        return log_so3(T[:, :3, :3] @ np.swapaxes(N[:, :3, :3], -1, -2))
+
+    def robot_pose(
+        self,
+        q: ArrayLike,
+        *,
+        time: ArrayLike | None = None,
+        temp: ArrayLike | None = None,
+        approach: ArrayLike | None = None,
+    ) -> F:
+        """The model pose with the robot's own effects only (no depth scale, no drift),
+        ``T_instr_target`` (n, 4, 4)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        pert = self._perturbation(q, time, temp, approach)
         robot_pert = Perturbation(dq=pert.dq, link_scale=pert.link_scale)
-        T = loop_pose(
+        return loop_pose(
             self.robot,
             self.spec,
             self.coeffs,
@@ -249,19 +277,51 @@ class FittedModel:
             q,
             robot_pert,
         )
-        nominal = self.nominal_pose(q)
-        return T[:, :3, 3] - nominal[:, :3, 3]
 
     def nominal_pose(self, q: ArrayLike) -> F:
-        """Nominal kinematics with the identified base and tool, ``T_instr_target`` (n, 4, 4)."""
+        """Nominal kinematics with the registered base and tool, ``T_instr_target`` (n, 4, 4)."""
         q = np.atleast_2d(np.asarray(q, float))
-        c = np.zeros_like(self.coeffs)
-        idx = self.spec.index()
-        setup = (idx[:, 0] == 0) | (idx[:, 0] == self.spec.n_joints + 1)
-        c[setup] = self.coeffs[setup]
-        return loop_pose(
-            self.robot, self.spec, c, self.T_instr_base0, self.T_flange_target0, q, Perturbation()
+        T_ib, T_ft = self.registration
+        return T_ib @ self.robot.fk(q).reshape(-1, 4, 4) @ T_ft
+
+    @cached_property
+    def registration(self) -> tuple[F, F]:
+        """Base and tool ``(T_instr_base, T_flange_target)`` that bring the nominal robot
+        closest to this model over its identified joint ranges.
+
+        Least squares of the target positions at :data:`REGISTRATION_SAMPLES` joint commands
+        drawn uniformly over ``spec``'s ranges (fixed seed), of the nominal robot against the
+        model's robot (its error motions and robot effects: a backlash at the middle of its
+        play, approach 0; thermal at 20 °C; the instrument's depth scale and drift left
+        out); then the tool rotation that best matches the model's orientations.  Every
+        health figure is the model against this nominal robot, so it does not depend on how
+        the fit split error between base, tool and joint constants, nor on whether an
+        effect's mean was fitted as an effect or as Chebyshev terms.
+        """
+        rng = np.random.default_rng(0)
+        spec = self.spec
+        q = rng.uniform(spec.q_lo, spec.q_hi, (REGISTRATION_SAMPLES, spec.n_joints))
+        needs = {col for e in self.effects for col in e.requires()}
+        n = q.shape[0]
+        T = self.robot_pose(
+            q,
+            approach=np.zeros_like(q),
+            temp=np.full(n, T_REF_C) if "temp" in needs else None,
+            time=np.full(n, self.reference_time or 0.0) if "time" in needs else None,
         )
+        T_bf = self.robot.fk(q).reshape(-1, 4, 4)
+        Rf, pf = T_bf[:, :3, :3], T_bf[:, :3, 3]
+        start_b = self.T_instr_base0 @ small_error_transform(
+            *np.split(constant_motions(spec, self.coeffs, 0), 2)
+        )
+        start_t = self.T_flange_target0 @ small_error_transform(
+            *np.split(constant_motions(spec, self.coeffs, -1), 2)
+        )
+        Rb, pb, t = _polish_positions(
+            Rf, pf, T[:, :3, 3], start_b[:3, :3], start_b[:3, 3], start_t[:3, 3], n_iter=20
+        )
+        M = (np.swapaxes(Rf, -1, -2) @ Rb.T[None] @ T[:, :3, :3]).mean(0)
+        return make_T(Rb, pb), make_T(_nearest_rotation(M), t)
 
     def _perturbation(self, q: F, time, temp, approach) -> Perturbation:  # type: ignore[no-untyped-def]
         if not self.effects:

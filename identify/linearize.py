@@ -26,7 +26,7 @@ uninformative covariance (cross-validation keeps left-out poses for the executio
 from __future__ import annotations
 
 from collections.abc import Collection, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -64,17 +64,45 @@ class InstrumentNoise:
         ``spitch, syaw, sroll`` columns are per-angle uncertainties instead).
     sigma_q : float, rad
         Joint encoder reading (propagated through the loop; 0 = exact readings).
+    excess_pos : float, m
+        Scatter of the residuals beyond the stated uncertainty, per axis, added in quadrature
+        to every row's position uncertainty (per-row columns or the default): 0 = as stated.
+        Estimated when the χ² check shows the stated uncertainty too small, or model error
+        dominating (:func:`~quickhealth.identify.select.estimate_noise_scale`); every band,
+        σ and test computed with this noise then includes it.
+    excess_rot : float, rad
+        The same for the orientation (per axis of the rotation vector).
     """
 
     sigma_pos: float = 3e-5
     sigma_rot: float = 1e-4
     sigma_q: float = 0.0
+    excess_pos: float = 0.0
+    excess_rot: float = 0.0
 
     def scaled(self, factor: float) -> InstrumentNoise:
         """The same instrument with every uncertainty multiplied by ``factor``."""
-        return InstrumentNoise(
-            self.sigma_pos * factor, self.sigma_rot * factor, self.sigma_q * factor
+        return replace(
+            self,
+            sigma_pos=self.sigma_pos * factor,
+            sigma_rot=self.sigma_rot * factor,
+            sigma_q=self.sigma_q * factor,
         )
+
+    @property
+    def rescaled(self) -> bool:
+        """True when an estimated excess scatter is added to the stated uncertainty."""
+        return self.excess_pos > 0.0 or self.excess_rot > 0.0
+
+    @property
+    def sigma_pos_effective(self) -> float:
+        """Position uncertainty per axis (m) where a row states none, excess included."""
+        return float(np.hypot(self.sigma_pos, self.excess_pos))
+
+    @property
+    def sigma_rot_effective(self) -> float:
+        """Orientation uncertainty per axis (rad) where a row states none, excess included."""
+        return float(np.hypot(self.sigma_rot, self.excess_rot))
 
 
 # --------------------------------------------------------------------------- the loop
@@ -414,16 +442,16 @@ def noise_covariance(meas: Measurements, noise: InstrumentNoise, Jq: F | None = 
     """Covariance ``Σx,i`` (n, d, d) of every pose's residual, d = 6 (full pose) or 3.
 
     Instrument: per-row ``sx…`` columns or ``noise.sigma_pos``; orientation by
-    :func:`rotation_noise_cov`.  Encoders: ``noise.sigma_q² Σ_j g_ij g_ijᵀ`` with ``Jq``
+    :func:`rotation_noise_cov`; each block plus ``noise.excess_pos²`` / ``excess_rot²``.  Encoders: ``noise.sigma_q² Σ_j g_ij g_ijᵀ`` with ``Jq``
     (n, nj, ≥d) the pose's sensitivity to each joint angle (:func:`joint_angle_jacobian`).
     """
     n = meas.n_poses
     d = 6 if meas.has_orientation else 3
     cov = np.zeros((n, d, d))
     sp = meas.sigma_pos if meas.sigma_pos is not None else np.full((n, 3), noise.sigma_pos)
-    cov[:, [0, 1, 2], [0, 1, 2]] = np.asarray(sp, float) ** 2
+    cov[:, [0, 1, 2], [0, 1, 2]] = np.asarray(sp, float) ** 2 + noise.excess_pos**2
     if d == 6:
-        cov[:, 3:, 3:] = rotation_noise_cov(meas, noise.sigma_rot)
+        cov[:, 3:, 3:] = rotation_noise_cov(meas, noise.sigma_rot) + noise.excess_rot**2 * np.eye(3)
     if noise.sigma_q > 0:
         if Jq is None:
             raise ValueError("noise_covariance: encoder noise needs the joint-angle Jacobian")

@@ -30,8 +30,10 @@ from .distributions import chi2_ppf, norm_ppf
 from .effects import Perturbation
 from .effects.thermal import T_REF_C
 from .errormodel import MOTIONS, chebyshev_basis, chebyshev_u
-from .fit import FittedModel
+from .fit import REGISTRATION_SAMPLES, FittedModel, linearised
 from .linearize import forward, motion_jacobian
+from .measurements import Measurements
+from .transforms import skew
 
 F = NDArray[np.float64]
 
@@ -278,6 +280,7 @@ def predict_commands(
     err = np.linalg.norm(ev, axis=1)
     sel = _joint_coeff_index(fitted)
     C = fitted.cov[np.ix_(sel, sel)]
+    Jt = Jt - np.einsum("nir,rp->nip", _registration_columns(fitted, q), _registration_gain(fitted))
     dirn = ev / np.maximum(err, 1e-15)[:, None]
     g = np.einsum("ni,nip->np", dirn, Jt)
     var = np.einsum("np,pq,nq->n", g, C, g)
@@ -287,6 +290,55 @@ def predict_commands(
     return CommandPrediction(
         T, err, ev, np.sqrt(np.clip(var, 0, None)), over, extrap, threshold, assumed
     )
+
+
+def prediction_band(fitted: FittedModel, meas: Measurements, level: float = 0.95) -> F:
+    """Radius (m) within which the model expects each row's *measured* position, shape (n,).
+
+    The predicted position's covariance from the estimate's covariance (every parameter,
+    through the model Jacobian at the row) plus the measurement's own covariance under the
+    model's noise (the row's stated uncertainty or the instrument default, the encoders
+    through the loop, and the scatter the fit estimated beyond the stated uncertainty:
+    ``InstrumentNoise.excess_pos``).  The radius of a 3-D Gaussian with covariance ``C`` at
+    probability ``level`` is taken by Satterthwaite's approximation: ``|x|² ≈ g χ²_h`` with
+    ``g = Σλ²/Σλ`` and ``h = (Σλ)²/Σλ²`` over the eigenvalues ``λ`` of ``C`` (exact for an
+    isotropic ``C``; within a few per cent otherwise).
+    """
+    lin = linearised(fitted, meas)
+    n, d = meas.n_poses, lin.d
+    L = np.linalg.inv(lin.W)  # Σx^{1/2}
+    J = (L @ lin.J.reshape(n, d, -1))[:, :3]  # (n, 3, P) raw model Jacobian, position rows
+    C = np.einsum("nip,pq,njq->nij", J, fitted.cov, J) + lin.cov[:, :3, :3]
+    lam = np.clip(np.linalg.eigvalsh(C), 0.0, None)
+    s1, s2 = lam.sum(1), (lam * lam).sum(1)
+    g = s2 / np.maximum(s1, 1e-300)
+    h = np.clip(s1 * s1 / np.maximum(s2, 1e-300), 1.0, 3.0)
+    grid = np.linspace(1.0, 3.0, 81)
+    q = np.interp(h, grid, [chi2_ppf(level, x) for x in grid])
+    return np.sqrt(g * q)
+
+
+def _registration_columns(fitted: FittedModel, q: F) -> F:
+    """∂(registered nominal position)/∂(base rotation, base translation, tool point), (n, 3, 9)."""
+    T_rb, T_rt = fitted.registration
+    T_bf = fitted.robot.fk(q).reshape(-1, 4, 4)
+    y = (T_bf[:, :3, :3] @ T_rt[:3, 3] + T_bf[:, :3, 3]) @ T_rb[:3, :3].T  # R_B y, base part
+    return np.concatenate(
+        [-skew(y), np.broadcast_to(np.eye(3), (len(q), 3, 3)), T_rb[:3, :3] @ T_bf[:, :3, :3]],
+        axis=2,
+    )
+
+
+def _registration_gain(fitted: FittedModel) -> F:
+    """How the registration follows the joint coefficients, ``(GᵀG)⁻¹ Gᵀ J`` over its sample
+    (9, n_joint_coeffs): a coefficient change the registration can absorb is no TCP error, so
+    the registered error's uncertainty leaves it out."""
+    rng = np.random.default_rng(0)  # the registration's own sample (FittedModel.registration)
+    spec = fitted.spec
+    q = rng.uniform(spec.q_lo, spec.q_hi, (REGISTRATION_SAMPLES, spec.n_joints))
+    G = _registration_columns(fitted, q).reshape(-1, 9)
+    J = _joint_coeff_position_jacobian(fitted, q).reshape(len(G), -1)
+    return np.linalg.lstsq(G, J, rcond=None)[0]
 
 
 def _joint_coeff_index(fitted: FittedModel) -> NDArray[np.int64]:

@@ -525,7 +525,7 @@ def build_report(
 
     # 0. the verdict, first
     diag_doc = next(s for s in sections if s.key == "diagnosis").data
-    sections.insert(0, _verdict_section(ws, trend_res, diag_doc, threshold_mm))
+    sections.insert(0, _verdict_section(ws, trend_res, diag_doc, threshold_mm, noise=fitted.noise))
 
     return Report(
         title=f"quickhealth report: {fitted.robot.name}, run {rid}",
@@ -542,7 +542,7 @@ def _finite(v: float, default: float) -> float:
 
 
 def _verdict_section(
-    ws: Any, trend: Any, diag: dict[str, Any], threshold_mm: float | None
+    ws: Any, trend: Any, diag: dict[str, Any], threshold_mm: float | None, noise: Any = None
 ) -> Section:
     """Healthy, degraded or flagged, the one-line reason, the TCP error against the baseline
     and the top missing effect.
@@ -608,6 +608,11 @@ def _verdict_section(
             "no flag against the baseline and no missing effect"
             if trend is not None
             else "no missing effect (no baseline to compare with: the run is not archived)"
+        )
+    if noise is not None and noise.rescaled:  # say it where it is read first
+        reason += (
+            "; uncertainty estimated from the residuals (the stated instrument uncertainty was "
+            f"too small: {noise.excess_pos * 1e3:.3g} mm added per axis)"
         )
     data.update(verdict=verdict, reason=reason)
     if base_mean is not None and base_max is not None:

@@ -63,6 +63,9 @@ def report_of(
             "sigma_rot_deg": float(np.degrees(a.noise.sigma_rot)),
             "sigma_q_deg": float(np.degrees(a.noise.sigma_q)),
             "per_row": meas.sigma_pos is not None,
+            "excess_pos_mm": a.noise.excess_pos * 1e3,
+            "excess_rot_deg": float(np.degrees(a.noise.excess_rot)),
+            "estimated": bool(a.noise.rescaled),
         },
         "summary": a.summary(),
         "workspace": a.workspace.as_dict(),
@@ -93,6 +96,8 @@ def report_of(
             ],
             "rescaled": list(sel.rescaled),
         }
+        if sel.noise_scale is not None:
+            rep["noise_scale"] = sel.noise_scale.as_dict()
     if fm.rms_rot is not None:
         rep["rms_rot_deg"] = float(np.degrees(fm.rms_rot))
     if source is not None:

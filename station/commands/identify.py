@@ -380,8 +380,11 @@ def _predict(args: argparse.Namespace) -> int:
         cols += ["pitch", "yaw", "roll"]
     cols += ["err_mm", "err_sigma_mm", "extrapolated"]
     has_meas = meas is not None and not np.all(np.isnan(meas.pos))
+    band = None
     if has_meas:
-        cols += ["meas_minus_model_mm"]
+        assert meas is not None
+        cols += ["meas_minus_model_mm", "band95_mm"]
+        band = _band_chunked(fm, meas)
     if thr is not None:
         cols += ["over_threshold"]
     qd = np.degrees(q)
@@ -404,9 +407,10 @@ def _predict(args: argparse.Namespace) -> int:
     fmt += ["%.6f", "%.6f", "%d"]
     data += [pred.err * 1e3, pred.err_sigma * 1e3, pred.extrapolated.astype(int)]
     if has_meas:
-        assert meas is not None
-        fmt.append("%.6f")
+        assert meas is not None and band is not None
+        fmt += ["%.6f", "%.6f"]
         data.append(np.linalg.norm(meas.pos * 1e3 - xyz, axis=1))
+        data.append(band * 1e3)
     if thr is not None:
         fmt.append("%d")
         data.append(pred.over_threshold.astype(int))
@@ -427,6 +431,8 @@ def _predict(args: argparse.Namespace) -> int:
         msg += (
             f"; measured minus model: mean {d.mean():.3f} mm, rms {np.sqrt(np.mean(d**2)):.3f} mm"
         )
+        assert band is not None
+        msg += f", {np.mean(d <= band * 1e3):.1%} within band95"
     print(msg)
     if pred.assumed.describe():
         print(
@@ -441,6 +447,21 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 PREDICT_CHUNK = 5000  # commands per block: memory stays bounded (~100 MB) for any file
+
+
+def _band_chunked(fm: Any, meas: Any) -> Any:
+    """:func:`~quickhealth.identify.workspace.prediction_band` in blocks (bounded memory)."""
+    import numpy as np
+
+    from quickhealth.identify.workspace import prediction_band
+
+    n = meas.n_poses
+    return np.concatenate(
+        [
+            prediction_band(fm, meas.subset(slice(a, a + PREDICT_CHUNK)))
+            for a in range(0, n, PREDICT_CHUNK)
+        ]
+    )
 
 
 def _predict_chunked(fm: Any, q: Any, thr: Any, time: Any, temp: Any) -> Any:

@@ -40,8 +40,6 @@ from .measurements import (
     write_measurements,
 )
 from .model import (
-    MAX_COEFF_M,
-    MAX_COEFF_RAD,
     MODEL_SCHEMA,
     check_model,
     model_from_json,
@@ -76,8 +74,6 @@ __all__ = [
     "BUILTIN_ROBOTS",
     "MAX_BYTES",
     "MAX_CELL_CHARS",
-    "MAX_COEFF_M",
-    "MAX_COEFF_RAD",
     "MAX_FIT_ROWS",
     "MAX_JSON_DEPTH",
     "MAX_ROWS",

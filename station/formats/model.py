@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from quickhealth.identify.errors import InputError
+from quickhealth.identify.sanity import check_plausible
 
 from .common import load_json_limited, write_text_atomic
 from .robot import check_robot, robot_from_json, robot_to_json
@@ -63,6 +64,8 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
             "sigma_pos": fitted.noise.sigma_pos,
             "sigma_rot": fitted.noise.sigma_rot,
             "sigma_q": fitted.noise.sigma_q,
+            "excess_pos": fitted.noise.excess_pos,
+            "excess_rot": fitted.noise.excess_rot,
         },
         "prior": {
             "joint_pos": fitted.prior.joint_pos,
@@ -129,14 +132,9 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
         raise InputError(f"{name}: model file is incomplete or damaged: {what}") from None
 
 
-# largest believable Chebyshev coefficient of a joint error motion: 20 mm, 0.05 rad (2.9 deg).
-# A UR5's identified errors are tens of µm and µrad; anything near these is a broken model.
-MAX_COEFF_M = 0.02
-MAX_COEFF_RAD = 0.05
-
-
 def check_model(fm: Any, name: str) -> None:
-    """Meaning of a model: coefficient count, finite numbers, sane magnitudes and ranges.
+    """Meaning of a model: coefficient count, finite numbers, ranges, and a TCP correction a
+    real robot can have (:func:`~quickhealth.identify.sanity.check_plausible`).
 
     Raises
     ------
@@ -164,16 +162,6 @@ def check_model(fm: Any, name: str) -> None:
         raise InputError(
             f"{name}: coefficient {labels[bad[0]]} is {c[bad[0]]}, not a finite number"
         )
-    is_len = spec.index()[:, 1] < 3
-    cap = np.where(is_len, MAX_COEFF_M, MAX_COEFF_RAD)
-    big = np.flatnonzero(np.abs(c) > cap)
-    if big.size:
-        k = int(big[np.argmax(np.abs(c[big]) / cap[big])])
-        unit, scale = ("mm", 1e3) if is_len[k] else ("mrad", 1e3)
-        raise InputError(
-            f"{name}: coefficient {labels[k]} = {c[k] * scale:.6g} {unit} is beyond any real "
-            f"robot (limit {cap[k] * scale:.0f} {unit}): refusing the model"
-        )
     if not (np.all(np.isfinite(spec.q_lo)) and np.all(np.isfinite(spec.q_hi))):
         raise InputError(f"{name}: the model's joint ranges are not finite numbers")
     if (
@@ -198,6 +186,12 @@ def check_model(fm: Any, name: str) -> None:
         T = np.asarray(getattr(fm, key), float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise InputError(f"{name}: {key} is not a finite 4x4 transform")
+    # meaning: the TCP correction a real robot can have, judged after registering base and
+    # tool (never on coefficients, which depend on the gauge and the Chebyshev ranges)
+    try:
+        check_plausible(fm, name)
+    except InputError as exc:
+        raise InputError(f"{exc}: refusing the model") from None
 
 
 def write_model(path: str | os.PathLike[str], fitted: Any) -> None:

@@ -6,6 +6,7 @@ import pytest
 
 from quickhealth.identify.compensate import (
     compensate_joints,
+    compensate_program,
     corrected_robot,
     dh_deltas,
     geometric_part,
@@ -195,7 +196,7 @@ def test_compensate_command_rewrites_urscript(model_json, tmp_path, capsys):
     _, q_old = urscript_joint_targets(prog.read_text(), 6)
     tcp = np.eye(4)
     tcp[2, 3] = 0.1
-    ref = compensate_joints(fm.robot, fm.spec, fm.coeffs, q_old, tcp)
+    ref = compensate_program(fm, q_old, tcp)  # what the command runs: the fitted model's
     np.testing.assert_allclose(q_new, ref.q, atol=1e-8)
     rows = err.read_text().splitlines()
     assert rows[0].startswith("target,err_before_mm,err_after_mm") and len(rows) == 3

@@ -67,14 +67,19 @@ def test_chi2_check_blames_the_instrument_and_rescale_fixes_it():
     truth = S.paper_truth(6, orders_j1=[0] * 6)
     meas = S.measure(truth, S.random_q(80, 41), 42, sigma_pos=1.5e-4, sigma_rot=5e-4)
     noise = InstrumentNoise(3e-5, 1e-4)  # five times too optimistic
-    sel = select_orders(truth.robot, meas, noise=noise, max_order=2)
+    sel = select_orders(truth.robot, meas, noise=noise, max_order=2, rescale=False)
     assert sel.chi2_check.verdict == "instrument"
     assert "instrument" in sel.chi2_check.message
-    again = select_orders(truth.robot, meas, noise=noise, max_order=2, auto_rescale=True)
+    # by default the residuals' scatter beyond the stated uncertainty is estimated and used
+    again = select_orders(truth.robot, meas, noise=noise, max_order=2)
     assert again.chi2_check.verdict == "ok"
-    assert again.noise.sigma_pos == pytest.approx(1.5e-4, rel=0.25)
+    assert again.noise.sigma_pos_effective == pytest.approx(1.5e-4, rel=0.15)
+    assert again.noise.sigma_rot_effective == pytest.approx(5e-4, rel=0.15)
+    assert again.fitted.noise == again.noise and again.noise_scale is not None
+    assert again.noise_scale.applied and again.noise_scale.n_outliers <= 2
     assert any(s.kind == "rescale" for s in again.trace)
     assert np.all(again.orders[1:-1] == 0)
+    assert "uncertainty estimated from the residuals" in "\n".join(again.summary())
 
 
 def test_chi2_check_blames_a_too_tight_prior():
@@ -131,3 +136,28 @@ def test_search_from_a_too_rich_start_lowers_to_the_true_orders():
     np.testing.assert_array_equal(sel.orders, truth.spec.orders)
     kinds = {s.kind for s in sel.trace if s.accepted}
     assert {"lower", "prune"} <= kinds
+
+
+def test_right_stated_noise_is_kept_and_the_scale_estimate_ignores_a_few_outliers():
+    """Where the stated uncertainty is right nothing changes (no estimated scatter); where it
+    is too small the estimate is the true scatter, and five gross outliers do not move it."""
+    from dataclasses import replace
+
+    from quickhealth.identify.select import estimate_noise_scale
+
+    truth = S.paper_truth(6, orders_j1=[0] * 6)
+    meas = S.measure(truth, S.random_q(120, 61), 62)
+    sel = select_orders(truth.robot, meas, max_order=1)
+    assert sel.noise_scale is None and not sel.fitted.noise.rescaled
+    # model error on top of the stated 0.03 mm: 0.2 mm per axis
+    rng = np.random.default_rng(63)
+    noisy = replace(meas, pos=meas.pos + rng.normal(0, 2e-4, meas.pos.shape))
+    f = select_orders(truth.robot, noisy, max_order=1, rescale=False).fitted
+    est = estimate_noise_scale(f, noisy)
+    assert est.excess_pos == pytest.approx(2e-4, rel=0.15) and est.n_outliers <= 1
+    # five residuals of 5 mm (a beam break) leave the estimate where it was
+    r = f.residual_pos.copy()
+    r[:5] += 5e-3
+    est5 = estimate_noise_scale(replace(f, residual_pos=r), noisy)
+    assert est5.excess_pos == pytest.approx(est.excess_pos, rel=0.03)
+    assert est5.n_outliers == est.n_outliers + 5
