@@ -614,7 +614,8 @@ def _units(
             continue  # "(A)", "[TMac]": a name, not a unit
         kind, unit = _UNIT_WORDS[word]
         if kind != q_kind:
-            raise InputError(f"{where}: unit {m.group(2)!r} is not a {q_kind} unit")
+            article = "an" if q_kind[0] in "aeiou" else "a"
+            raise InputError(f"{where}: unit {m.group(2)!r} is not {article} {q_kind} unit")
         if c.quantity in given:
             if given[c.quantity] is not None and unit != given[c.quantity]:
                 raise InputError(
