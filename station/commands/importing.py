@@ -32,44 +32,63 @@ def register(subparsers: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     t.add_argument("file", help="the tracker's export (delimited text)")
-    t.add_argument("--out", required=True, help="measurement file to write (CSV v1)")
-    t.add_argument("--preset", default=None, help="a known layout: ipa-ur10, wam")
-    cols = t.add_argument_group("column mapping (header names or 1-based numbers, comma-separated)")
-    cols.add_argument("--joints", default=None, help="columns of q1 … qN, in joint order")
-    cols.add_argument("--position", default=None, help="columns of x, y, z")
-    cols.add_argument(
-        "--deviation", default=None, help="columns added to x, y, z (nominal + deviation files)"
+    t.add_argument(
+        "--out", metavar="MEAS.csv", required=True, help="measurement file to write (CSV v1)"
     )
-    cols.add_argument("--deviation-sign", default=None, help="+1 or -1 (default +1)")
+    t.add_argument("--preset", metavar="NAME", default=None, help="a known layout: ipa-ur10, wam")
+    cols = t.add_argument_group("column mapping (header names or 1-based numbers, comma-separated)")
+    cols.add_argument(
+        "--joints", metavar="COLS", default=None, help="columns of q1 … qN, in joint order"
+    )
+    cols.add_argument("--position", metavar="X,Y,Z", default=None, help="columns of x, y, z")
+    cols.add_argument(
+        "--deviation",
+        metavar="DX,DY,DZ",
+        default=None,
+        help="columns added to x, y, z (nominal + deviation files)",
+    )
+    cols.add_argument("--deviation-sign", metavar="±1", default=None, help="+1 or -1 (default +1)")
     cols.add_argument(
         "--orientation",
+        metavar="A1,A2,A3",
         default=None,
         help="columns of the three Euler angles in --euler's axis order; 'none': position only",
     )
     cols.add_argument(
         "--euler",
+        metavar="SEQ",
         default=None,
         help="the angles' convention as scipy names it: XYZ, ZYX, … intrinsic; xyz, zyx, … extrinsic",
     )
-    cols.add_argument("--sigma-position", default=None, help="columns of the x, y, z std devs")
     cols.add_argument(
-        "--sigma-orientation", default=None, help="columns of the three angles' std devs"
+        "--sigma-position", metavar="SX,SY,SZ", default=None, help="columns of the x, y, z std devs"
     )
-    cols.add_argument("--temp", default=None, help="temperature column (°C)")
-    cols.add_argument("--time", default=None, help="time column (s)")
-    cols.add_argument("--pose-id", default=None, help="pose identifier column")
+    cols.add_argument(
+        "--sigma-orientation",
+        metavar="S1,S2,S3",
+        default=None,
+        help="columns of the three angles' std devs",
+    )
+    cols.add_argument("--temp", metavar="COL", default=None, help="temperature column (°C)")
+    cols.add_argument("--time", metavar="COL", default=None, help="time column (s)")
+    cols.add_argument("--pose-id", metavar="COL", default=None, help="pose identifier column")
     fmt = t.add_argument_group("file format")
-    fmt.add_argument("--sep", default=None, help="auto (default), ',', ';' or tab")
-    fmt.add_argument("--decimal", default=None, help="point (default) or comma")
+    fmt.add_argument("--sep", metavar="SEP", default=None, help="auto (default), ',', ';' or tab")
+    fmt.add_argument("--decimal", metavar="MARK", default=None, help="point (default) or comma")
     fmt.add_argument("--no-header", action="store_true", help="no header row: columns by number")
-    fmt.add_argument("--length-unit", default=None, help="mm, m or in (default: header, else mm)")
-    fmt.add_argument("--joint-unit", default=None, help="deg or rad (default: header, else deg)")
+    fmt.add_argument(
+        "--length-unit", metavar="UNIT", default=None, help="mm, m or in (default: header, else mm)"
+    )
+    fmt.add_argument(
+        "--joint-unit", metavar="UNIT", default=None, help="deg or rad (default: header, else deg)"
+    )
     fmt.add_argument(
         "--angle-unit",
+        metavar="UNIT",
         default=None,
         help="unit of the orientation angles and their std devs: deg or rad (default: header, else deg)",
     )
-    fmt.add_argument("--instrument", default=None, help="'# instrument:' metadata")
+    fmt.add_argument("--instrument", metavar="TEXT", default=None, help="'# instrument:' metadata")
     t.set_defaults(func=_import_tracker)
 
 
