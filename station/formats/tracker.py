@@ -303,6 +303,11 @@ def check_layout(layout: TrackerLayout) -> None:
             f"{OPTION['decimal']} comma with {OPTION['separator']} ',': a decimal comma in a "
             "comma-separated file is ambiguous; the file must use ';' or tabs"
         )
+    if layout.instrument is not None and any(ch < " " or ch == "\x7f" for ch in layout.instrument):
+        raise InputError(
+            f"--instrument {layout.instrument[:40]!r}: a control character (a line break would "
+            "split the written file's metadata line)"
+        )
     if layout.deviation_sign not in (1.0, -1.0):
         raise bad("deviation_sign", layout.deviation_sign, "must be +1 or -1")
     if layout.orientation is not None:
@@ -502,10 +507,12 @@ def parse_tracker(text: str, name: str, layout: TrackerLayout) -> Measurements:
     if layout.instrument:
         meta["instrument"] = layout.instrument
     if layout.deviation is not None:
-        note = layout.position_note or (
-            f"({', '.join(layout.position)}) + ({{sign:+.0f}}) * ({', '.join(layout.deviation)})"
+        meta["position"] = (
+            layout.position_note.format(sign=layout.deviation_sign)  # a preset's wording
+            if layout.position_note
+            else f"({', '.join(layout.position)}) + ({layout.deviation_sign:+.0f}) * "
+            f"({', '.join(layout.deviation)})"
         )
-        meta["position"] = note.format(sign=layout.deviation_sign)
     if layout.orientation is not None:
         meta["orientation"] = (
             f"({', '.join(layout.orientation)}) as scipy from_euler('{layout.euler}') in "

@@ -430,6 +430,17 @@ def _row(text: str, line: int, col: int, value: str) -> str:
             r"^--sigma-orientation without --orientation",
         ),  # fmt: skip
         (_SMALL, {"position": ("X", "Y")}, r"^--position 'X,Y': needs 3 columns, got 2$"),
+        (_SMALL, {"instrument": "AT960\nq1,q2"}, r"^--instrument 'AT960\\nq1,q2': a control char"),
+        (
+            _SMALL.replace("X;Y;Z", "X{0};Y;Z").replace("A;B;C", "dX;B;C"),
+            {
+                "position": ("X{0}", "Y", "Z"),
+                "deviation": ("dX", "B", "C"),
+                "orientation": None,
+                "euler": None,
+            },
+            None,
+        ),  # braces in a name are no format field (meta "position")
         (
             _SMALL,
             {"header": False},
