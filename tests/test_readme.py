@@ -28,6 +28,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 NEEDS_A_PERSON = {
     "vision calibrate": "needs the user's camera images l/*.png, r/*.png",
     "vision measure": "needs cal.json from the calibration step",
+    "import tracker": "needs the user's tracker export (tests/station/test_import_tracker.py)",
     "tui": "interactive (tests/station/test_tui_cli.py drives it)",
 }
 # commands whose exit status 1 means "flagged" (a verdict, not a failure)
@@ -50,7 +51,7 @@ def test_readme_table_lists_the_tutorial_in_order():
     cmds = readme_commands()
     words = [" ".join(shlex.split(c)[1:3]) for c in cmds]
     assert words[:3] == ["plan --cell", "vision calibrate", "run --cell"]
-    assert len(cmds) == 17, cmds
+    assert len(cmds) == 18, cmds
 
 
 @pytest.mark.slow

@@ -15,6 +15,7 @@ COMMAND_MODULES: dict[str, str] = {
     "twin": "diagnose",
     "compare": "diagnose",
     "identify": "identify",
+    "import": "importing",
     "plan": "plan",
     "run": "run",
     "sim-controller": "run",

@@ -5,7 +5,8 @@
 - :mod:`.report`: report.json (``quickhealth.report/2``): schema, writer, reader, checker;
 - :mod:`.robot`: robot descriptions (``--robot``: built-in name, DH table TOML, URDF);
 - :mod:`.urscript`: URScript programs (joint targets for ``predict``, ``compensate``);
-- :mod:`.wam`: the Barrett WAM laser-tracker data set;
+- :mod:`.tracker`: laser-tracker exports of any column layout (``import tracker``, presets);
+- :mod:`.wam`: the Barrett WAM laser-tracker data set (the tracker importer's ``wam`` preset);
 - :mod:`.common`: what they share: the read limits and the one atomic write (``fsio``).
 
 Every unit conversion between the file boundary (mm, degrees) and the library (m, rad)
@@ -67,6 +68,8 @@ from .robot import (
     robot_from_json,
     robot_to_json,
 )
+from .tracker import PRESETS as TRACKER_PRESETS
+from .tracker import TrackerLayout, parse_tracker, read_tracker
 from .urscript import read_urscript, read_urscript_joints
 from .wam import read_wam_csv
 
@@ -86,8 +89,10 @@ __all__ = [
     "REPORT_SCHEMA",
     "REPORT_SCHEMAS_READ",
     "REQUIRED",
+    "TRACKER_PRESETS",
     "WORKSPACE_KEYS",
     "MiB",
+    "TrackerLayout",
     "check_joint_limits",
     "check_model",
     "check_poses_for_fit",
@@ -100,10 +105,12 @@ __all__ = [
     "model_from_json",
     "model_to_json",
     "parse_measurements",
+    "parse_tracker",
     "read_dh_toml",
     "read_measurements",
     "read_model",
     "read_report",
+    "read_tracker",
     "read_text_limited",
     "read_urdf",
     "read_urscript",

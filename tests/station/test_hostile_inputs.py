@@ -1506,6 +1506,292 @@ def _(b, t):
     )
 
 
+# ---- 9. tracker imports and CSV v1's orientation columns (issue 21)
+
+_EXPORT = (
+    "id;J1;J2;J3;J4;J5;J6;X;Y;Z;RX;RY;RZ;sRX;sRY;sRZ\n"
+    "p1;10,5;-80;90;-100;90;0;383,76;-3240,87;201,93;-90,18;-20,12;-90,17;0,001;0,001;0,004\n"
+    "p2;-20;-60;70;-90;80;45;-0,51;-3343,15;-426,95;-90,14;-30,09;-90,36;0,001;0,001;0,002\n"
+    "p3;35;-100;110;-120;100;-30;1,85;-3343,69;-425,74;-90,21;-30,01;-90,26;0,002;0,002;0,003\n"
+)
+
+
+def _import(t: Path, text: str | bytes = _EXPORT, *extra: str) -> Case:
+    """``import tracker`` on a small 6-DoF export (decimal comma, ';'), plus ``extra`` options."""
+    src = t / "export.txt"
+    if isinstance(text, bytes):
+        src.write_bytes(text)
+    else:
+        src.write_text(text)
+    out = t / "meas.csv"
+    argv = ["import", "tracker", str(src), "--out", str(out), "--joints", "J1,J2,J3,J4,J5,J6",
+            "--position", "X,Y,Z", "--orientation", "RX,RY,RZ", "--euler", "XYZ",
+            "--sigma-orientation", "sRX,sRY,sRZ", "--decimal", "comma", *extra]  # fmt: skip
+    return Case(argv, 2, "", [src], [out])
+
+
+@case("import-good-export-is-written")
+def _(b, t):
+    c = _import(t)
+    out = t / "meas.csv"
+
+    def check() -> None:
+        m = formats.read_measurements(out, 6)
+        assert m.n_poses == 3 and m.rot is not None and m.sigma_rot is not None
+        assert "qw" in out.read_text() and "pitch" not in out.read_text()
+
+    return _with(c, r"wrote .*meas\.csv: 3 poses, 6 joints, position and orientation",
+                 code=0, absent=[], check=check)  # fmt: skip
+
+
+@case("import-bad-cell")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT.replace("-3343,15", "-33A3,15")),
+        r"export\.txt:3:9: column 'Y' \(y\): '-33A3,15' is not a number",
+    )
+
+
+@case("import-nan-cell")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT.replace("-90,14", "NaN")),
+        r"export\.txt:3:11: column 'RX' \(angle 1\): 'NaN' is not a finite number",
+    )
+
+
+@case("import-unknown-length-unit")
+def _(b, t):
+    return _with(_import(t, _EXPORT, "--length-unit", "furlong"),
+                 r"--length-unit 'furlong': unknown unit; use mm, m, in")  # fmt: skip
+
+
+@case("import-unknown-angle-unit")
+def _(b, t):
+    return _with(_import(t, _EXPORT, "--angle-unit", "gon"),
+                 r"--angle-unit 'gon': unknown unit; use deg, rad")  # fmt: skip
+
+
+@case("import-unsupported-unit-in-the-header")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT.replace(";X;", ";X [cm];")),
+        r"export\.txt:1:8: column 'X \[cm\]' \(x\): unit 'cm' is not supported",
+    )
+
+
+@case("import-header-unit-contradicts-the-option")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT.replace(";RY;", ";RY [rad];"), "--angle-unit", "deg"),
+        r"export\.txt:1:12: column 'RY \[rad\]' \(angle 2\): the header says rad, but the "
+        r"angle unit is deg \(--angle-unit\)",
+    )
+
+
+@case("import-unknown-euler-convention")
+def _(b, t):
+    return _with(_import(t, _EXPORT, "--euler", "RPY"),
+                 r"--euler 'RPY': not an Euler convention as scipy names it")  # fmt: skip
+
+
+@case("import-euler-convention-mixed-case")
+def _(b, t):
+    return _with(_import(t, _EXPORT, "--euler", "XyZ"), r"--euler 'XyZ': not an Euler convention")
+
+
+@case("import-missing-mapped-column")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT, "--orientation", "RX,RY,RW"),
+        r"export\.txt:1:17: missing column 'RW' \(--orientation, angle 3\)",
+    )
+
+
+@case("import-decimal-comma-read-as-point")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT, "--decimal", "point", "--sep", ";"),
+        r"export\.txt:2:2: column 'J1' \(q1\): '10,5' is not a number: a decimal comma\? "
+        r"give --decimal comma",
+    )
+
+
+@case("import-decimal-point-in-a-comma-file")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT.replace("383,76", "383.76")),
+        r"export\.txt:2:8: column 'X' \(x\): '383\.76' has a decimal point",
+    )
+
+
+@case("import-decimal-comma-in-a-comma-separated-file")
+def _(b, t):
+    return _with(_import(t, _EXPORT, "--sep", ","),
+                 r"--decimal comma with --sep ',': a decimal comma in a comma-separated file "
+                 r"is ambiguous")  # fmt: skip
+
+
+@case("import-empty-file")
+def _(b, t):
+    return _with(_import(t, ""), r"export\.txt:1:1: empty file: expected a header row")
+
+
+@case("import-header-only")
+def _(b, t):
+    return _with(_import(t, _EXPORT.splitlines()[0] + "\n"),
+                 r"export\.txt:2:1: no data rows after the header")  # fmt: skip
+
+
+@case("import-binary-file")
+def _(b, t):
+    return _with(_import(t, b"\x89PNG\r\n\x1a\n\x00\xff\xfe"), r"export\.txt: not UTF-8 text")
+
+
+@case("import-ragged-row")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT + "p4;1;2;3\n"), r"export\.txt:5:5: row has 4 cells, the header has 16"
+    )
+
+
+@case("import-joints-in-radians-read-as-degrees")
+def _(b, t):
+    rows = ["id;J1;J2;J3;J4;J5;J6;X;Y;Z;RX;RY;RZ;sRX;sRY;sRZ"]
+    for k in range(3):
+        rows.append(f"p{k};0,{k};-1,5;1,2;-1;1,5;0,{4 * k};1;2;3;10;20;30;0,1;0,1;0,1")
+    return _with(_import(t, "\n".join(rows) + "\n"),
+                 r"export\.txt:2:3: joint angles look like radians .* give --joint-unit rad")  # fmt: skip
+
+
+@case("import-positions-in-mm-read-as-metres")
+def _(b, t):
+    return _with(_import(t, _EXPORT, "--length-unit", "m"),
+                 r"export\.txt:4:8: the target is 3371 m from the instrument, beyond any "
+                 r"laser tracker's range")  # fmt: skip
+
+
+@case("import-zero-angle-uncertainty")
+def _(b, t):
+    return _with(
+        _import(t, _EXPORT.replace("0,002;0,002;0,003", "0,002;0;0,003")),
+        r"export\.txt:4:15: column 'sRY' \(s\(angle 2\)\): uncertainty 0 must be > 0",
+    )
+
+
+@case("import-unknown-preset")
+def _(b, t):
+    return _with(_import(t, _EXPORT, "--preset", "kuka"),
+                 r"--preset 'kuka': unknown; known: ipa-ur10, wam")  # fmt: skip
+
+
+@case("import-ur10-preset-on-the-wam-file")
+def _(b, t):
+    out = t / "meas.csv"
+    wam = ROOT / "fixtures" / "wam" / "grid.csv"
+    return Case(
+        ["import", "tracker", str(wam), "--preset", "ipa-ur10", "--out", str(out)],
+        2,
+        r"grid\.csv:1:1: no ';' or tab in the header|grid\.csv:1:2: missing column "
+        r"'shoulder_pan_joint'",
+        [wam],
+        [out],
+    )
+
+
+@case("import-out-is-the-input")
+def _(b, t):
+    c = _import(t)
+    c.argv[c.argv.index("--out") + 1] = c.argv[2]
+    return _with(c, r"export\.txt: --out names an input file")
+
+
+def _v1(b, t: Path, head: str, cell: Callable[[int], str]) -> Case:
+    """``identify fit`` on the good rows plus the columns ``head`` with cells ``cell(i)``."""
+    rows = _good_rows(b)
+    body = "\n".join(",".join(f"{v!r}" for v in r) + "," + cell(i) for i, r in enumerate(rows))
+    csv = _csv(b, t, text=f"q1,q2,q3,q4,q5,q6,x,y,z,{head}\n{body}\n")
+    return Case(_fit(csv, t), 2, "", [csv], [t / "out"])
+
+
+def _quat(b, i: int) -> list[float]:
+    from quickhealth.identify.transforms import R_to_quat
+
+    return [float(v) for v in R_to_quat(b["meas"].R[i])]
+
+
+def _cells(v: list[float]) -> str:
+    return ",".join(repr(x) for x in v)
+
+
+@case("csv-quaternion-norm-not-1")
+def _(b, t):
+    return _with(
+        _v1(b, t, "qw,qx,qy,qz",
+            lambda i: _cells([2 * x for x in _quat(b, i)] if i == 4 else _quat(b, i))),
+        r"bad\.csv:6:10: quaternion \(qw, qx, qy, qz\) has norm 2, not 1: not a rotation",
+    )  # fmt: skip
+
+
+@case("csv-zero-quaternion")
+def _(b, t):
+    return _with(
+        _v1(b, t, "qw,qx,qy,qz", lambda i: "0,0,0,0" if i == 0 else _cells(_quat(b, i))),
+        r"bad\.csv:2:10: quaternion \(qw, qx, qy, qz\) has norm 0, not 1",
+    )
+
+
+@case("csv-quaternion-without-qz")
+def _(b, t):
+    return _with(
+        _v1(b, t, "qw,qx,qy", lambda i: _cells(_quat(b, i)[:3])),
+        r"bad\.csv:1:10: column 'qw' needs 'qz' too",
+    )
+
+
+@case("csv-srot-zero")
+def _(b, t):
+    return _with(
+        _v1(b, t, "qw,qx,qy,qz,srot",
+            lambda i: _cells(_quat(b, i)) + ("," + ("0" if i == 2 else "0.01"))),
+        r"bad\.csv:4:14: column 'srot': uncertainty 0 must be > 0",
+    )  # fmt: skip
+
+
+@case("csv-srot-negative")
+def _(b, t):
+    return _with(
+        _v1(b, t, "qw,qx,qy,qz,srot",
+            lambda i: _cells(_quat(b, i)) + ("," + ("-0.01" if i == 7 else "0.01"))),
+        r"bad\.csv:9:14: column 'srot': uncertainty -0\.01 must be > 0",
+    )  # fmt: skip
+
+
+@case("csv-srot-without-orientation")
+def _(b, t):
+    return _with(
+        _v1(b, t, "srot", lambda i: "0.01"),
+        r"bad\.csv:1:10: orientation uncertainty 'srot' without an orientation",
+    )
+
+
+@case("csv-pitch-yaw-roll-and-quaternion")
+def _(b, t):
+    return _with(
+        _v1(b, t, "pitch,yaw,roll,qw,qx,qy,qz", lambda i: "10,20,30," + _cells(_quat(b, i))),
+        r"bad\.csv:1:13: orientation given twice \('pitch' and 'qw' columns\): keep one",
+    )
+
+
+@case("csv-spitch-and-srot")
+def _(b, t):
+    return _with(
+        _v1(b, t, "pitch,yaw,roll,spitch,syaw,sroll,srot",
+            lambda i: "10,20,30,0.01,0.01,0.01,0.01"),
+        r"bad\.csv:1:16: orientation uncertainty given twice \('spitch' and 'srot'",
+    )  # fmt: skip
+
+
 # ------------------------------------------------------------------------------ runner
 
 
