@@ -72,6 +72,10 @@ class InstrumentNoise:
         σ and test computed with this noise then includes it.
     excess_rot : float, rad
         The same for the orientation (per axis of the rotation vector).
+    band_factor : float
+        Widening of the measurement's part of a 95 % band (:func:`~quickhealth.identify.
+        workspace.prediction_band`), at least 1: estimated with the excess from the tails of
+        the residuals (heavier than a Gaussian's on real data), 1 where the stated noise holds.
     """
 
     sigma_pos: float = 3e-5
@@ -79,6 +83,7 @@ class InstrumentNoise:
     sigma_q: float = 0.0
     excess_pos: float = 0.0
     excess_rot: float = 0.0
+    band_factor: float = 1.0
 
     def scaled(self, factor: float) -> InstrumentNoise:
         """The same instrument with every uncertainty multiplied by ``factor``."""

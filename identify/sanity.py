@@ -81,19 +81,22 @@ def correction_extent(fitted: FittedModel, n_samples: int = EXTENT_SAMPLES) -> C
 def check_plausible(fitted: FittedModel, name: str = "model") -> CorrectionExtent:
     """Refuse a model whose TCP correction is beyond any real robot (one line).
 
+    The orientation is judged only for a model fitted to full-pose data: position-only data
+    leave it unobserved (a wrist tilt with a short lever moves the point little).
+
     Raises
     ------
     InputError
         The correction over the identified ranges exceeds :data:`MAX_TCP_CORRECTION` or
-        :data:`MAX_ROT_CORRECTION`, or is not finite.
+        (full-pose models) :data:`MAX_ROT_CORRECTION`, or is not finite.
     """
     ext = correction_extent(fitted)
     if not np.isfinite(ext.max_pos):
         raise InputError(f"{name}: the model's TCP correction is not a finite number")
-    for value, limit, q, unit, what in (
-        (ext.max_pos, MAX_TCP_CORRECTION, ext.q_pos, "mm", "position"),
-        (ext.max_rot, MAX_ROT_CORRECTION, ext.q_rot, "mrad", "orientation"),
-    ):
+    checks = [(ext.max_pos, MAX_TCP_CORRECTION, ext.q_pos, "mm", "position")]
+    if fitted.has_orientation:  # position-only data do not observe the orientation it models
+        checks.append((ext.max_rot, MAX_ROT_CORRECTION, ext.q_rot, "mrad", "orientation"))
+    for value, limit, q, unit, what in checks:
         if value > limit:
             qd = ", ".join(f"{v:.0f}" for v in np.degrees(q))
             raise InputError(

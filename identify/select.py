@@ -111,6 +111,7 @@ class NoiseScale:
     chi2_ratio: float  # χ²/dof with the stated uncertainty
     stated_pos: float  # m, median stated per-axis uncertainty
     stated_rot: float | None  # rad
+    band_factor: float = 1.0  # widening of the measurement part of the 95 % bands (tails)
     applied: bool = False
 
     @property
@@ -139,7 +140,13 @@ class NoiseScale:
             f"uncertainty estimated from the residuals: the stated instrument uncertainty is too "
             f"small for them (chi2/dof {self.chi2_ratio:.1f}), so every band, sigma and test adds "
             f"an estimated scatter of {what} (robust estimate, {self.n_outliers} of "
-            f"{self.n_poses} poses set aside as outliers)"
+            f"{self.n_poses} poses set aside as outliers"
+            + (
+                f"; the residuals' tails widen the 95 % bands x{self.band_factor:.2f}"
+                if self.band_factor > 1.0
+                else ""
+            )
+            + ")"
         )
 
     def as_dict(self) -> dict[str, object]:
@@ -153,6 +160,7 @@ class NoiseScale:
             "factor_pos": self.factor_pos,
             "factor_rot": self.factor_rot,
             "n_outliers": self.n_outliers,
+            "band_factor": self.band_factor,
             "chi2_ratio_stated": self.chi2_ratio,
             "estimator": SCALE_ESTIMATOR,
             "text": self.describe(),
@@ -164,8 +172,14 @@ SCALE_ESTIMATOR = (
     "per block (position, orientation): each pose's squared Mahalanobis norm c_i(tau) of its "
     "residual under the stated covariance plus tau^2 I; tau0 makes median(c) the chi2_k "
     "median; poses with c_i(tau0) above the chi2_k 99.9 % point are outliers; tau makes the "
-    "mean of c over the rest E[chi2_k | chi2_k <= that point] x (1 - n_parameters/n_components)"
+    "mean of c over the rest E[chi2_k | chi2_k <= that point] x (1 - n_parameters/n_components). "
+    "Band factor: the ratio (at least 1, at most 3) of the 95 % quantile of the poses' position "
+    "norms c_i(tau) to the chi2_3 95 % point, square-rooted: real residuals have heavier tails "
+    "than a Gaussian, and the 95 % bands are widened by it to cover 95 % of the fitted poses"
 )
+
+#: Bounds of the band factor (tails of the residuals, :data:`SCALE_ESTIMATOR`).
+BAND_FACTOR_MAX = 3.0
 
 
 def estimate_noise_scale(fitted: FittedModel, meas: Measurements) -> NoiseScale:
@@ -187,6 +201,9 @@ def estimate_noise_scale(fitted: FittedModel, meas: Measurements) -> NoiseScale:
     shrink = max(1.0 - fitted.n_free / n_comp, 0.05)
     v_pos = np.asarray(sp, float)[keep] ** 2
     tau_pos, out = _excess_scatter(fitted.residual_pos[keep], v_pos, shrink)
+    c_pos = np.sum(fitted.residual_pos[keep] ** 2 / (v_pos + tau_pos**2), axis=1)
+    q95 = float(np.quantile(c_pos, 0.95)) if c_pos.size else 0.0
+    band = float(np.clip(np.sqrt(q95 / (chi2_ppf(0.95, 3) * shrink)), 1.0, BAND_FACTOR_MAX))
     tau_rot = stated_rot = None
     if fitted.residual_rot is not None:
         lam, U = np.linalg.eigh(rotation_noise_cov(meas, stated.sigma_rot)[keep])
@@ -202,6 +219,7 @@ def estimate_noise_scale(fitted: FittedModel, meas: Measurements) -> NoiseScale:
         chi2_ratio=float(fitted.chi2_data / max(fitted.dof, 1)),
         stated_pos=float(np.median(np.sqrt(v_pos))),
         stated_rot=stated_rot,
+        band_factor=band,
     )
 
 
@@ -438,8 +456,15 @@ def _rescaled(
         check = chi2_check(fitted)
         n_fits += 1
         est = est2
+    # the bands' tail factor of the final model's own residuals (it changes no estimate)
+    band = estimate_noise_scale(fitted, meas).band_factor
+    noise2 = replace(noise2, band_factor=band)
+    fitted = replace(fitted, noise=noise2)
     final = replace(
-        est, chi2_ratio=float(sel.fitted.chi2_data / max(sel.fitted.dof, 1)), applied=True
+        est,
+        band_factor=band,
+        chi2_ratio=float(sel.fitted.chi2_data / max(sel.fitted.dof, 1)),
+        applied=True,
     )
     say(final.describe())
     return Selection(
@@ -473,6 +498,7 @@ def _with_scale(noise: InstrumentNoise, meas: Measurements, est: NoiseScale) -> 
         sigma_rot=sr,
         excess_pos=est.excess_pos,
         excess_rot=est.excess_rot or 0.0,
+        band_factor=est.band_factor,
     )
 
 

@@ -299,7 +299,8 @@ def prediction_band(fitted: FittedModel, meas: Measurements, level: float = 0.95
     through the model Jacobian at the row) plus the measurement's own covariance under the
     model's noise (the row's stated uncertainty or the instrument default, the encoders
     through the loop, and the scatter the fit estimated beyond the stated uncertainty:
-    ``InstrumentNoise.excess_pos``).  The radius of a 3-D Gaussian with covariance ``C`` at
+    ``InstrumentNoise.excess_pos``), the measurement part widened at 95 % by
+    ``InstrumentNoise.band_factor`` (the residuals' tails).  The radius of a 3-D Gaussian with covariance ``C`` at
     probability ``level`` is taken by Satterthwaite's approximation: ``|x|² ≈ g χ²_h`` with
     ``g = Σλ²/Σλ`` and ``h = (Σλ)²/Σλ²`` over the eigenvalues ``λ`` of ``C`` (exact for an
     isotropic ``C``; within a few per cent otherwise).
@@ -308,7 +309,8 @@ def prediction_band(fitted: FittedModel, meas: Measurements, level: float = 0.95
     n, d = meas.n_poses, lin.d
     L = np.linalg.inv(lin.W)  # Σx^{1/2}
     J = (L @ lin.J.reshape(n, d, -1))[:, :3]  # (n, 3, P) raw model Jacobian, position rows
-    C = np.einsum("nip,pq,njq->nij", J, fitted.cov, J) + lin.cov[:, :3, :3]
+    tails = fitted.noise.band_factor**2 if level == 0.95 else 1.0
+    C = np.einsum("nip,pq,njq->nij", J, fitted.cov, J) + lin.cov[:, :3, :3] * tails
     lam = np.clip(np.linalg.eigvalsh(C), 0.0, None)
     s1, s2 = lam.sum(1), (lam * lam).sum(1)
     g = s2 / np.maximum(s1, 1e-300)

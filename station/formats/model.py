@@ -66,6 +66,7 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
             "sigma_q": fitted.noise.sigma_q,
             "excess_pos": fitted.noise.excess_pos,
             "excess_rot": fitted.noise.excess_rot,
+            "band_factor": fitted.noise.band_factor,
         },
         "prior": {
             "joint_pos": fitted.prior.joint_pos,
