@@ -139,8 +139,7 @@ def test_ur10_health_figure_does_not_depend_on_base_or_tool_parametrisation(ur10
         r = _fit(f, tmp_path / name.replace(" ", "_"), R.UR10_ROBOT)
         health[name] = r["workspace"]["mean_mm"]
     base = health["as measured"]
-    for name, h in health.items():
-        assert abs(h / base - 1) < 0.01, health
+    assert all(abs(h / base - 1) < 0.01 for h in health.values()), health
 
 
 def test_wam_without_an_uncertainty_option_follows_diagnose_below_the_published_best(tmp_path):
