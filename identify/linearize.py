@@ -224,23 +224,23 @@ def motion_jacobian(T: F, A: F, mot: F, scale_z: F | None = None) -> F:
     """
     n, nf = A.shape[:2]
     AR = A[..., :3, :3]
-    At = A[..., :3, 3]
     p = _geometric_point(T, scale_z)
-    e = mot[..., 3:]
-    # E_R b = A_Rᵀ (p - A_t) - δ
-    ERb = np.einsum("nfji,nfj->nfi", AR, p[:, None, :] - At) - mot[..., :3]
-    Rx = rot_x(e[..., 0])
-    Ry = rot_y(e[..., 1])
-    wx = np.broadcast_to(np.array([1.0, 0.0, 0.0]), (n, nf, 3))
-    wy = Rx[..., :, 1]
-    wz = (Rx @ Ry)[..., :, 2]
-    W = np.stack([wx, wy, wz], axis=-1)  # (n, nf, 3, 3) columns w_k
-    J = np.zeros((n, 6, nf, 6))
-    J[:, :3, :, :3] = np.moveaxis(AR, 2, 1)  # (n, 3, nf, 3)
-    cross = np.cross(np.moveaxis(W, -1, -2), ERb[:, :, None, :])  # (n, nf, 3k, 3)
-    dp_rot = np.einsum("nfij,nfkj->nfik", AR, cross)  # (n, nf, 3, 3k)
-    J[:, :3, :, 3:] = np.moveaxis(dp_rot, 2, 1)
-    J[:, 3:, :, 3:] = np.moveaxis(AR @ W, 2, 1)
+    ex, ey = mot[..., 3], mot[..., 4]
+    # rotation axes of Rx(εx) Ry(εy) Rz(εz) in the frame before E: x̂, Rx ŷ, Rx Ry ẑ
+    cx, sx, cy, sy = np.cos(ex), np.sin(ex), np.cos(ey), np.sin(ey)
+    W = np.zeros((n, nf, 3, 3))
+    W[..., 0, 0] = 1.0
+    W[..., 1, 1], W[..., 2, 1] = cx, sx
+    W[..., 0, 2], W[..., 1, 2], W[..., 2, 2] = sy, -sx * cy, cx * cy
+    Om = AR @ W  # (n, nf, 3, 3): the axes in the instrument frame, column k
+    # A_R (w_k × E_R b) = (A_R w_k) × (p − A_t − A_R δ): the lever from E's rotation centre
+    lever = p[:, None, :] - A[..., :3, 3] - np.einsum("nfij,nfj->nfi", AR, mot[..., :3])
+    J = np.empty((n, 6, nf, 6))
+    J[:, 3:, :, :3] = 0.0  # a translation does not turn the target
+    J[:, :3, :, :3] = np.swapaxes(AR, 1, 2)
+    J[:, 3:, :, 3:] = np.swapaxes(Om, 1, 2)
+    Omc = np.swapaxes(Om, -1, -2)  # (n, nf, k, 3)
+    J[:, :3, :, 3:] = np.moveaxis(np.cross(Omc, lever[:, :, None, :]), 3, 1)
     if scale_z is not None:
         J[:, 2] *= (1.0 + np.asarray(scale_z, float))[:, None, None]
     return J
@@ -269,7 +269,11 @@ def coefficient_columns(spec: ErrorModelSpec, q: F, Jmot: F) -> F:
     joint = (idx[:, 0] >= 1) & (idx[:, 0] <= spec.n_joints)
     ji = idx[joint]
     basis[:, joint] = B[:, ji[:, 0] - 1, ji[:, 2]]
-    return Jmot[:, :, idx[:, 0], idx[:, 1]] * basis[:, None, :]
+    n, d, nf = Jmot.shape[:3]
+    flat = np.ascontiguousarray(Jmot).reshape(n, d, nf * 6)  # a view for motion_jacobian's
+    cols = np.take(flat, idx[:, 0] * 6 + idx[:, 1], axis=2)
+    cols *= basis[:, None, :]
+    return cols
 
 
 def _geometric_point(T: F, scale_z: F | None) -> F:

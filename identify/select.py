@@ -594,6 +594,9 @@ class _Lin:
     Jw: F  # (n, d, nj, 6) whitened motion Jacobian
     u: F  # (n, nj)
     n_free: int
+    bp: F  # (m + P,) the residual projected off the current model (what a new term can take)
+    bp_data: F  # (n, d) its data rows per pose
+    bb: F  # (d, d) bp_dataᵀ bp_data
 
 
 def _linearise(fitted: FittedModel, meas: Measurements) -> _Lin:
@@ -612,21 +615,57 @@ def _linearise(fitted: FittedModel, meas: Measurements) -> _Lin:
     H = A.T @ A
     Hinv = np.linalg.inv(H)
     x = Hinv @ (A.T @ b)  # remaining step (≈ 0 at the optimum)
-    return _Lin(meas.n_poses, lin.d, Q, b, Hinv, x, A, np.flatnonzero(free), Jw, u, int(free.sum()))
+    bp = b - Q @ (Q.T @ b)
+    bpd = bp[: meas.n_poses * lin.d].reshape(meas.n_poses, lin.d)
+    return _Lin(
+        meas.n_poses,
+        lin.d,
+        Q,
+        b,
+        Hinv,
+        x,
+        A,
+        np.flatnonzero(free),
+        Jw,
+        u,
+        int(free.sum()),
+        bp,
+        bpd,
+        bpd.T @ bpd,
+    )
 
 
-def _score_raise(lin: _Lin, j: int, m: int, cur: int, new: int, sigma: float) -> float:
-    """Linearised BIC after raising joint ``j`` motion ``m`` from ``cur`` to ``new``."""
-    B = chebyshev_basis(lin.u[:, j], new)[:, cur + 1 : new + 1]  # (n, k)
-    C = (lin.Jw[:, :, j, m][:, :, None] * B[:, None, :]).reshape(lin.n * lin.d, -1) * sigma
-    k = C.shape[1]
-    Caug = np.vstack([C, np.zeros((lin.A.shape[0] - C.shape[0], k))])
-    Cp = Caug - lin.Q @ (lin.Q.T @ Caug)
-    bp = lin.b - lin.Q @ (lin.Q.T @ lin.b)
-    G = Cp.T @ Cp + np.eye(k)
-    delta = np.linalg.solve(G, Cp.T @ bp)
-    res = (bp - Cp @ delta)[: lin.n * lin.d].reshape(lin.n, lin.d)
-    return bic_value(res, lin.n_free + k)
+def _score_raises(lin: _Lin, j: int, m: int, cur: int, top: int, sigma: float) -> F:
+    """Linearised BIC after raising joint ``j`` motion ``m`` from ``cur`` to each order
+    ``cur + 1 … top``, shape (top − cur,).
+
+    The new columns of all those orders are projected off the current model once; each
+    order's one-step refit then needs only their Gram matrices: the residual's covariance
+    ``RᵀR`` (d × d) follows from ``bᵀb``, ``Cᵀb`` and ``CᵀC`` resolved per component, so no
+    residual vector is formed per move (cost ``O(n d P K)`` per motion, not per move).
+    """
+    n, d = lin.n, lin.d
+    nd = n * d
+    B = chebyshev_basis(lin.u[:, j], top)[:, cur + 1 : top + 1]  # (n, K)
+    K = B.shape[1]
+    C = (lin.Jw[:, :, j, m][:, :, None] * B[:, None, :]).reshape(nd, K) * sigma
+    QtC = lin.Q[:nd].T @ C  # (P, K): the new columns' prior rows are zero
+    Cp = C - lin.Q[:nd] @ QtC  # data rows of the projected columns
+    Cp_prior = -lin.Q[nd:] @ QtC
+    G = Cp.T @ Cp + Cp_prior.T @ Cp_prior + np.eye(K)
+    g = Cp.T @ lin.bp[:nd] + Cp_prior.T @ lin.bp[nd:]
+    M = Cp.reshape(n, d * K)  # column a*K + k: component a of column k
+    Mcc = (M.T @ M).reshape(d, K, d, K)  # [a, k, b, l] = Σ_i Cp_ia,k Cp_ib,l
+    Mcb = (M.T @ lin.bp_data).reshape(d, K, d)  # [a, k, b] = Σ_i Cp_ia,k b_ib
+    out = np.empty(K)
+    for k in range(1, K + 1):
+        delta = np.linalg.solve(G[:k, :k], g[:k])
+        cb = np.einsum("akb,k->ab", Mcb[:, :k], delta)
+        cc = np.einsum("akbl,k,l->ab", Mcc[:, :k, :, :k], delta, delta)
+        RtR = lin.bb - cb - cb.T + cc
+        sign, logdet = np.linalg.slogdet(RtR / n + np.eye(d) * 1e-300)
+        out[k - 1] = n / 2 * logdet + (lin.n_free + k + d) / 2 * np.log(n)
+    return out
 
 
 def _score_lower(lin: _Lin, cols: NDArray[np.int64]) -> float:
@@ -683,10 +722,12 @@ def _search(
             for m in range(6):
                 cur = int(orders[j + 1, m])
                 sig = prior.joint_rot if m >= 3 else prior.joint_pos
-                for new in range(cur + 1, max_order + 1):
-                    moves.append(
-                        (_score_raise(lin, j, m, cur, new, sig), StepKind.RAISE, j, m, new)
-                    )
+                if cur < max_order:
+                    bics = _score_raises(lin, j, m, cur, max_order, sig)
+                    moves += [
+                        (float(bic), StepKind.RAISE, j, m, cur + 1 + i)
+                        for i, bic in enumerate(bics)
+                    ]
                 for new in range(max(cur - 1, -1), -1, -1) if cur > 0 else ():
                     cols = [
                         free_pos[pos_of[f"j{j + 1}.{MOTIONS[m]}.c{k}"]]
