@@ -26,6 +26,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from quickhealth.station import options
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``run`` and ``sim-controller``."""
@@ -69,7 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     # the simulated hardware's size and clock; None: QUICKHEALTH_SIM_IMAGE_SCALE /
     # QUICKHEALTH_SIM_SPEED_FACTOR from the environment, else 0.5 and 1 (docs/station.md)
     p.add_argument("--sim-image-scale", type=float, default=None, help=argparse.SUPPRESS)
-    p.add_argument("--twin-seed", type=int, default=1, help=argparse.SUPPRESS)
+    p.add_argument("--twin-seed", type=options.SEED, default=1, help=argparse.SUPPRESS)
     p.add_argument("--sim-speed-factor", type=float, default=None, help=argparse.SUPPRESS)
     p.add_argument(
         "--sim-degrade",

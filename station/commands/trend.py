@@ -26,6 +26,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from quickhealth.station import options
+
 
 def _archive_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
@@ -84,7 +86,9 @@ def register(subparsers: Any) -> None:
     )
     t.add_argument("robot")
     _archive_args(t)
-    t.add_argument("--threshold-mm", type=float, default=None, help="flag a run above this")
+    t.add_argument(
+        "--threshold-mm", type=options.LENGTH_MM, default=None, help="flag a run above this"
+    )
     t.add_argument(
         "--figure",
         choices=("mean", "std", "max"),
@@ -93,25 +97,25 @@ def register(subparsers: Any) -> None:
     )
     t.add_argument(
         "--tolerance-mm",
-        type=float,
+        type=options.LENGTH_MM,
         default=None,
         help="level the prognosis extrapolates to (default: the threshold)",
     )
     t.add_argument(
         "--alpha",
-        type=float,
+        type=options.PROBABILITY,
         default=1e-4,
         help="false-alarm probability of the curve test per run (1e-4)",
     )
     t.add_argument(
         "--min-change-mm",
-        type=float,
+        type=options.CHANGE_MM,
         default=0.01,
         help="smallest translation change that counts (0.01)",
     )
     t.add_argument(
         "--min-change-mrad",
-        type=float,
+        type=options.CHANGE_MRAD,
         default=0.02,
         help="smallest rotation change that counts (0.02)",
     )
@@ -177,7 +181,7 @@ def register(subparsers: Any) -> None:
     r.add_argument("--out", default=None, help="HTML file (default RUN_DIR/report.html)")
     r.add_argument("--robot", default=None, help="the robot in the archive (trend section)")
     r.add_argument("--run-id", default=None, help="the run's id in the archive")
-    r.add_argument("--threshold-mm", type=float, default=None)
+    r.add_argument("--threshold-mm", type=options.LENGTH_MM, default=None)
     r.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis if missing")
     _archive_args(r)
     r.set_defaults(func=_report)
@@ -191,17 +195,19 @@ def register(subparsers: Any) -> None:
     rp.add_argument("--runs", default=None, help="comma-separated run ids (default all)")
     rp.add_argument("--calibration", default=None, help="new camera calibration: re-detect")
     rp.add_argument("--orders", choices=("keep", "select"), default="keep")
-    rp.add_argument("--max-order", type=int, default=6)
+    rp.add_argument("--max-order", type=options.ORDER, default=6)
     rp.add_argument("--tag", default="reprocessed", help="output folder name in each run")
     rp.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)")
     rp.add_argument(
         "--scheduler-timeout",
-        type=float,
+        type=options.TIMEOUT_S,
         default=10.0,
         help="seconds to reach the scheduler and find a worker (10)",
     )
-    rp.add_argument("--workers", type=int, default=None, help="local processes (CPU count)")
-    rp.add_argument("--workspace-samples", type=int, default=5000)
+    rp.add_argument(
+        "--workers", type=options.WORKERS, default=None, help="local processes (CPU count)"
+    )
+    rp.add_argument("--workspace-samples", type=options.SAMPLES, default=5000)
     rp.add_argument(
         "--update-index",
         action="store_true",

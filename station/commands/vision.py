@@ -26,6 +26,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from quickhealth.station import options
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``vision calibrate`` and ``vision measure``."""
@@ -53,7 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     m.add_argument("run_dir", type=Path, metavar="RUN_DIR")
     m.add_argument("--calibration", type=Path, help="stereo CAL.json")
     m.add_argument("--target", type=Path, help="target description file (JSON)")
-    m.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    m.add_argument("--jobs", type=options.WORKERS, default=1, help="worker processes (default 1)")
     m.add_argument("--out", type=Path, help="CSV to write (default RUN_DIR/measurements.csv)")
     m.set_defaults(func=run_measure)
     p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
