@@ -36,12 +36,20 @@ def _archive_args(p: argparse.ArgumentParser) -> None:
         help="archive folder (default $QUICKHEALTH_ARCHIVE, else ~/quickhealth-archive)",
     )
     p.add_argument("--db", default=None, help="SQLAlchemy URL of a shared index (default SQLite)")
+    p.add_argument(
+        "--db-timeout",
+        type=options.TIMEOUT_S,
+        default=None,
+        help="seconds to connect to the index and for each index operation "
+        "(default $QUICKHEALTH_DB_TIMEOUT, else 10)",
+    )
 
 
-def _open(args: argparse.Namespace) -> Any:
+def _open(args: argparse.Namespace, create: bool = False) -> Any:
+    """The archive of ``--archive``/``--db``; only ``archive add`` creates a missing one."""
     from quickhealth.station.archive import Archive
 
-    return Archive.open(args.archive, args.db)
+    return Archive.open(args.archive, args.db, create=create, timeout_s=args.db_timeout)
 
 
 def register(subparsers: Any) -> None:
@@ -220,7 +228,8 @@ def register(subparsers: Any) -> None:
 
 
 def _archive_add(args: argparse.Namespace) -> int:
-    arch = _open(args)
+    from quickhealth.station.archive import prepare_run
+
     meta = {
         k: v
         for k, v in (
@@ -231,7 +240,8 @@ def _archive_add(args: argparse.Namespace) -> int:
         )
         if v is not None
     }
-    rec = arch.add_run(
+    # the run is checked before the archive is opened: a refused run creates nothing
+    prep = prepare_run(
         args.robot,
         args.run_dir,
         run_id=args.run_id,
@@ -239,6 +249,12 @@ def _archive_add(args: argparse.Namespace) -> int:
         meta=meta,
         healthy=args.healthy,
     )
+    arch = _open(args, create=True)
+    try:
+        rec = arch.add_prepared(prep)
+    except BaseException:
+        arch.undo_creation()
+        raise
     if args.baseline:
         arch.set_baseline(rec.robot, rec.run_id)
     print(f"archived {rec.robot}/{rec.run_id} ({rec.time_utc}) in {arch.folder(rec)}")
@@ -288,7 +304,7 @@ def _trend(args: argparse.Namespace) -> int:
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
-    from quickhealth.station.archive import trend_for
+    from quickhealth.station.archive import missing_words, trend_for, trend_runs
     from quickhealth.station.fsio import refuse_outputs_inside, refuse_overwriting_inputs
 
     refuse_overwriting_inputs([("--json", args.json), ("--plot", args.plot)], [])
@@ -305,7 +321,7 @@ def _trend(args: argparse.Namespace) -> int:
         min_change_m=args.min_change_mm * 1e-3,
         min_change_rad=args.min_change_mrad * 1e-3,
     )
-    recs = arch.runs(args.robot)
+    recs, missing = trend_runs(arch, args.robot)  # the runs trend_for judged
     print(f"{args.robot}: {len(recs)} runs, baseline {res.run_ids[res.baseline_index]}")
     print(f"  {'run':<24} {'time (UTC)':<21} {'mean':>7} {'std':>7} {'max':>7}  verdict")
     for i, r in enumerate(recs):
@@ -319,7 +335,7 @@ def _trend(args: argparse.Namespace) -> int:
             f"  {r.run_id:<24} {r.time_utc:<21} {f['mean'][i]:7.3f} {f['std'][i]:7.3f} "
             f"{f['max'][i]:7.3f}  {v}"
         )
-    for w in res.warnings:
+    for w in [*missing_words(arch, missing), *res.warnings]:
         print(f"warning: {w}")
     flags = res.flags()
     print(f"latest run {res.run_ids[-1]}: " + ("FLAGGED" if flags else "healthy"))
@@ -676,7 +692,7 @@ def _archived_as(args: argparse.Namespace, d: Path) -> tuple[Any, str | None]:
     root = Path(args.archive) if args.archive else default_root()
     if args.db is None and not (root / "index.sqlite").is_file():
         return None, None
-    arch = Archive.open(root, args.db)
+    arch = Archive.open(root, args.db, create=False, timeout_s=args.db_timeout)
     rid = args.run_id or run_metadata(d).get("run_id") or d.resolve().name
     model = (d / "model.json").read_bytes()
     found, refitted = [], []

@@ -8,7 +8,7 @@ import pytest
 import qh_runs as _runs
 
 from quickhealth.identify.errors import InputError
-from quickhealth.station.archive import Archive, default_root, safe_name
+from quickhealth.station.archive import MARKER, Archive, default_root, safe_name
 from quickhealth.station.cli import main
 
 
@@ -119,12 +119,18 @@ def test_duplicate_and_bad_inputs(tmp_path, run_dirs, index_url):
     rec = a.add_run("ur5-a", run_dirs[2], run_id="r0", replace_existing=True)
     assert [r.run_id for r in a.runs("ur5-a")] == ["r0"] and rec.time_utc.startswith("2026-03")
     assert json.loads((a.folder(rec) / "run.json").read_text())["time_utc"].startswith("2026-03")
-    # a folder without a row (a writer killed before its commit) is replaced by the next add
-    (a.root / "robots" / "ur5-a" / "ghost").mkdir()
-    (a.root / "robots" / "ur5-a" / "ghost" / "half.png").write_bytes(b"x")
-    assert a.orphans() == [a.root / "robots" / "ur5-a" / "ghost"]
+    # a folder without a row is replaced by the next add only when it carries this index's
+    # mark (a writer of this index killed before its commit); one of unknown origin is kept
+    ghost = a.root / "robots" / "ur5-a" / "ghost"
+    ghost.mkdir()
+    (ghost / "half.png").write_bytes(b"x")
+    assert a.orphans() == [ghost]
+    with pytest.raises(InputError, match=r"ghost: holds a folder this index did not put there"):
+        a.add_run("ur5-a", run_dirs[1], run_id="ghost")
+    assert (ghost / "half.png").read_bytes() == b"x" and a.orphans() == [ghost]
+    (ghost / MARKER).write_text(a._mark("ur5-a", "ghost"))
     a.add_run("ur5-a", run_dirs[1], run_id="ghost")
-    assert not (a.root / "robots" / "ur5-a" / "ghost" / "half.png").exists() and not a.orphans()
+    assert not (ghost / "half.png").exists() and not a.orphans()
     assert not list((a.root / "robots" / "ur5-a").glob(".incoming-*"))
     # a run folder that is the archive's own registers again in place (refit): row updated
     own = a.folder(a.get("ur5-a", "ghost"))
@@ -218,7 +224,12 @@ def test_cli_errors_are_one_line_with_status_2(tmp_path, run_dirs, capsys):
     assert main(["archive", "add", str(run_dirs[0]), "--robot", "../evil", "--archive", arch]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "robot '../evil' is not allowed" in err[0]
-    assert not (tmp_path / "evil").exists()
+    assert not (tmp_path / "evil").exists() and not (tmp_path / "arch").exists()
+    assert main(["trend", "nobody", "--archive", arch]) == 2  # reading never makes an archive
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "arch: no archive there" in err[0]
+    assert not (tmp_path / "arch").exists()
+    main(["archive", "add", str(run_dirs[0]), "--robot", "ok", "--archive", arch])
     assert main(["trend", "nobody", "--archive", arch]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has no runs" in err[0]
