@@ -130,8 +130,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             lines = lines[:49] + [f"... and {len(lines) - 49} more"]
         sys.stderr.write("".join(f"quickhealth: error: {x}\n" for x in lines))
         return exc.exit_status
-    except KeyboardInterrupt:
-        sys.stderr.write("quickhealth: interrupted\n")
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (workers.Terminated)
+        sys.stderr.write(f"quickhealth: {str(exc) or 'interrupted'}\n")
         return 3
     except MemoryError:
         sys.stderr.write(

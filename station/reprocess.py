@@ -28,7 +28,6 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ from typing import Any
 from quickhealth.identify.errors import InputError, QuickhealthError
 
 from .archive import Archive, safe_name
+from .workers import Pool
 
 
 @dataclass(frozen=True)
@@ -343,7 +343,7 @@ def reprocess(
             for i, j in enumerate(jobs):
                 done(i, reprocess_run(j), i + 1)
         else:
-            with ProcessPoolExecutor(max_workers=w) as ex:
+            with Pool(max_workers=w) as ex:
                 futs = {ex.submit(reprocess_run, j): i for i, j in enumerate(jobs)}
                 from concurrent.futures import as_completed
 

@@ -25,7 +25,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from quickhealth.station import options
+from quickhealth.station import options, workers
 
 # the library's InstrumentNoise defaults (0.03 mm, 0.1 mrad): every door assesses alike
 DEFAULT_SIGMA_POS_MM = 0.03
@@ -117,6 +117,7 @@ def _positive(name: str, v: float) -> None:
         raise InputError(f"{name} must be > 0, got {v}")
 
 
+@workers.owns_workers
 def _fit(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -333,10 +334,9 @@ class _FigureRenderer:
 
     def __init__(self) -> None:
         import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
 
         ctx = multiprocessing.get_context("fork")
-        self.pool = ProcessPoolExecutor(max_workers=2, mp_context=ctx)
+        self.pool = workers.Pool(max_workers=2, mp_context=ctx)
         self.warm = [self.pool.submit(_warm) for _ in range(2)]
 
     def run(self, a: Any, out: Path) -> None:

@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from quickhealth.station import options
+from quickhealth.station import options, workers
 
 
 def _archive_args(p: argparse.ArgumentParser) -> None:
@@ -717,6 +717,7 @@ def _archived_as(args: argparse.Namespace, d: Path) -> tuple[Any, str | None]:
 # ------------------------------------------------------------------------ reprocess
 
 
+@workers.owns_workers
 def _reprocess(args: argparse.Namespace) -> int:
     import time
 

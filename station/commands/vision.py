@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from quickhealth.station import options
+from quickhealth.station import options, workers
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -248,10 +248,9 @@ def _isnum(s: str) -> bool:
         return False
 
 
+@workers.owns_workers
 def run_measure(args: argparse.Namespace) -> int:
     """Measure every stored pair of a run folder and write its measurement CSV."""
-    from concurrent.futures import ProcessPoolExecutor
-
     import numpy as np
 
     from quickhealth.identify.errors import InputError
@@ -309,7 +308,7 @@ def run_measure(args: argparse.Namespace) -> int:
         it = map(_measure_one, jobs)
         pool = None
     else:
-        pool = ProcessPoolExecutor(args.jobs, initializer=_init_worker, initargs=(rig, target))
+        pool = workers.Pool(args.jobs, initializer=_init_worker, initargs=(rig, target))
         it = pool.map(_measure_one, jobs, chunksize=4)
     try:
         for k, (pid, res) in enumerate(it, start=1):
