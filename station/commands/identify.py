@@ -25,7 +25,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from quickhealth.station import options, workers
+from quickhealth.station import lock, options, workers
 
 # the library's InstrumentNoise defaults (0.03 mm, 0.1 mrad): every door assesses alike
 DEFAULT_SIGMA_POS_MM = 0.03
@@ -118,6 +118,7 @@ def _positive(name: str, v: float) -> None:
 
 
 @workers.owns_workers
+@lock.holds_outputs("identify fit", lambda a: [a.out])
 def _fit(args: argparse.Namespace) -> int:
     import numpy as np
 

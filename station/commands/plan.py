@@ -15,7 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from quickhealth.station import options
+from quickhealth.station import lock, options
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -49,6 +49,7 @@ def _write(path: Path, data: bytes) -> None:
     write_atomic(path, data, durable=True)
 
 
+@lock.holds_outputs("plan", lambda a: [a.out])
 def run(args: argparse.Namespace) -> int:
     """Plan, validate the plan document, then write plan.json, loop.script and plots."""
     from quickhealth.identify.errors import InputError

@@ -26,7 +26,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from quickhealth.station import options
+from quickhealth.station import lock, options
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -99,6 +99,7 @@ def sim_controller(args: argparse.Namespace) -> int:
     return run_from_args(args)
 
 
+@lock.holds_outputs("run", lambda a: [a.out])
 def run(args: argparse.Namespace) -> int:
     """Validate everything that can be validated without hardware, then run."""
     from quickhealth.identify.errors import InputError

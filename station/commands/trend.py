@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from quickhealth.station import options, workers
+from quickhealth.station import lock, options, workers
 
 
 def _archive_args(p: argparse.ArgumentParser) -> None:
@@ -628,6 +628,7 @@ def _compensation_notes(fm: Any, comp: Any, args: argparse.Namespace, backlash: 
 # -------------------------------------------------------------------------- report
 
 
+@lock.holds_outputs("report", lambda a: [a.run_dir, a.out])
 def _report(args: argparse.Namespace) -> int:
     """The run's HTML report; report.json gains the report's sections, keeping its schema.
 

@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from quickhealth.station import options, workers
+from quickhealth.station import lock, options, workers
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -249,6 +249,7 @@ def _isnum(s: str) -> bool:
 
 
 @workers.owns_workers
+@lock.holds_outputs("vision measure", lambda a: [a.out or a.run_dir])
 def run_measure(args: argparse.Namespace) -> int:
     """Measure every stored pair of a run folder and write its measurement CSV."""
     import numpy as np
