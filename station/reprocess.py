@@ -352,6 +352,23 @@ def reprocess(
     return [r for r in results if r is not None]
 
 
+def check_scheduler(address: str) -> None:
+    """Refuse (one line, exit 2) a ``--scheduler`` that is not a Dask address, before any
+    work starts.  A well-formed address whose host does not resolve or answer is a runtime
+    failure, reported when connecting (exit 3)."""
+    from distributed.comm import resolve_address
+
+    try:
+        resolve_address(address)
+    except ValueError as exc:
+        raise InputError(
+            f"--scheduler {address[:80]!r}: not a Dask scheduler address ({exc}); "
+            "e.g. tcp://10.0.0.5:8786"
+        ) from None
+    except OSError:
+        pass
+
+
 def _run_dask(
     jobs: list[ReprocessJob], scheduler: Any, done: Callable[..., None], timeout_s: float
 ) -> None:
@@ -363,6 +380,8 @@ def _run_dask(
     own = not isinstance(scheduler, Client)
     try:
         client = Client(scheduler, timeout=f"{timeout_s}s") if own else scheduler
+    except ValueError as exc:  # an address that is not one (check_scheduler says so first)
+        raise InputError(f"--scheduler {str(scheduler)[:80]!r}: {exc}") from None
     except (OSError, TimeoutError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise HardwareError(

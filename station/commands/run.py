@@ -191,10 +191,11 @@ def _sim_setting(
 
 def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: ignore[no-untyped-def]
     from quickhealth.identify.errors import HardwareError
+    from quickhealth.station.fsio import make_dirs
     from quickhealth.station.run import run_plan, ur_station
     from quickhealth.station.sim.cell import sim_station
 
-    out.mkdir(parents=True, exist_ok=True)
+    make_dirs(out)  # an unwritable --out is one line, exit 2
     log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115
 
     def progress(p) -> None:  # type: ignore[no-untyped-def]

@@ -455,6 +455,7 @@ def _compensate(args: argparse.Namespace) -> int:
     from quickhealth.identify.errors import InputError
     from quickhealth.identify.urscript import replace_targets
     from quickhealth.station import formats
+    from quickhealth.station.formats.common import findings
     from quickhealth.station.fsio import refuse_overwriting_inputs
 
     cap = args.max_correction_deg
@@ -524,7 +525,7 @@ def _compensate(args: argparse.Namespace) -> int:
                     f"{np.degrees(fm.spec.q_hi[j]):.6g}] deg: the model would extrapolate"
                 )
     if problems:
-        raise InputError("\n".join(f"{x}; nothing written" for x in problems))
+        raise findings([f"{x}; nothing written" for x in problems])
     comp = compensate_program(
         fm, q, T_tcp, temp_c=args.temp_c, time_s=args.time_s, leave_out=leave_out
     )
@@ -554,7 +555,7 @@ def _compensate(args: argparse.Namespace) -> int:
                 "is outside the robot's limits"
             )
     if problems:
-        raise InputError("\n".join(f"{x}; nothing written" for x in problems))
+        raise findings([f"{x}; nothing written" for x in problems])
     if is_script:
         new_text = replace_targets(text, targets.spans, comp.q)
     else:
@@ -723,8 +724,10 @@ def _reprocess(args: argparse.Namespace) -> int:
     import time
 
     from quickhealth.identify.errors import InputError
-    from quickhealth.station.reprocess import jobs_for_archive, reprocess
+    from quickhealth.station.reprocess import check_scheduler, jobs_for_archive, reprocess
 
+    if args.scheduler is not None:
+        check_scheduler(args.scheduler)
     arch = _open(args)
     runs = None if args.runs is None else [r.strip() for r in args.runs.split(",") if r.strip()]
     jobs = jobs_for_archive(

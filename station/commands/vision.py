@@ -154,6 +154,7 @@ def _measure_one(job: tuple[str, str, str, float | None, float | None]) -> Any:
 
 def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
     import csv
+    import io
 
     import numpy as np
 
@@ -163,8 +164,19 @@ def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
         raise InputError(
             f"{path}: missing (the run folder's image index: pose_id, q1..qN in deg, pan, time)"
         )
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
+    from quickhealth.station.formats.common import MAX_LINE_CHARS, read_text_limited
+
+    text = read_text_limited(path, "measurements")  # regular file, size, UTF-8
+    for ln, line in enumerate(text.splitlines(), start=1):
+        if len(line) > MAX_LINE_CHARS:
+            raise InputError(
+                f"{path}:{ln}:1: line of {len(line)} characters is too long (at most "
+                f"{MAX_LINE_CHARS})"
+            )
+    try:
+        rows = [r for r in csv.reader(io.StringIO(text, newline="")) if r and r[0][:1] != "#"]
+    except csv.Error as exc:
+        raise InputError(f"{path}: not a CSV file: {exc}") from None
     if len(rows) < 2:
         raise InputError(f"{path}: no rows")
     head = [h.strip() for h in rows[0]]

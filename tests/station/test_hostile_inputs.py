@@ -246,7 +246,7 @@ def _(b, t):
     return Case(
         _fit(b["dir"] / "meas.csv", t, "--margin", "nan"),
         2,
-        r"--margin: invalid finite_float value|'nan' is not a finite number",
+        r"--margin: nan is not a BIC margin \(a number in \[0, 10000\]\)",
         [b["dir"] / "meas.csv"],
         [t / "out"],
     )
@@ -257,7 +257,7 @@ def _(b, t):
     return Case(
         _fit(b["dir"] / "meas.csv", t, "--margin", "inf"),
         2,
-        r"'inf' is not a finite number",
+        r"--margin: inf is not a BIC margin",
         [],
         [t / "out"],
     )
@@ -268,7 +268,7 @@ def _(b, t):
     return Case(
         _fit(b["dir"] / "meas.csv", t, "--sigma-pos-mm", "nan"),
         2,
-        r"--sigma-pos-mm.*'nan' is not a finite number",
+        r"--sigma-pos-mm: nan is not a position uncertainty in mm",
         [],
         [t / "out"],
     )
@@ -302,7 +302,7 @@ def _(b, t):
             "nan",
         ],
         2,
-        "not a finite number",
+        r"--threshold-mm: nan is not a length in mm",
         [],
         [t / "o.csv"],
     )
