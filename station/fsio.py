@@ -391,6 +391,9 @@ def plain_tree(folder: str | os.PathLike[str]) -> tuple[list[Path], list[Path], 
     return sorted(dirs), sorted(files), total
 
 
+_write_out = os.write  # the disk boundary of a copy (the tests fill the disk here)
+
+
 def _copy_plain_file(fd_in: int, src: Path, dst: Path) -> None:
     """Copy one open regular file to the new file ``dst``, keeping its mode and modification
     time.  A read error is the source's (exit 2), a write error the target's
@@ -413,7 +416,7 @@ def _copy_plain_file(fd_in: int, src: Path, dst: Path) -> None:
             view = memoryview(chunk)
             while view:
                 try:
-                    n = os.write(fd_out, view)
+                    n = _write_out(fd_out, view)
                 except OSError as exc:
                     raise write_error(dst, exc) from None
                 view = view[n:]

@@ -214,6 +214,8 @@ class IndexDB:
         t = f"{self.timeout_s:g} s"
         if self.sqlite:
             return self._sqlite_error(text, first, doing)
+        if "timeout expired" in text:  # connecting: libpq waits at least 2 s
+            t = f"{max(2, math.ceil(self.timeout_s))} s"
         if timed_out or "timeout expired" in text:
             return HardwareError(
                 f"the index server {self.shown} did not answer within {t}{doing}: is it up "

@@ -289,3 +289,36 @@ def test_old_archives_gain_the_new_index(tmp_path, run_dirs, index_url):
     b = Archive.open(tmp_path / "arch", url=index_url)
     assert "ix_runs_robot_time" in {i["name"] for i in sa.inspect(b.engine).get_indexes("runs")}
     assert [r.run_id for r in b.runs("ur5-a")] == ["r0"]
+
+
+def test_an_index_server_that_stops_answering_is_one_line_not_a_hang(tmp_path, run_dirs, pg_server):
+    """A server that stops answering in the middle of a session (the server and the backends
+    serving the archive frozen with SIGSTOP: a hung host, a dead link) is cut off by the
+    client's watchdog after three time-outs, and the reconnection by the connect time-out:
+    HardwareError (exit 3) after seconds, instead of a command that hangs forever."""
+    import os
+    import signal
+    import time
+
+    import sqlalchemy as sa
+
+    from quickhealth.identify.errors import HardwareError
+
+    a = Archive.open(tmp_path / "arch", url=pg_server.new_database(), timeout_s=1)
+    a.add_run("ur5-a", run_dirs[0])
+    with a.engine.connect() as con:  # the backends serving this archive's pooled connections
+        q = "select pid from pg_stat_activity where datname = current_database()"
+        backends = [int(r[0]) for r in con.execute(sa.text(q))]
+    backends.append(int((pg_server.base / "data" / "postmaster.pid").read_text().split()[0]))
+    for pid in backends:
+        os.kill(pid, signal.SIGSTOP)  # backends of this test's own server
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(HardwareError, match=r"did not answer within [12] s \(reading\)"):
+            a.runs("ur5-a")
+        dt = time.monotonic() - t0
+    finally:
+        for pid in backends:
+            os.kill(pid, signal.SIGCONT)
+    assert dt < 10, dt
+    assert [r.run_id for r in a.runs("ur5-a")] == ["r0"]  # a new connection works again
