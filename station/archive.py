@@ -54,6 +54,10 @@ META_KEYS: tuple[str, ...] = ("plan_hash", "cell", "calibration_id", "software_v
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 
 
+class NoArchive(InputError):
+    """No archive at the place named (nothing archived there yet): a reader is refused."""
+
+
 def safe_name(name: str, what: str) -> str:
     """Check that a robot name or run id is a plain name that stays inside the archive.
 
@@ -448,11 +452,9 @@ class Archive:
         index_file = self._db.sqlite_path
         if not create:
             if not self.root.is_dir() and url is None:
-                raise InputError(
-                    f"{self.root}: no archive there (quickhealth archive add makes it)"
-                )
+                raise NoArchive(f"{self.root}: no archive there (quickhealth archive add makes it)")
             if index_file is not None and not index_file.exists():
-                raise InputError(
+                raise NoArchive(
                     f"{index_file}: no archive index there (quickhealth archive add makes it)"
                 )
         made: list[Path] = []  # what this call created, removed again if it fails
@@ -524,7 +526,7 @@ class Archive:
         if state == "current":
             return
         if state == "empty" and not create:
-            raise InputError(
+            raise NoArchive(
                 f"{self._db.name}: the index holds no archive yet (quickhealth archive add "
                 "makes it)"
             )

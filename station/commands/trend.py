@@ -689,12 +689,15 @@ def _archived_as(args: argparse.Namespace, d: Path) -> tuple[Any, str | None]:
     """The archive and robot under which run folder ``d`` was archived (``archive add``), if
     it was: a run of the folder's run id whose archived model.json is this folder's, under one
     robot only.  An archive that does not exist is not created."""
-    from quickhealth.station.archive import Archive, default_root, run_metadata
+    from quickhealth.station.archive import Archive, NoArchive, default_root, run_metadata
 
     root = Path(args.archive) if args.archive else default_root()
     if args.db is None and not (root / "index.sqlite").is_file():
         return None, None
-    arch = Archive.open(root, args.db, create=False, timeout_s=args.db_timeout)
+    try:
+        arch = Archive.open(root, args.db, create=False, timeout_s=args.db_timeout)
+    except NoArchive:
+        return None, None
     rid = args.run_id or run_metadata(d).get("run_id") or d.resolve().name
     model = (d / "model.json").read_bytes()
     found, refitted = [], []
