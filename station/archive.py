@@ -38,15 +38,20 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from quickhealth.identify.errormodel import ErrorModelSpec
 from quickhealth.identify.errors import InputError
-from quickhealth.identify.trend import FIGURES, RunState
+
+if TYPE_CHECKING:
+    from quickhealth.identify.trend import RunState
 
 ENV_VAR = "QUICKHEALTH_ARCHIVE"
+#: the main figures, as ``identify.trend.FIGURES`` (a test checks): importing the trend costs
+#: scipy.stats, about 2 s, which listing or adding a run does not need
+FIGURES: tuple[str, ...] = ("mean", "std", "max")
 INDEX_FILE = "index.sqlite"
 #: the mark an archived run folder carries: the identity of the index that put it there
 MARKER = ".quickhealth-archive.json"
@@ -1012,6 +1017,8 @@ class Archive:
         if spec is not None and csv.is_file():
             q = formats.read_measurements(csv, spec.n_joints).q
             q_measured = (q.min(axis=0), q.max(axis=0))
+        from quickhealth.identify.trend import RunState
+
         return RunState(
             run_id=rec.run_id,
             t_s=rec.t_s,
