@@ -38,17 +38,29 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from quickhealth.identify.errormodel import ErrorModelSpec
 from quickhealth.identify.errors import InputError
-from quickhealth.identify.trend import FIGURES, RunState
+
+if TYPE_CHECKING:
+    from quickhealth.identify.trend import RunState
 
 ENV_VAR = "QUICKHEALTH_ARCHIVE"
+#: the main figures, as ``identify.trend.FIGURES`` (a test checks): importing the trend costs
+#: scipy.stats, about 2 s, which listing or adding a run does not need
+FIGURES: tuple[str, ...] = ("mean", "std", "max")
+INDEX_FILE = "index.sqlite"
+#: the mark an archived run folder carries: the identity of the index that put it there
+MARKER = ".quickhealth-archive.json"
 META_KEYS: tuple[str, ...] = ("plan_hash", "cell", "calibration_id", "software_version")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
+
+
+class NoArchive(InputError):
+    """No archive at the place named (nothing archived there yet): a reader is refused."""
 
 
 def safe_name(name: str, what: str) -> str:
@@ -109,10 +121,15 @@ class RunRecord:
 
 def _parse_time(s: str) -> datetime:
     try:
-        t = datetime.fromisoformat(s.replace("Z", "+00:00"))
-    except ValueError as exc:
-        raise InputError(f"time {s!r} is not ISO 8601 (e.g. 2026-11-22T10:30:00Z)") from exc
-    return t if t.tzinfo else t.replace(tzinfo=UTC)
+        t = datetime.fromisoformat(str(s).replace("Z", "+00:00"))
+        t = (t if t.tzinfo else t.replace(tzinfo=UTC)).astimezone(UTC)
+        t.timestamp()
+    except (ValueError, OverflowError, OSError):
+        raise InputError(
+            f"time {str(s)[:40]!r} is not an ISO 8601 time of years 1..9999 "
+            "(e.g. 2026-11-22T10:30:00Z)"
+        ) from None
+    return t
 
 
 def _iso(t: datetime) -> str:
@@ -231,6 +248,132 @@ def model_arrays(
     return fitted.spec, np.asarray(fitted.coeffs, float), np.asarray(fitted.cov, float)[:n, :n]
 
 
+# ------------------------------------------------------------------ checking a run to add
+
+
+@dataclass(frozen=True)
+class PreparedRun:
+    """A run folder checked for the archive (:func:`prepare_run`): nothing written yet."""
+
+    src: Path  # resolved
+    robot: str
+    run_id: str
+    record: RunRecord  # its row (``path`` is set when it is placed)
+    n_files: int
+    n_bytes: int
+
+
+def prepare_run(
+    robot: str,
+    run_dir: str | Path,
+    *,
+    run_id: str | None = None,
+    time_utc: str | None = None,
+    meta: Mapping[str, str] | None = None,
+    healthy: bool | None = None,
+) -> PreparedRun:
+    """Check a run folder for :meth:`Archive.add_prepared` before any archive exists: a
+    refused run creates nothing (no archive folder, no index).
+
+    Parameters
+    ----------
+    robot : str
+    run_dir : path
+        A run folder (at least ``report.json``; ``model.json`` for the curve comparison),
+        holding regular files and folders only (a symbolic link is refused, never followed).
+    run_id : str, optional
+        Default: the folder's ``run_id`` metadata, else the folder name.
+    time_utc : str, optional
+        ISO 8601; default the folder's ``time_utc``/``started_utc`` metadata, else the
+        modification time of its report.json.
+    meta : mapping, optional
+        Overrides plan_hash, cell, calibration_id, software_version (at most 200 characters).
+    healthy : bool, optional
+        Default: the report's ``run.healthy`` (the TUI writes it; a top-level ``healthy``
+        of older reports also counts) if present, else unknown (counts as healthy for
+        choosing the first baseline).
+
+    Raises
+    ------
+    InputError
+        One line: a name that is not plain, a time that is not ISO 8601 (or not a year
+        1..9999), a missing or incomplete report.json or model.json, a link or a special
+        file in the folder.
+    """
+    from quickhealth.station import formats
+
+    from .fsio import plain_tree
+
+    robot = safe_name(robot, "robot")
+    if run_id is not None:
+        safe_name(run_id, "run id")
+    for k, v in (meta or {}).items():
+        if len(str(v)) > 200 or any(c < " " for c in str(v)):
+            raise InputError(
+                f"--{k.replace('_', '-')}: at most 200 characters without control characters"
+            )
+    if time_utc is not None:
+        _parse_time(time_utc)
+    given = Path(run_dir)
+    if not given.is_dir():
+        raise InputError(f"{given}: not a run folder")
+    src = given.resolve()
+    report_p = src / "report.json"
+    if not report_p.is_file():
+        raise InputError(f"{given}: no report.json (fit the run first: quickhealth identify fit)")
+    report = _read_json(report_p)
+    # a run the trend and reprocess can use: the fit's figures and a valid model
+    formats.check_report(report, str(report_p), complete=False)
+    model_p = src / "model.json"
+    if not model_p.is_file():
+        raise InputError(f"{given}: no model.json (fit the run first: quickhealth identify fit)")
+    formats.read_model(model_p)
+    _, files, n_bytes = plain_tree(given)  # links and special files refused up front
+    found = run_metadata(src)
+    for k, v in found.items():
+        if k in META_KEYS and len(str(v)) > 200:
+            raise InputError(f"{given}: its {k} is longer than 200 characters")
+    found.update(meta or {})
+    rid = run_id if run_id is not None else (found.get("run_id") or src.name)
+    rid = safe_name(rid, "run id")
+    when = time_utc or found.get("time_utc") or found.get("started_utc")
+    if when:
+        t_iso = _iso(_parse_time(when))
+    else:
+        t_iso = _iso(datetime.fromtimestamp(report_p.stat().st_mtime, UTC))
+    if not found.get("software_version"):
+        found["software_version"] = _software_version()
+    figs, _ = report_figures(report)
+    if healthy is None:
+        healthy = _report_healthy(report)
+    rec = RunRecord(
+        robot=robot,
+        run_id=rid,
+        time_utc=t_iso,
+        path="",
+        **{k: str(found.get(k, "")) for k in META_KEYS},
+        mean_mm=figs.get("mean", math.nan),
+        std_mm=figs.get("std", math.nan),
+        max_mm=figs.get("max", math.nan),
+        healthy=healthy,
+    )
+    return PreparedRun(src, robot, rid, rec, len(files), n_bytes)
+
+
+def marker_owner(folder: Path) -> str | None:
+    """The identity of the index that put an archive run folder there (its :data:`MARKER`),
+    or None for a folder without a readable mark."""
+    m = folder / MARKER
+    try:
+        if m.is_symlink() or not m.is_file() or m.stat().st_size > 4096:
+            return None
+        doc = json.loads(m.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    v = doc.get("index_id") if isinstance(doc, dict) else None
+    return v if isinstance(v, str) and v else None
+
+
 # ---------------------------------------------------------------------------- the archive
 
 
@@ -241,19 +384,38 @@ class Archive:
     index): a run is copied to a hidden staging folder first, and its folder is renamed into
     place inside the index transaction that inserts its row, so a reader never sees a row
     without its complete folder, and a writer killed at any moment leaves the run either fully
-    archived or not in the index at all (a leftover folder without a row is replaced by the
-    next ``add_run`` of that run).  A read (``runs``) is one snapshot of the index.
+    archived or not in the index at all (a leftover folder without a row, marked with this
+    index's identity, is replaced by the next ``add_run`` of that run).  A folder this index
+    did not put there is never replaced or deleted, so stations that share the archive
+    folder but not the index cannot destroy each other's runs.  A read (``runs``) is one
+    snapshot of the index.  Every index operation is bounded in time and fails with one
+    line (:mod:`.indexdb`).
     """
 
-    def __init__(self, root: Path, url: str | None = None) -> None:
+    def __init__(
+        self,
+        root: Path,
+        url: str | None = None,
+        *,
+        create: bool = True,
+        timeout_s: float | None = None,
+    ) -> None:
         import sqlalchemy as sa
 
-        self.root = Path(root).resolve()
-        self.root.mkdir(parents=True, exist_ok=True)
-        self.url = url or f"sqlite:///{self.root / 'index.sqlite'}"
+        from .indexdb import IndexDB
+
+        given = Path(root)
+        if given.exists() and not given.is_dir():
+            raise InputError(
+                f"{given}: names a file; the archive is a folder (of index.sqlite and robots/)"
+            )
+        self.root = given.resolve()
+        self.url = url or f"sqlite:///{self.root / INDEX_FILE}"
+        self._db = IndexDB(self.url, timeout_s)  # a bad URL is refused before anything exists
         self._sa = sa
-        self.engine = _make_engine(self.url)
-        self._pg = self.engine.dialect.name == "postgresql"
+        self.engine = self._db.engine
+        self._pg = self._db.pg
+        self._index_id: str | None = None
         # writers: BEGIN IMMEDIATE on SQLite (no lock upgrade deadlocks between stations);
         # readers: one snapshot per read (REPEATABLE READ on PostgreSQL, BEGIN on SQLite)
         self._writer = self.engine.execution_options(qh_write=True)
@@ -284,38 +446,177 @@ class Archive:
             sa.Column("robot", sa.String(100), primary_key=True),
             sa.Column("baseline_run_id", sa.String(100), nullable=True),
         )
-        if self._schema_current():
+        # the index's identity: which run folders this index put into the archive folder
+        self.t_meta = sa.Table(
+            "qh_meta",
+            md,
+            sa.Column("key", sa.String(50), primary_key=True),
+            sa.Column("value", sa.String(200), nullable=False),
+        )
+        self._md = md
+        index_file = self._db.sqlite_path
+        if not create:
+            if not self.root.is_dir() and url is None:
+                raise NoArchive(f"{self.root}: no archive there (quickhealth archive add makes it)")
+            if index_file is not None and not index_file.exists():
+                raise NoArchive(
+                    f"{index_file}: no archive index there (quickhealth archive add makes it)"
+                )
+        made: list[Path] = []  # what this call created, removed again if it fails
+        self._made = made  # ... or if the command that opened it is refused (undo_creation)
+        try:
+            if url is None and not self.root.is_dir():
+                from .fsio import make_dirs
+
+                made += [p for p in (self.root, *self.root.parents) if not p.exists()][::-1]
+                make_dirs(self.root)
+            if index_file is not None and not index_file.exists():
+                made.append(index_file)
+            self._open_schema(create)
+            if not self.root.is_dir():  # a shared index: the run folders' root
+                from .fsio import make_dirs
+
+                if not create:
+                    return
+                made += [p for p in (self.root, *self.root.parents) if not p.exists()][::-1]
+                make_dirs(self.root)
+        except BaseException:
+            self.engine.dispose()
+            if index_file is not None and index_file in made:
+                made.append(Path(f"{index_file}-journal"))
+            for p in reversed(made):
+                try:
+                    p.unlink() if p.is_file() else p.rmdir()
+                except OSError:
+                    pass
+            raise
+
+    def undo_creation(self) -> None:
+        """Remove what opening this archive created (its folder, its SQLite index) when it
+        still holds no run: a refused ``archive add`` leaves nothing behind."""
+        if not self._made:
             return
+        try:
+            empty = not self.robots() and not (
+                self.root in self._made and any((self.root / "robots").glob("*/*"))
+            )
+        except Exception:  # noqa: BLE001 - an index that cannot be read is not ours to judge
+            return
+        if not empty:
+            return
+        self.engine.dispose()
+        index_file = self._db.sqlite_path
+        if index_file is not None and index_file in self._made:
+            self._made.append(Path(f"{index_file}-journal"))
+        robots = self.root / "robots"
+        for d in sorted(robots.glob("*"), reverse=True) if self.root in self._made else []:
+            if d.is_dir() and not d.is_symlink():
+                try:
+                    d.rmdir()
+                except OSError:
+                    pass
+        if self.root in self._made:
+            self._made.append(robots)
+        for p in reversed(self._made):
+            try:
+                p.unlink() if p.is_file() else p.rmdir()
+            except OSError:
+                pass
+        self._made = []
+
+    def _open_schema(self, create: bool) -> None:
+        """Check the index's tables; create them (or add what newer versions added)."""
+        sa = self._sa
+        state = self._schema_state()
+        if state == "current":
+            return
+        if state == "empty" and not create:
+            raise NoArchive(
+                f"{self._db.name}: the index holds no archive yet (quickhealth archive add "
+                "makes it)"
+            )
         with self._write() as con:  # one station creates or migrates the schema at a time
             if self._pg:
                 con.execute(sa.text("select pg_advisory_xact_lock(7243411)"))
-            md.create_all(con)
+            self._md.create_all(con)
             for ix in self.t_runs.indexes:  # indexes added since the archive was made
                 ix.create(con, checkfirst=True)
+            have = con.execute(
+                sa.select(self.t_meta.c.value).where(self.t_meta.c.key == "index_id")
+            ).first()
+            if have is None:
+                import uuid
 
-    def _schema_current(self) -> bool:
-        """Both tables and every index there (a read: works on a read-only archive too)."""
+                con.execute(sa.insert(self.t_meta).values(key="index_id", value=uuid.uuid4().hex))
+
+    def _schema_state(self) -> str:
+        """``current`` (every table, column and index there), ``empty`` (no table yet) or
+        ``old`` (made by an earlier version: tables or indexes to add).  A read: works on a
+        read-only archive too.  A ``runs`` or ``robots`` table without the columns this
+        version reads is a damaged or foreign index: refused (one line, exit 2)."""
         with self._read() as con:
             ins = self._sa.inspect(con)
-            if not (ins.has_table("runs") and ins.has_table("robots")):
-                return False
+            names = set(ins.get_table_names())
+            for t in (self.t_runs, self.t_robots, self.t_meta):
+                if t.name not in names:
+                    continue
+                cols = {c["name"] for c in ins.get_columns(t.name)}
+                missing = [c.name for c in t.columns if c.name not in cols]
+                if missing:
+                    raise InputError(
+                        f"{self._db.name}: not a quickhealth archive index (its table "
+                        f"{t.name!r} lacks {', '.join(missing)}); restore the index from a backup"
+                    )
+            if not names & {"runs", "robots"}:
+                return "empty"
+            if not {"runs", "robots", "qh_meta"} <= names:
+                return "old"
             have = {ix["name"] for ix in ins.get_indexes("runs")}
-        return all(ix.name in have for ix in self.t_runs.indexes)
+            if not all(ix.name in have for ix in self.t_runs.indexes):
+                return "old"
+            got = con.execute(
+                self._sa.select(self.t_meta.c.value).where(self.t_meta.c.key == "index_id")
+            ).first()
+        return "current" if got is not None else "old"
+
+    @property
+    def index_id(self) -> str:
+        """This index's identity (a random id made with it): the mark of the run folders it
+        put into the archive folder, so that stations sharing the folder but not the index
+        never replace each other's runs."""
+        if self._index_id is None:
+            with self._read() as con:
+                v = con.execute(
+                    self._sa.select(self.t_meta.c.value).where(self.t_meta.c.key == "index_id")
+                ).scalar()
+            if not v:
+                raise InputError(f"{self._db.name}: the index has no identity; open it again")
+            self._index_id = str(v)
+        return self._index_id
 
     @contextmanager
     def _write(self) -> Iterator[Any]:
-        with self._writer.begin() as con:
+        with self._db.guard("writing"), self._writer.begin() as con:
             yield con
 
     @contextmanager
     def _read(self) -> Iterator[Any]:
-        with self._reader.connect() as con, con.begin():
+        with self._db.guard("reading"), self._reader.connect() as con, con.begin():
             yield con
 
     @classmethod
-    def open(cls, root: str | Path | None = None, url: str | None = None) -> Archive:
-        """The archive at ``root`` (default :func:`default_root`), created if missing."""
-        return cls(Path(root) if root else default_root(), url)
+    def open(
+        cls,
+        root: str | Path | None = None,
+        url: str | None = None,
+        *,
+        create: bool = True,
+        timeout_s: float | None = None,
+    ) -> Archive:
+        """The archive at ``root`` (default :func:`default_root`); created if missing unless
+        ``create`` is False (then a missing archive is refused with one line, exit 2).
+        ``timeout_s`` bounds every index operation (:mod:`.indexdb`; default 10 s)."""
+        return cls(Path(root) if root else default_root(), url, create=create, timeout_s=timeout_s)
 
     # ---- paths
     def run_path(self, robot: str, run_id: str) -> Path:
@@ -339,88 +640,123 @@ class Archive:
         healthy: bool | None = None,
         replace_existing: bool = False,
     ) -> RunRecord:
-        """Copy a run folder into the archive and index it.
-
-        Parameters
-        ----------
-        robot : str
-        run_dir : path
-            A run folder (at least ``report.json``; ``model.json`` for the curve comparison).
-        run_id : str, optional
-            Default: the folder's ``run_id`` metadata, else the folder name.
-        time_utc : str, optional
-            ISO 8601; default the folder's ``time_utc``/``started_utc`` metadata, else the
-            modification time of its report.json.
-        meta : mapping, optional
-            Overrides plan_hash, cell, calibration_id, software_version.
-        healthy : bool, optional
-            Default: the report's ``run.healthy`` (the TUI writes it; a top-level ``healthy``
-            of older reports also counts) if present, else unknown (counts as healthy for
-            choosing the first baseline).
-
-        Returns
-        -------
-        RunRecord
-        """
-        src = Path(run_dir)
-        if not src.is_dir():
-            raise InputError(f"{src}: not a run folder")
-        report_p = src / "report.json"
-        if not report_p.is_file():
-            raise InputError(f"{src}: no report.json (fit the run first: quickhealth identify fit)")
-        report = _read_json(report_p)
-        # a run the trend and reprocess can use: the fit's figures and a valid model
-        from quickhealth.station import formats
-
-        formats.check_report(report, str(report_p), complete=False)
-        model_p = src / "model.json"
-        if not model_p.is_file():
-            raise InputError(f"{src}: no model.json (fit the run first: quickhealth identify fit)")
-        formats.read_model(model_p)
-        found = run_metadata(src)
-        found.update(meta or {})
-        robot = safe_name(robot, "robot")
-        rid = run_id if run_id is not None else (found.get("run_id") or src.resolve().name)
-        rid = safe_name(rid, "run id")
-        when = time_utc or found.get("time_utc") or found.get("started_utc")
-        if when:
-            t_iso = _iso(_parse_time(when))
-        else:
-            t_iso = _iso(datetime.fromtimestamp(report_p.stat().st_mtime, UTC))
-        if not found.get("software_version"):
-            found["software_version"] = _software_version()
-        figs, _ = report_figures(report)
-        if healthy is None:
-            healthy = _report_healthy(report)
-        dst = self.run_path(robot, rid)
-        in_place = dst.exists() and dst.resolve() == src.resolve()
-        rec = RunRecord(
-            robot=robot,
-            run_id=rid,
-            time_utc=t_iso,
-            path=str(dst.relative_to(self.root)),
-            **{k: str(found.get(k, "")) for k in META_KEYS},
-            mean_mm=figs.get("mean", math.nan),
-            std_mm=figs.get("std", math.nan),
-            max_mm=figs.get("max", math.nan),
-            healthy=healthy,
+        """Copy a run folder into the archive and index it (:func:`prepare_run`, then
+        :meth:`add_prepared`; the parameters are :func:`prepare_run`'s)."""
+        prep = prepare_run(
+            robot, run_dir, run_id=run_id, time_utc=time_utc, meta=meta, healthy=healthy
         )
+        return self.add_prepared(prep, replace_existing=replace_existing)
+
+    def add_prepared(self, prep: PreparedRun, *, replace_existing: bool = False) -> RunRecord:
+        """Copy a checked run folder into the archive and index it.
+
+        The folder is copied into a hidden staging folder first (regular files and folders
+        only: :func:`~quickhealth.station.fsio.copy_plain_tree`), marked with this index's
+        identity (:data:`MARKER`), then renamed into place inside the transaction that
+        inserts its row.  An archive folder of that run that this index has no row for is
+        replaced only when it carries this index's mark (a writer of this index killed
+        between the rename and the commit); any other (another index's run, a folder of
+        unknown origin) is refused with one line and left as it is.
+
+        Raises
+        ------
+        InputError
+            The run is already archived (unless ``replace_existing``), or its folder in the
+            archive belongs to another index.
+        """
+        from .fsio import copy_plain_tree, write_atomic, write_error
+
+        src, robot, rid = prep.src, prep.robot, prep.run_id
+        dst = self.run_path(robot, rid)
+        in_place = dst.exists() and dst.resolve() == src
+        rec = replace(prep.record, path=str(dst.relative_to(self.root)))
         row = {k: v for k, v in rec.__dict__.items() if k != "baseline"}
         row = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=f".incoming-{rid}-", dir=dst.parent))
+        mark = self._mark(robot, rid)
+        if in_place:
+            self._refuse_foreign(dst, robot, rid, replacing=True)
+            self._index_and_place(row, None, dst, True, True, mark)
+            return self.get(robot, rid)
+        from .fsio import make_dirs
+
+        make_dirs(dst.parent)
+        self._sweep_stale_staging(dst.parent)
         try:
-            if not in_place:  # the slow part, outside any lock
-                shutil.copytree(src, stage / "run")
-            self._index_and_place(row, stage, dst, replace_existing, in_place)
+            stage = Path(tempfile.mkdtemp(prefix=f".incoming-{rid}-", dir=dst.parent))
+        except OSError as exc:
+            raise write_error(dst.parent, exc) from None
+        try:
+            write_atomic(stage / "owner.json", mark)  # first: a killed copy is known as ours
+            copy_plain_tree(src, stage / "run")  # the slow part, outside any lock
+            write_atomic(stage / "run" / MARKER, mark)
+            self._index_and_place(row, stage, dst, replace_existing, False, mark)
         finally:
             shutil.rmtree(stage, ignore_errors=True)
         return self.get(robot, rid)
 
+    def _mark(self, robot: str, run_id: str) -> str:
+        """The contents of a run folder's :data:`MARKER`: this index and the writer."""
+        import socket
+
+        doc = {
+            "index_id": self.index_id,
+            "robot": robot,
+            "run_id": run_id,
+            "host": socket.gethostname(),
+            "pid": os.getpid(),
+            "time_utc": _iso(datetime.now(UTC)),
+        }
+        return json.dumps(doc, indent=1) + "\n"
+
+    def _refuse_foreign(self, folder: Path, robot: str, rid: str, *, replacing: bool) -> None:
+        """Refuse (one line, exit 2) to replace a folder this index cannot prove is its own:
+        one marked by another index, or (``replacing`` False: this index has no row for the
+        run) one with no mark of this index at all."""
+        owner = marker_owner(folder)
+        if owner == self.index_id or (replacing and owner is None):
+            return
+        whose = (
+            f"a run put there by another index ({owner[:12]}…)"
+            if owner
+            else "a folder this index did not put there"
+        )
+        raise InputError(
+            f"{folder}: holds {whose}; this index ({self._db.name}) has no row for "
+            f"{robot}/{rid}: refusing to replace it (stations sharing an archive folder must "
+            "share the index, --db); give another --run-id"
+        )
+
+    def _sweep_stale_staging(self, folder: Path) -> None:
+        """Remove staging folders this index's writers on this machine left when they were
+        killed (their process is gone); another index's or a live writer's are left alone."""
+        import socket
+
+        from .fsio import _pid_alive
+
+        for d in folder.glob(".incoming-*"):
+            try:
+                doc = json.loads((d / "owner.json").read_text(encoding="utf-8"))
+                mine = doc.get("index_id") == self.index_id and doc.get("host") == (
+                    socket.gethostname()
+                )
+                stale = mine and not _pid_alive(int(doc["pid"]))
+            except (OSError, ValueError, KeyError, TypeError, AttributeError):
+                continue
+            if stale and not d.is_symlink():
+                shutil.rmtree(d, ignore_errors=True)
+
     def _index_and_place(
-        self, row: dict[str, Any], stage: Path, dst: Path, replace_existing: bool, in_place: bool
+        self,
+        row: dict[str, Any],
+        stage: Path | None,
+        dst: Path,
+        replace_existing: bool,
+        in_place: bool,
+        mark: str,
     ) -> None:
         """Insert the run's row and rename its staged folder into place, in one transaction."""
+        from .fsio import write_atomic
+
         sa = self._sa
         t = self.t_runs
         robot, rid = row["robot"], row["run_id"]
@@ -428,7 +764,8 @@ class Archive:
         moved: list[tuple[Path, Path]] = []  # renames to undo if the transaction fails
         try:
             with self._write() as con:
-                if con.execute(sa.select(t.c.run_id).where(key)).first() is not None:
+                existed = con.execute(sa.select(t.c.run_id).where(key)).first() is not None
+                if existed:
                     # a run folder that already is the archive's (the TUI fits in place and
                     # registers again after each refit) updates its row
                     if not (replace_existing or in_place):
@@ -445,12 +782,25 @@ class Archive:
                         f"run {robot}/{rid} is already archived (use another run id)"
                     ) from None
                 con.execute(self._insert_robot(robot))
-                if not in_place:
-                    if dst.exists():  # the old copy (replace) or a leftover of a killed writer
-                        dst.rename(stage / "old")
-                        moved.append((stage / "old", dst))
-                    (stage / "run").rename(dst)
-                    moved.append((dst, stage / "run"))
+                if in_place:
+                    write_atomic(dst / MARKER, mark)
+                    return
+                assert stage is not None
+                if dst.exists() or dst.is_symlink():
+                    # the old copy (replace) or a leftover of this index's killed writer;
+                    # never a folder another index (or nobody known) put there
+                    self._refuse_foreign(dst, robot, rid, replacing=existed)
+                    dst.rename(stage / "old")
+                    moved.append((stage / "old", dst))
+                try:
+                    (stage / "run").rename(dst)  # never over a folder: rename(2) refuses
+                except OSError as exc:
+                    if dst.exists():  # another index's station put it there just now
+                        self._refuse_foreign(dst, robot, rid, replacing=False)
+                    from .fsio import write_error
+
+                    raise write_error(dst, exc) from None
+                moved.append((dst, stage / "run"))
         except BaseException:
             for a, b in reversed(moved):
                 if a.exists() and not b.exists():
@@ -594,8 +944,10 @@ class Archive:
         return out
 
     def orphans(self) -> list[Path]:
-        """Run folders with no row in the index: left by a writer killed before its commit
-        (or staging folders ``.incoming-*``).  ``add_run`` of that run replaces them."""
+        """Run folders with no row in this index (and staging folders ``.incoming-*``): left
+        by a writer killed before its commit, or put there by another index sharing the
+        archive folder.  ``add_run`` of that run replaces only those carrying this index's
+        mark (:func:`marker_owner`); it refuses the others."""
         sa = self._sa
         with self._read() as con:
             indexed = {
@@ -665,6 +1017,8 @@ class Archive:
         if spec is not None and csv.is_file():
             q = formats.read_measurements(csv, spec.n_joints).q
             q_measured = (q.min(axis=0), q.max(axis=0))
+        from quickhealth.identify.trend import RunState
+
         return RunState(
             run_id=rec.run_id,
             t_s=rec.t_s,
@@ -692,44 +1046,63 @@ class Archive:
         return model_arrays(_read_json(cache), str(cache))
 
 
-def _make_engine(url: str) -> Any:
-    """An SQLAlchemy engine for the index; SQLite made safe for many writing processes.
-
-    SQLite: each connection waits up to 60 s for another station's lock; transactions start
-    with ``BEGIN`` (readers: one snapshot) or ``BEGIN IMMEDIATE`` (writers: the write lock up
-    front, so two writers never deadlock upgrading their locks).  The rollback journal (not
-    WAL) keeps the index usable on a shared network folder.
-    """
-    import sqlalchemy as sa
-
-    if not url.startswith("sqlite"):
-        return sa.create_engine(url, pool_pre_ping=True)
-    eng = sa.create_engine(url, connect_args={"timeout": 60.0})
-
-    @sa.event.listens_for(eng, "connect")
-    def _connect(dbapi_con: Any, _rec: Any) -> None:
-        dbapi_con.isolation_level = None  # we issue BEGIN ourselves
-
-    @sa.event.listens_for(eng, "begin")
-    def _begin(con: Any) -> None:
-        write = con.get_execution_options().get("qh_write", False)
-        con.exec_driver_sql("BEGIN IMMEDIATE" if write else "BEGIN")
-
-    return eng
-
-
 def _software_version() -> str:
     from .provenance import software_version
 
     return software_version()
 
 
+def trend_runs(
+    arch: Archive, robot: str, upto: str | None = None
+) -> tuple[list[RunRecord], list[RunRecord]]:
+    """The robot's runs a trend can read (time order, up to run ``upto``), and those left out
+    because their archive folder is missing (deleted behind the index).
+
+    Raises
+    ------
+    InputError
+        The latest run's folder (the run judged) or the baseline's is missing: a verdict
+        without them would be made up.  One line naming the folder.
+    """
+    recs = arch.runs(robot)
+    if upto is not None:
+        ids = [r.run_id for r in recs]
+        if upto in ids:
+            recs = recs[: ids.index(upto) + 1]
+    missing = [r for r in recs if not arch.folder(r).is_dir()]
+    gone = {r.run_id for r in missing}
+    latest = recs[-1]
+    if latest.run_id in gone:
+        raise InputError(
+            f"latest run {latest.run_id} of robot {robot}: its folder {arch.folder(latest)} is "
+            "missing (deleted behind the index?): it cannot be judged; restore the folder"
+        )
+    base = next((r for r in recs if r.baseline), None)
+    if base is not None and base.run_id in gone:
+        raise InputError(
+            f"baseline run {base.run_id} of robot {robot}: its folder {arch.folder(base)} is "
+            "missing (deleted behind the index?): restore it, or choose another baseline "
+            "(quickhealth archive baseline ROBOT RUN_ID)"
+        )
+    return [r for r in recs if r.run_id not in gone], missing
+
+
+def missing_words(arch: Archive, missing: list[RunRecord]) -> list[str]:
+    """One warning per run :func:`trend_runs` left out."""
+    return [
+        f"run {r.run_id}: its folder {arch.folder(r)} is missing (deleted behind the index?): "
+        "left out of the trend"
+        for r in missing
+    ]
+
+
 def trend_for(arch: Archive, robot: str, **kwargs: Any) -> Any:
     """:func:`~quickhealth.identify.trend.assess_trend` over a robot's archived runs (oldest
-    first), against its baseline run; ``kwargs`` go to ``assess_trend``."""
+    first) whose folders exist (:func:`trend_runs`), against its baseline run; ``kwargs`` go
+    to ``assess_trend``."""
     from quickhealth.identify.trend import assess_trend
 
-    recs = arch.runs(robot)
+    recs, _ = trend_runs(arch, robot)
     b = next((i for i, r in enumerate(recs) if r.baseline), None)
     if b is None:
         raise InputError(

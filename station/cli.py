@@ -32,7 +32,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse that exits with status 2 and one line on usage errors (the contract's code)."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        sys.stderr.write(f"{self.prog}: error: {_one_line(message, 800, escape=True)}\n")
         raise SystemExit(2)
 
 
@@ -80,9 +80,13 @@ def _finite_floats(parser: argparse.ArgumentParser) -> None:
                 _finite_floats(sp)
 
 
-def _one_line(text: str, limit: int = 400) -> str:
-    """``text`` on one line, cut to ``limit`` characters (a message never spans lines)."""
-    s = " ".join(str(text).split())
+def _one_line(text: str, limit: int = 400, *, escape: bool = False) -> str:
+    """``text`` on one line, cut to ``limit`` characters (a message never spans lines).
+    ``escape``: a line break in it (a file name's) is shown as ``\\n``, else as a space."""
+    t = str(text)
+    if escape:
+        t = t.replace("\r", "\\r").replace("\n", "\\n")
+    s = " ".join(t.split())
     return s if len(s) <= limit else s[: limit - 1] + "…"
 
 
@@ -124,14 +128,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except QuickhealthError as exc:
         if debug:
             traceback.print_exc()
-        # one line per finding (e.g. each refused target of a program), each on one line
-        lines = [_one_line(x) for x in str(exc).split("\n") if x.strip()] or ["(no message)"]
+        # one line per finding (each refused target of a program: formats.common.findings),
+        # each on one line; a line break inside one (a file name's) never splits it
+        found = getattr(exc, "findings", None) or [str(exc)]
+        lines = [_one_line(x, escape=True) for x in found if str(x).strip()] or ["(no message)"]
         if len(lines) > 50:
             lines = lines[:49] + [f"... and {len(lines) - 49} more"]
         sys.stderr.write("".join(f"quickhealth: error: {x}\n" for x in lines))
         return exc.exit_status
-    except KeyboardInterrupt:
-        sys.stderr.write("quickhealth: interrupted\n")
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (workers.Terminated)
+        sys.stderr.write(f"quickhealth: {str(exc) or 'interrupted'}\n")
         return 3
     except MemoryError:
         sys.stderr.write(

@@ -18,6 +18,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from quickhealth.station import options
+
 
 def register(subparsers: Any) -> None:
     """Add the ``compare`` sub-command to ``subparsers`` (the top level and ``identify``'s:
@@ -42,7 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="comma-separated effects to add, e.g. backlash:j2 or compliance:j2,thermal",
     )
     p.add_argument("--heldout", type=Path, help="held-out measurement CSV (else cross-validate)")
-    p.add_argument("--folds", type=int, default=5, help="cross-validation folds (default 5)")
+    p.add_argument(
+        "--folds", type=options.FOLDS, default=5, help="cross-validation folds (default 5)"
+    )
     p.add_argument("--json", type=Path, help="write the comparison as JSON here")
     p.add_argument("--plots", type=Path, help="folder for compare.png")
 

@@ -336,3 +336,151 @@ def replacing_line(
     if paths:
         return f"replacing {paths}" + (f" ({note})" if note else "")
     return f"--force: wrote into {d}, which held {forced}" if forced else ""
+
+
+# ------------------------------------------------------------------ copying a run folder
+
+
+def _link_refusal(p: Path) -> InputError:
+    try:
+        target = os.readlink(p)
+    except OSError:
+        target = "?"
+    return InputError(
+        f"{p}: a symbolic link (-> {target}): a run folder is copied as regular files and "
+        "folders only, never through a link (it could name files outside the run); replace "
+        "the link by the file itself"
+    )
+
+
+def _special_refusal(p: Path) -> InputError:
+    return InputError(
+        f"{p}: not a regular file (a pipe, socket or device): a run folder is copied as "
+        "regular files and folders only"
+    )
+
+
+def plain_tree(folder: str | os.PathLike[str]) -> tuple[list[Path], list[Path], int]:
+    """The sub-folders and files of ``folder`` (relative paths, sorted: a folder before what
+    it holds) and the files' total size in bytes.  Refused (one line, exit 2) when it holds a
+    symbolic link or a file that is not a regular file anywhere inside: a link is never
+    followed, and a FIFO would block a copy forever."""
+    root = Path(folder)
+    dirs: list[Path] = []
+    files: list[Path] = []
+    total = 0
+    stack = [Path()]
+    while stack:
+        rel = stack.pop()
+        try:
+            entries = sorted(os.scandir(root / rel), key=lambda e: e.name)
+        except OSError as exc:
+            raise InputError(f"{root / rel}: cannot read: {exc.strerror}") from None
+        for e in entries:
+            p = root / rel / e.name
+            if e.is_symlink():
+                raise _link_refusal(p)
+            if e.is_dir(follow_symlinks=False):
+                stack.append(rel / e.name)
+                dirs.append(rel / e.name)
+            elif e.is_file(follow_symlinks=False):
+                files.append(rel / e.name)
+                total += e.stat(follow_symlinks=False).st_size
+            else:
+                raise _special_refusal(p)
+    return sorted(dirs), sorted(files), total
+
+
+_write_out = os.write  # the disk boundary of a copy (the tests fill the disk here)
+
+
+def _copy_plain_file(fd_in: int, src: Path, dst: Path) -> None:
+    """Copy one open regular file to the new file ``dst``, keeping its mode and modification
+    time.  A read error is the source's (exit 2), a write error the target's
+    (:func:`write_error`: disk full is exit 3)."""
+    import stat as _stat
+
+    st = os.fstat(fd_in)
+    try:
+        fd_out = os.open(dst, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as exc:
+        raise write_error(dst, exc) from None
+    try:
+        while True:
+            try:
+                chunk = os.read(fd_in, 1 << 20)
+            except OSError as exc:
+                raise InputError(f"{src}: cannot read: {exc.strerror}") from None
+            if not chunk:
+                break
+            view = memoryview(chunk)
+            while view:
+                try:
+                    n = _write_out(fd_out, view)
+                except OSError as exc:
+                    raise write_error(dst, exc) from None
+                view = view[n:]
+        os.fchmod(fd_out, _stat.S_IMODE(st.st_mode))
+        os.utime(fd_out, ns=(st.st_atime_ns, st.st_mtime_ns))
+    finally:
+        os.close(fd_out)
+
+
+def _copy_dir(dfd: int, src: Path, dst: Path) -> None:
+    """Copy the folder open as ``dfd`` (path ``src``, for messages) to the new folder ``dst``;
+    every entry is opened relative to its folder's descriptor without following a link, so a
+    link planted while the copy runs is refused, never followed."""
+    import stat as _stat
+
+    try:
+        dst.mkdir()
+    except OSError as exc:
+        raise write_error(dst, exc) from None
+    nofollow = os.O_RDONLY | os.O_NOFOLLOW
+    for name in sorted(os.listdir(dfd)):
+        p = src / name
+        try:
+            st = os.stat(name, dir_fd=dfd, follow_symlinks=False)
+        except OSError as exc:
+            raise InputError(f"{p}: cannot read: {exc.strerror}") from None
+        if _stat.S_ISLNK(st.st_mode):
+            raise _link_refusal(p)
+        if not (_stat.S_ISDIR(st.st_mode) or _stat.S_ISREG(st.st_mode)):
+            raise _special_refusal(p)
+        flags = nofollow | (os.O_DIRECTORY if _stat.S_ISDIR(st.st_mode) else os.O_NONBLOCK)
+        try:
+            fd = os.open(name, flags, dir_fd=dfd)
+        except OSError as exc:
+            if exc.errno in (errno.ELOOP, errno.ENOTDIR):
+                raise _link_refusal(p) from None
+            raise InputError(f"{p}: cannot read: {exc.strerror}") from None
+        try:
+            mode = os.fstat(fd).st_mode
+            if _stat.S_ISDIR(mode):
+                _copy_dir(fd, p, dst / name)
+            elif _stat.S_ISREG(mode):
+                _copy_plain_file(fd, p, dst / name)
+            else:
+                raise _special_refusal(p)
+        finally:
+            os.close(fd)
+
+
+def copy_plain_tree(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+    """Copy folder ``src`` to the new folder ``dst``: regular files and folders only.
+
+    A symbolic link or a special file anywhere in ``src`` is refused with one line (exit 2),
+    never followed, even one planted while the copy runs.  A failed write is one line: exit 2
+    for a path that cannot be written, 3 for the machine (disk full, I/O error).  On failure
+    ``dst`` is left for the caller to remove (it is a staging folder).
+    """
+    s = Path(src)
+    plain_tree(s)  # refuse before the first byte is copied
+    try:
+        fd = os.open(s, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as exc:
+        raise InputError(f"{s}: cannot read: {exc.strerror}") from None
+    try:
+        _copy_dir(fd, s, Path(dst))
+    finally:
+        os.close(fd)

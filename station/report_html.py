@@ -676,15 +676,18 @@ def _trend_section(
         return Section(
             "trend", title, missing="run not archived: quickhealth archive add RUN_DIR --robot NAME"
         ), None
+    from quickhealth.identify.errors import InputError
     from quickhealth.identify.trend import assess_trend
+    from quickhealth.station.archive import missing_words, trend_runs
 
-    recs = archive.runs(robot)
-    ids = [r.run_id for r in recs]
-    if rid not in ids:
+    if rid not in [r.run_id for r in archive.runs(robot)]:
         return Section(
             "trend", title, missing=f"run {rid} is not in the archive of robot {robot}"
         ), None
-    recs = recs[: ids.index(rid) + 1]
+    try:  # runs whose archive folders are missing are left out, and said so
+        recs, missing = trend_runs(archive, robot, upto=rid)
+    except InputError as exc:
+        return Section("trend", title, missing=str(exc)), None
     b = next((i for i, r in enumerate(recs) if r.baseline), None)
     if b is None:
         return Section(
@@ -699,7 +702,7 @@ def _trend_section(
     ]
     lines += flags
     lines += [p.words() for p in res.prognoses.values()]
-    lines += [f"warning: {w}" for w in res.warnings]
+    lines += [f"warning: {w}" for w in [*missing_words(archive, missing), *res.warnings]]
     rows = [("run", "time (UTC)", "mean (mm)", "std (mm)", "max (mm)", "flags")]
     for i, r in enumerate(recs):
         rows.append(

@@ -28,7 +28,6 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ from typing import Any
 from quickhealth.identify.errors import InputError, QuickhealthError
 
 from .archive import Archive, safe_name
+from .workers import Pool
 
 
 @dataclass(frozen=True)
@@ -343,13 +343,30 @@ def reprocess(
             for i, j in enumerate(jobs):
                 done(i, reprocess_run(j), i + 1)
         else:
-            with ProcessPoolExecutor(max_workers=w) as ex:
+            with Pool(max_workers=w) as ex:
                 futs = {ex.submit(reprocess_run, j): i for i, j in enumerate(jobs)}
                 from concurrent.futures import as_completed
 
                 for k, f in enumerate(as_completed(futs), 1):
                     done(futs[f], f.result(), k)
     return [r for r in results if r is not None]
+
+
+def check_scheduler(address: str) -> None:
+    """Refuse (one line, exit 2) a ``--scheduler`` that is not a Dask address, before any
+    work starts.  A well-formed address whose host does not resolve or answer is a runtime
+    failure, reported when connecting (exit 3)."""
+    from distributed.comm import resolve_address
+
+    try:
+        resolve_address(address)
+    except ValueError as exc:
+        raise InputError(
+            f"--scheduler {address[:80]!r}: not a Dask scheduler address ({exc}); "
+            "e.g. tcp://10.0.0.5:8786"
+        ) from None
+    except OSError:
+        pass
 
 
 def _run_dask(
@@ -363,6 +380,8 @@ def _run_dask(
     own = not isinstance(scheduler, Client)
     try:
         client = Client(scheduler, timeout=f"{timeout_s}s") if own else scheduler
+    except ValueError as exc:  # an address that is not one (check_scheduler says so first)
+        raise InputError(f"--scheduler {str(scheduler)[:80]!r}: {exc}") from None
     except (OSError, TimeoutError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise HardwareError(

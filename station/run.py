@@ -701,6 +701,24 @@ class _Runner:
         self.drain()
 
 
+CALIBRATION = "calibration.json"
+
+
+def write_calibration(station: Station, run_dir: Path) -> None:
+    """The run folder's ``calibration.json``: the stereo calibration of the cameras that take
+    its images (the simulated cell's scaled cameras too), so ``quickhealth vision measure
+    RUN`` measures the stored images again with the cameras that took them.  A folder that
+    already has one (a resumed run) keeps it."""
+    from .vision_io import rig_to_json
+
+    cal = run_dir / CALIBRATION
+    rig = getattr(station.camera, "rig", None)
+    if rig is None or cal.exists():
+        return
+    doc = rig_to_json(rig, note=f"the cameras of this run: {station.instrument}")
+    write_bytes_atomic(cal, (json.dumps(doc, indent=1) + "\n").encode("utf-8"))
+
+
 def run_plan(
     station: Station,
     plan: Any,
@@ -763,6 +781,7 @@ def run_plan(
         run_dir.mkdir(parents=True, exist_ok=True)
         state = JournalState()
     (run_dir / "images").mkdir(exist_ok=True)
+    write_calibration(station, run_dir)
     if resume:  # half-written files of the killed run (its images are captured again)
         for folder in (run_dir, run_dir / "images"):
             remove_stale_temp_files(folder)

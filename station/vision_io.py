@@ -192,10 +192,45 @@ def read_rig(path: Path) -> StereoRig:
         raise InputError(
             f"{path}: calibration verdict is 'unreliable' ({'; '.join(doc.get('reasons', []))}): recalibrate"
         )
+    _check_rig(path, cams, T)
     Ti = np.eye(4)
     Ti[:3, :3] = T[:3, :3].T
     Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
     return StereoRig(cams[0], cams[1], Ti)
+
+
+def _check_rig(path: Path, cams: list[CameraModel], T_right_left: np.ndarray) -> None:
+    """Refuse (one line, exit 2) a calibration whose numbers mean no camera: a camera matrix
+    that is not ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` with positive focal lengths (a
+    singular K), a principal point far outside the image, distortion that is not finite or
+    absurd, an image size outside 1 px … 50 Mpx, R not a rotation, a baseline of 0 or > 100 m."""
+    for name, c in zip(("left", "right"), cams, strict=True):
+        K, where = c.K, f"{path}: {name} camera"
+        w, h = c.image_size
+        if not (0 < w and 0 < h and w * h <= 50_000_000):
+            raise InputError(f"{where}: image size {w}×{h} px is not a camera's")
+        if not np.all(np.isfinite(K)) or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+            raise InputError(f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], finite")
+        if not (0 < K[0, 0] < 1e6 and 0 < K[1, 1] < 1e6):
+            raise InputError(
+                f"{where}: focal lengths fx = {K[0, 0]:g}, fy = {K[1, 1]:g} px must be positive "
+                "(K is singular or mirrored)"
+            )
+        if not (-w <= K[0, 2] <= 2 * w and -h <= K[1, 2] <= 2 * h):
+            raise InputError(
+                f"{where}: principal point ({K[0, 2]:g}, {K[1, 2]:g}) px lies far outside the "
+                f"{w}×{h} image"
+            )
+        if not np.all(np.isfinite(c.dist)) or np.abs(c.dist).max() > 1e3:
+            raise InputError(f"{where}: distortion {c.dist.tolist()} is not finite or absurd")
+    R, t = T_right_left[:3, :3], T_right_left[:3, 3]
+    if not (np.all(np.isfinite(R)) and np.allclose(R @ R.T, np.eye(3), atol=1e-6)):
+        raise InputError(f"{path}: R is not a rotation matrix")
+    if np.linalg.det(R) < 0:
+        raise InputError(f"{path}: R is a reflection (determinant -1), not a rotation")
+    b = float(np.linalg.norm(t)) if np.all(np.isfinite(t)) else float("nan")
+    if not 1e-3 <= b <= 100.0:
+        raise InputError(f"{path}: T gives a baseline of {b * 1e3:g} mm; expected 1 mm … 100 m")
 
 
 def read_target(path: Path | None) -> TargetDescription:

@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from quickhealth.station import options
+
 
 def register(subparsers: Any) -> None:
     """Add ``demo``."""
@@ -21,8 +23,10 @@ def register(subparsers: Any) -> None:
         ),
     )
     p.add_argument("--out", default="demo-output", help="output folder (default %(default)s)")
-    p.add_argument("--n", type=int, default=150, help="candidate targets to plan (default 150)")
-    p.add_argument("--seed", type=int, default=0, help="planner seed")
+    p.add_argument(
+        "--n", type=options.PLAN_POSES, default=150, help="candidate targets to plan (default 150)"
+    )
+    p.add_argument("--seed", type=options.SEED, default=0, help="planner seed")
     p.add_argument(
         "--speed-factor",
         type=float,

@@ -21,6 +21,8 @@ import json
 import sys
 from pathlib import Path
 
+from quickhealth.station import options
+
 #: Units of effect sizes on the command line (the twin's --effects NAME=SIZE).
 SIZE_UNITS = {
     "compliance": ("deg/(N·m)", "deg"),
@@ -48,12 +50,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         action="store_true",
         help="exit status 1 when an effect is missing",
     )
-    p.add_argument("--top", type=int, default=5, help="candidates shown on stdout (default 5)")
     p.add_argument(
-        "--alpha", type=float, default=0.01, help="family-wise false-alarm rate (default 0.01)"
+        "--top", type=options.TOP, default=5, help="candidates shown on stdout (default 5)"
     )
     p.add_argument(
-        "--max-harmonic", type=int, default=30, help="highest cyclic harmonic tested (default 30)"
+        "--alpha",
+        type=options.PROBABILITY,
+        default=0.01,
+        help="family-wise false-alarm rate (default 0.01)",
+    )
+    p.add_argument(
+        "--max-harmonic",
+        type=options.HARMONIC,
+        default=30,
+        help="highest cyclic harmonic tested (default 30)",
     )
     p.add_argument(
         "--candidates",
@@ -76,22 +86,33 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         default="",
         help="hidden effects NAME=SIZE, comma-separated, e.g. backlash:j2=0.02,thermal=2e-5",
     )
-    t.add_argument("--n", type=int, default=150, help="poses (default 150)")
+    t.add_argument("--n", type=options.TWIN_POSES, default=150, help="poses (default 150)")
     t.add_argument(
         "--plan",
         type=Path,
         help="plan.json: measure its poses (q_deg, in order) instead of random ones",
     )
-    t.add_argument("--seed", type=int, default=0, help="seed of the twin and its data")
+    t.add_argument("--seed", type=options.SEED, default=0, help="seed of the twin and its data")
     t.add_argument(
-        "--heldout", type=int, default=0, help="also write N2 held-out poses (OUT.heldout.csv)"
+        "--heldout",
+        type=options.HELDOUT_POSES,
+        default=0,
+        help="also write N2 held-out poses (OUT.heldout.csv)",
     )
     t.add_argument("--truth", type=Path, help="truth JSON (default OUT with .truth.json)")
-    t.add_argument("--sigma-pos-mm", type=float, default=0.03, help="instrument noise (mm)")
-    t.add_argument("--sigma-rot-mrad", type=float, default=0.1, help="instrument noise (mrad)")
-    t.add_argument("--sigma-q-deg", type=float, default=0.0, help="encoder noise (deg)")
-    t.add_argument("--duration", type=float, default=900.0, help="run duration (s)")
-    t.add_argument("--temp-rise", type=float, default=6.0, help="warm-up during the run (K)")
+    t.add_argument(
+        "--sigma-pos-mm", type=options.NOISE_POS_MM, default=0.03, help="instrument noise (mm)"
+    )
+    t.add_argument(
+        "--sigma-rot-mrad", type=options.NOISE_ROT_MRAD, default=0.1, help="instrument noise (mrad)"
+    )
+    t.add_argument(
+        "--sigma-q-deg", type=options.SIGMA_Q_DEG, default=0.0, help="encoder noise (deg)"
+    )
+    t.add_argument("--duration", type=options.DURATION_S, default=900.0, help="run duration (s)")
+    t.add_argument(
+        "--temp-rise", type=options.TEMP_RISE_K, default=6.0, help="warm-up during the run (K)"
+    )
     t.add_argument("--position-only", action="store_true", help="no orientation columns")
     t.set_defaults(func=run_twin)
 

@@ -25,6 +25,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from quickhealth.station import lock, options, workers
+
 # the library's InstrumentNoise defaults (0.03 mm, 0.1 mrad): every door assesses alike
 DEFAULT_SIGMA_POS_MM = 0.03
 DEFAULT_SIGMA_ROT_DEG = math.degrees(1e-4)  # 0.1 mrad
@@ -45,21 +47,27 @@ def register(subparsers: Any) -> None:
     f.add_argument("--robot", required=True, help="built-in name (ur5) or .toml/.urdf file")
     f.add_argument("--out", required=True, help="output directory")
     f.add_argument("--effects", default=None, help="comma-separated effect names")
-    f.add_argument("--max-order", type=int, default=6, help="cap of every series' order (6)")
+    f.add_argument(
+        "--max-order", type=options.ORDER, default=6, help="cap of every series' order (6)"
+    )
     f.add_argument(
         "--sigma-pos-mm",
-        type=float,
+        type=options.SIGMA_POS_MM,
         default=DEFAULT_SIGMA_POS_MM,
         help=f"instrument position uncertainty per axis where the file has no sx..sz ({DEFAULT_SIGMA_POS_MM})",
     )
     f.add_argument(
         "--sigma-rot-deg",
-        type=float,
+        type=options.SIGMA_ROT_DEG,
         default=DEFAULT_SIGMA_ROT_DEG,
         help=f"instrument orientation noise per rotation axis where the file has no spitch.. ({DEFAULT_SIGMA_ROT_DEG:.4g})",
     )
-    f.add_argument("--sigma-q-deg", type=float, default=0.0, help="joint encoder uncertainty (0)")
-    f.add_argument("--margin", type=float, default=None, help="BIC drop a raise must reach")
+    f.add_argument(
+        "--sigma-q-deg", type=options.SIGMA_Q_DEG, default=0.0, help="joint encoder uncertainty (0)"
+    )
+    f.add_argument(
+        "--margin", type=options.MARGIN, default=None, help="BIC drop a raise must reach"
+    )
     f.add_argument(
         "--auto-rescale",
         action="store_true",
@@ -78,7 +86,9 @@ def register(subparsers: Any) -> None:
     pr.add_argument("model", help="model.json written by identify fit")
     pr.add_argument("input", help="CSV (measurement or joints only) or URScript (.script)")
     pr.add_argument("--out", required=True, help="PRED.csv")
-    pr.add_argument("--threshold-mm", type=float, default=None, help="flag errors above this")
+    pr.add_argument(
+        "--threshold-mm", type=options.LENGTH_MM, default=None, help="flag errors above this"
+    )
     pr.set_defaults(func=_predict)
 
     w = sub.add_parser("import-wam", help="convert the WAM laser-tracker files to CSV v1")
@@ -107,6 +117,8 @@ def _positive(name: str, v: float) -> None:
         raise InputError(f"{name} must be > 0, got {v}")
 
 
+@workers.owns_workers
+@lock.holds_outputs("identify fit", lambda a: [a.out])
 def _fit(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -323,10 +335,9 @@ class _FigureRenderer:
 
     def __init__(self) -> None:
         import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
 
         ctx = multiprocessing.get_context("fork")
-        self.pool = ProcessPoolExecutor(max_workers=2, mp_context=ctx)
+        self.pool = workers.Pool(max_workers=2, mp_context=ctx)
         self.warm = [self.pool.submit(_warm) for _ in range(2)]
 
     def run(self, a: Any, out: Path) -> None:

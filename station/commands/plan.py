@@ -15,6 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from quickhealth.station import lock, options
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``plan`` to the command line."""
@@ -26,9 +28,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument("--cell", required=True, help="cell file (TOML) or built-in name 'reference'")
     p.add_argument(
-        "--n", required=True, type=int, help="number of random target poses (paper: 150)"
+        "--n",
+        required=True,
+        type=options.PLAN_POSES,
+        help="number of random target poses (paper: 150)",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=options.SEED, default=0, help="random seed (default 0)")
     p.add_argument("--out", required=True, type=Path, help="output folder")
     p.add_argument(
         "--force",
@@ -44,6 +49,7 @@ def _write(path: Path, data: bytes) -> None:
     write_atomic(path, data, durable=True)
 
 
+@lock.holds_outputs("plan", lambda a: [a.out])
 def run(args: argparse.Namespace) -> int:
     """Plan, validate the plan document, then write plan.json, loop.script and plots."""
     from quickhealth.identify.errors import InputError

@@ -26,6 +26,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from quickhealth.station import lock, options
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``run`` and ``sim-controller``."""
@@ -69,7 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     # the simulated hardware's size and clock; None: QUICKHEALTH_SIM_IMAGE_SCALE /
     # QUICKHEALTH_SIM_SPEED_FACTOR from the environment, else 0.5 and 1 (docs/station.md)
     p.add_argument("--sim-image-scale", type=float, default=None, help=argparse.SUPPRESS)
-    p.add_argument("--twin-seed", type=int, default=1, help=argparse.SUPPRESS)
+    p.add_argument("--twin-seed", type=options.SEED, default=1, help=argparse.SUPPRESS)
     p.add_argument("--sim-speed-factor", type=float, default=None, help=argparse.SUPPRESS)
     p.add_argument(
         "--sim-degrade",
@@ -97,6 +99,7 @@ def sim_controller(args: argparse.Namespace) -> int:
     return run_from_args(args)
 
 
+@lock.holds_outputs("run", lambda a: [a.out])
 def run(args: argparse.Namespace) -> int:
     """Validate everything that can be validated without hardware, then run."""
     from quickhealth.identify.errors import InputError
@@ -188,10 +191,11 @@ def _sim_setting(
 
 def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: ignore[no-untyped-def]
     from quickhealth.identify.errors import HardwareError
+    from quickhealth.station.fsio import make_dirs
     from quickhealth.station.run import run_plan, ur_station
     from quickhealth.station.sim.cell import sim_station
 
-    out.mkdir(parents=True, exist_ok=True)
+    make_dirs(out)  # an unwritable --out is one line, exit 2
     log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115
 
     def progress(p) -> None:  # type: ignore[no-untyped-def]

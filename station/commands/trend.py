@@ -26,6 +26,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from quickhealth.station import lock, options, workers
+
 
 def _archive_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
@@ -34,12 +36,20 @@ def _archive_args(p: argparse.ArgumentParser) -> None:
         help="archive folder (default $QUICKHEALTH_ARCHIVE, else ~/quickhealth-archive)",
     )
     p.add_argument("--db", default=None, help="SQLAlchemy URL of a shared index (default SQLite)")
+    p.add_argument(
+        "--db-timeout",
+        type=options.TIMEOUT_S,
+        default=None,
+        help="seconds to connect to the index and for each index operation "
+        "(default $QUICKHEALTH_DB_TIMEOUT, else 10)",
+    )
 
 
-def _open(args: argparse.Namespace) -> Any:
+def _open(args: argparse.Namespace, create: bool = False) -> Any:
+    """The archive of ``--archive``/``--db``; only ``archive add`` creates a missing one."""
     from quickhealth.station.archive import Archive
 
-    return Archive.open(args.archive, args.db)
+    return Archive.open(args.archive, args.db, create=create, timeout_s=args.db_timeout)
 
 
 def register(subparsers: Any) -> None:
@@ -84,7 +94,9 @@ def register(subparsers: Any) -> None:
     )
     t.add_argument("robot")
     _archive_args(t)
-    t.add_argument("--threshold-mm", type=float, default=None, help="flag a run above this")
+    t.add_argument(
+        "--threshold-mm", type=options.LENGTH_MM, default=None, help="flag a run above this"
+    )
     t.add_argument(
         "--figure",
         choices=("mean", "std", "max"),
@@ -93,25 +105,25 @@ def register(subparsers: Any) -> None:
     )
     t.add_argument(
         "--tolerance-mm",
-        type=float,
+        type=options.LENGTH_MM,
         default=None,
         help="level the prognosis extrapolates to (default: the threshold)",
     )
     t.add_argument(
         "--alpha",
-        type=float,
+        type=options.PROBABILITY,
         default=1e-4,
         help="false-alarm probability of the curve test per run (1e-4)",
     )
     t.add_argument(
         "--min-change-mm",
-        type=float,
+        type=options.CHANGE_MM,
         default=0.01,
         help="smallest translation change that counts (0.01)",
     )
     t.add_argument(
         "--min-change-mrad",
-        type=float,
+        type=options.CHANGE_MRAD,
         default=0.02,
         help="smallest rotation change that counts (0.02)",
     )
@@ -177,7 +189,7 @@ def register(subparsers: Any) -> None:
     r.add_argument("--out", default=None, help="HTML file (default RUN_DIR/report.html)")
     r.add_argument("--robot", default=None, help="the robot in the archive (trend section)")
     r.add_argument("--run-id", default=None, help="the run's id in the archive")
-    r.add_argument("--threshold-mm", type=float, default=None)
+    r.add_argument("--threshold-mm", type=options.LENGTH_MM, default=None)
     r.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis if missing")
     _archive_args(r)
     r.set_defaults(func=_report)
@@ -191,17 +203,19 @@ def register(subparsers: Any) -> None:
     rp.add_argument("--runs", default=None, help="comma-separated run ids (default all)")
     rp.add_argument("--calibration", default=None, help="new camera calibration: re-detect")
     rp.add_argument("--orders", choices=("keep", "select"), default="keep")
-    rp.add_argument("--max-order", type=int, default=6)
+    rp.add_argument("--max-order", type=options.ORDER, default=6)
     rp.add_argument("--tag", default="reprocessed", help="output folder name in each run")
     rp.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)")
     rp.add_argument(
         "--scheduler-timeout",
-        type=float,
+        type=options.TIMEOUT_S,
         default=10.0,
         help="seconds to reach the scheduler and find a worker (10)",
     )
-    rp.add_argument("--workers", type=int, default=None, help="local processes (CPU count)")
-    rp.add_argument("--workspace-samples", type=int, default=5000)
+    rp.add_argument(
+        "--workers", type=options.WORKERS, default=None, help="local processes (CPU count)"
+    )
+    rp.add_argument("--workspace-samples", type=options.SAMPLES, default=5000)
     rp.add_argument(
         "--update-index",
         action="store_true",
@@ -214,7 +228,8 @@ def register(subparsers: Any) -> None:
 
 
 def _archive_add(args: argparse.Namespace) -> int:
-    arch = _open(args)
+    from quickhealth.station.archive import prepare_run
+
     meta = {
         k: v
         for k, v in (
@@ -225,7 +240,8 @@ def _archive_add(args: argparse.Namespace) -> int:
         )
         if v is not None
     }
-    rec = arch.add_run(
+    # the run is checked before the archive is opened: a refused run creates nothing
+    prep = prepare_run(
         args.robot,
         args.run_dir,
         run_id=args.run_id,
@@ -233,6 +249,12 @@ def _archive_add(args: argparse.Namespace) -> int:
         meta=meta,
         healthy=args.healthy,
     )
+    arch = _open(args, create=True)
+    try:
+        rec = arch.add_prepared(prep)
+    except BaseException:
+        arch.undo_creation()
+        raise
     if args.baseline:
         arch.set_baseline(rec.robot, rec.run_id)
     print(f"archived {rec.robot}/{rec.run_id} ({rec.time_utc}) in {arch.folder(rec)}")
@@ -282,7 +304,7 @@ def _trend(args: argparse.Namespace) -> int:
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
-    from quickhealth.station.archive import trend_for
+    from quickhealth.station.archive import missing_words, trend_for, trend_runs
     from quickhealth.station.fsio import refuse_outputs_inside, refuse_overwriting_inputs
 
     refuse_overwriting_inputs([("--json", args.json), ("--plot", args.plot)], [])
@@ -299,7 +321,7 @@ def _trend(args: argparse.Namespace) -> int:
         min_change_m=args.min_change_mm * 1e-3,
         min_change_rad=args.min_change_mrad * 1e-3,
     )
-    recs = arch.runs(args.robot)
+    recs, missing = trend_runs(arch, args.robot)  # the runs trend_for judged
     print(f"{args.robot}: {len(recs)} runs, baseline {res.run_ids[res.baseline_index]}")
     print(f"  {'run':<24} {'time (UTC)':<21} {'mean':>7} {'std':>7} {'max':>7}  verdict")
     for i, r in enumerate(recs):
@@ -313,7 +335,7 @@ def _trend(args: argparse.Namespace) -> int:
             f"  {r.run_id:<24} {r.time_utc:<21} {f['mean'][i]:7.3f} {f['std'][i]:7.3f} "
             f"{f['max'][i]:7.3f}  {v}"
         )
-    for w in res.warnings:
+    for w in [*missing_words(arch, missing), *res.warnings]:
         print(f"warning: {w}")
     flags = res.flags()
     print(f"latest run {res.run_ids[-1]}: " + ("FLAGGED" if flags else "healthy"))
@@ -433,6 +455,7 @@ def _compensate(args: argparse.Namespace) -> int:
     from quickhealth.identify.errors import InputError
     from quickhealth.identify.urscript import replace_targets
     from quickhealth.station import formats
+    from quickhealth.station.formats.common import findings
     from quickhealth.station.fsio import refuse_overwriting_inputs
 
     cap = args.max_correction_deg
@@ -502,7 +525,7 @@ def _compensate(args: argparse.Namespace) -> int:
                     f"{np.degrees(fm.spec.q_hi[j]):.6g}] deg: the model would extrapolate"
                 )
     if problems:
-        raise InputError("\n".join(f"{x}; nothing written" for x in problems))
+        raise findings([f"{x}; nothing written" for x in problems])
     comp = compensate_program(
         fm, q, T_tcp, temp_c=args.temp_c, time_s=args.time_s, leave_out=leave_out
     )
@@ -532,7 +555,7 @@ def _compensate(args: argparse.Namespace) -> int:
                 "is outside the robot's limits"
             )
     if problems:
-        raise InputError("\n".join(f"{x}; nothing written" for x in problems))
+        raise findings([f"{x}; nothing written" for x in problems])
     if is_script:
         new_text = replace_targets(text, targets.spans, comp.q)
     else:
@@ -606,6 +629,7 @@ def _compensation_notes(fm: Any, comp: Any, args: argparse.Namespace, backlash: 
 # -------------------------------------------------------------------------- report
 
 
+@lock.holds_outputs("report", lambda a: [a.run_dir, a.out])
 def _report(args: argparse.Namespace) -> int:
     """The run's HTML report; report.json gains the report's sections, keeping its schema.
 
@@ -665,12 +689,15 @@ def _archived_as(args: argparse.Namespace, d: Path) -> tuple[Any, str | None]:
     """The archive and robot under which run folder ``d`` was archived (``archive add``), if
     it was: a run of the folder's run id whose archived model.json is this folder's, under one
     robot only.  An archive that does not exist is not created."""
-    from quickhealth.station.archive import Archive, default_root, run_metadata
+    from quickhealth.station.archive import Archive, NoArchive, default_root, run_metadata
 
     root = Path(args.archive) if args.archive else default_root()
     if args.db is None and not (root / "index.sqlite").is_file():
         return None, None
-    arch = Archive.open(root, args.db)
+    try:
+        arch = Archive.open(root, args.db, create=False, timeout_s=args.db_timeout)
+    except NoArchive:
+        return None, None
     rid = args.run_id or run_metadata(d).get("run_id") or d.resolve().name
     model = (d / "model.json").read_bytes()
     found, refitted = [], []
@@ -695,12 +722,15 @@ def _archived_as(args: argparse.Namespace, d: Path) -> tuple[Any, str | None]:
 # ------------------------------------------------------------------------ reprocess
 
 
+@workers.owns_workers
 def _reprocess(args: argparse.Namespace) -> int:
     import time
 
     from quickhealth.identify.errors import InputError
-    from quickhealth.station.reprocess import jobs_for_archive, reprocess
+    from quickhealth.station.reprocess import check_scheduler, jobs_for_archive, reprocess
 
+    if args.scheduler is not None:
+        check_scheduler(args.scheduler)
     arch = _open(args)
     runs = None if args.runs is None else [r.strip() for r in args.runs.split(",") if r.strip()]
     jobs = jobs_for_archive(

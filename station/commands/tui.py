@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from quickhealth.station import options
+
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
@@ -26,7 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--plan", type=Path, help="plan.json to run (default: plan the cell now)")
     p.add_argument(
-        "--n", type=int, default=40, help="poses to generate when planning now (default 40)"
+        "--n",
+        type=options.PLAN_POSES,
+        default=40,
+        help="poses to generate when planning now (default 40)",
     )
     p.add_argument("--robot-ip", help="the real robot's address (without --sim)")
     p.add_argument("--motor-port", help="serial port of the pan motor (real station)")
@@ -41,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--robot-name", default="ur5-sim", help="the robot's name in the archive")
     p.add_argument(
         "--threshold-mm",
-        type=float,
+        type=options.LENGTH_MM,
         default=2.0,
         help="degraded when the workspace max TCP error is above this (mm, default 2)",
     )

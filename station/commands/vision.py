@@ -26,6 +26,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from quickhealth.station import lock, options, workers
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``vision calibrate`` and ``vision measure``."""
@@ -53,7 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     m.add_argument("run_dir", type=Path, metavar="RUN_DIR")
     m.add_argument("--calibration", type=Path, help="stereo CAL.json")
     m.add_argument("--target", type=Path, help="target description file (JSON)")
-    m.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    m.add_argument("--jobs", type=options.WORKERS, default=1, help="worker processes (default 1)")
     m.add_argument("--out", type=Path, help="CSV to write (default RUN_DIR/measurements.csv)")
     m.set_defaults(func=run_measure)
     p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
@@ -152,6 +154,7 @@ def _measure_one(job: tuple[str, str, str, float | None, float | None]) -> Any:
 
 def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
     import csv
+    import io
 
     import numpy as np
 
@@ -161,8 +164,19 @@ def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
         raise InputError(
             f"{path}: missing (the run folder's image index: pose_id, q1..qN in deg, pan, time)"
         )
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
+    from quickhealth.station.formats.common import MAX_LINE_CHARS, read_text_limited
+
+    text = read_text_limited(path, "measurements")  # regular file, size, UTF-8
+    for ln, line in enumerate(text.splitlines(), start=1):
+        if len(line) > MAX_LINE_CHARS:
+            raise InputError(
+                f"{path}:{ln}:1: line of {len(line)} characters is too long (at most "
+                f"{MAX_LINE_CHARS})"
+            )
+    try:
+        rows = [r for r in csv.reader(io.StringIO(text, newline="")) if r and r[0][:1] != "#"]
+    except csv.Error as exc:
+        raise InputError(f"{path}: not a CSV file: {exc}") from None
     if len(rows) < 2:
         raise InputError(f"{path}: no rows")
     head = [h.strip() for h in rows[0]]
@@ -246,10 +260,10 @@ def _isnum(s: str) -> bool:
         return False
 
 
+@workers.owns_workers
+@lock.holds_outputs("vision measure", lambda a: [a.out or a.run_dir])
 def run_measure(args: argparse.Namespace) -> int:
     """Measure every stored pair of a run folder and write its measurement CSV."""
-    from concurrent.futures import ProcessPoolExecutor
-
     import numpy as np
 
     from quickhealth.identify.errors import InputError
@@ -307,7 +321,7 @@ def run_measure(args: argparse.Namespace) -> int:
         it = map(_measure_one, jobs)
         pool = None
     else:
-        pool = ProcessPoolExecutor(args.jobs, initializer=_init_worker, initargs=(rig, target))
+        pool = workers.Pool(args.jobs, initializer=_init_worker, initargs=(rig, target))
         it = pool.map(_measure_one, jobs, chunksize=4)
     try:
         for k, (pid, res) in enumerate(it, start=1):

@@ -35,6 +35,7 @@ MAX_BYTES = {
 MAX_ROWS = 1_000_000  # predict / compensate: streamed through vectorised code
 MAX_FIT_ROWS = 20_000  # fit, diagnose, compare: the order search is O(rows x fits)
 MAX_CELL_CHARS = 256  # one CSV cell (a pose_id, a number)
+MAX_LINE_CHARS = MAX_CELL_CHARS * 64  # one line of a CSV file, comments included (16 384)
 MAX_JSON_DEPTH = 32  # model.json and report.json are at most 5 levels deep
 MIN_DISTINCT_POSES = 8  # fewer different joint configurations cannot support any model
 MIN_JOINT_SPAN_DEG = 1.0  # a joint that moves less than this cannot be identified
@@ -135,6 +136,15 @@ def finite_float(text: str) -> float:
     if not math.isfinite(v):
         raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
     return v
+
+
+def findings(lines: list[str], kind: type[Exception] = InputError) -> Exception:
+    """One error reporting several findings, one line each (each refused target of a
+    program): the command line prints ``lines`` as they are, each made one line, so a file
+    name holding a newline never splits a finding in two."""
+    exc = kind("\n".join(lines))
+    exc.findings = list(lines)  # type: ignore[attr-defined]
+    return exc
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:

@@ -26,6 +26,7 @@ from quickhealth.identify.transforms import R_to_quat, quat_to_R
 from .common import (
     MAX_CELL_CHARS,
     MAX_FIT_ROWS,
+    MAX_LINE_CHARS,
     MAX_ROWS,
     MIN_DISTINCT_POSES,
     MIN_JOINT_SPAN_DEG,
@@ -150,6 +151,11 @@ def parse_measurements(
     header_line = 0
     rows: list[tuple[int, list[str]]] = []
     for lineno, line in enumerate(text.splitlines(), start=1):
+        if len(line) > MAX_LINE_CHARS:  # comments too: a comment becomes the file's metadata
+            raise InputError(
+                f"{name}:{lineno}:1: line of {len(line)} characters is too long "
+                f"(at most {MAX_LINE_CHARS})"
+            )
         s = line.strip()
         if not s:
             continue
@@ -158,8 +164,6 @@ def parse_measurements(
             if m:
                 meta[m.group(1)] = m.group(2).strip()
             continue
-        if len(line) > MAX_CELL_CHARS * 64:
-            raise InputError(f"{name}:{lineno}:1: line of {len(line)} characters is too long")
         if '"' not in line:  # the common case, 20x faster than the csv module per line
             cells = [c.strip() for c in line.split(",")]
         else:

@@ -211,7 +211,13 @@ def read_urdf(path: str | os.PathLike[str]) -> RobotModel:
             raise InputError(
                 f"{p}: joint {model.names[i]!r} is {short}; only revolute joints are supported"
             )
-        Ra = _rot_z_onto(np.asarray(axis, float))
+        axis = np.asarray(axis, float)
+        if not (np.all(np.isfinite(axis)) and np.linalg.norm(axis) > 1e-9):
+            raise InputError(
+                f"{p}: joint {model.names[i]!r} has the axis {axis.tolist()}: a revolute joint "
+                'needs a direction (e.g. <axis xyz="0 0 1"/>)'
+            )
+        Ra = _rot_z_onto(axis)
         M = model.jointPlacements[i].homogeneous
         prev = np.eye(4)
         prev[:3, :3] = Ra_prev.T

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from quickhealth.identify.errors import InputError
 
-from .common import read_text_limited
+from .common import findings, read_text_limited
 
 F = NDArray[np.float64]
 
@@ -40,9 +40,7 @@ def read_urscript(path: str | os.PathLike[str], n_joints: int) -> tuple[str, Any
     except InputError as exc:
         raise InputError(f"{p}:{exc}") from None
     if t.unreadable:
-        raise InputError(
-            "\n".join(f"{p}:{line}:{col}: {cmd} {why}" for line, col, cmd, why in t.unreadable)
-        )
+        raise findings([f"{p}:{line}:{col}: {cmd} {why}" for line, col, cmd, why in t.unreadable])
     if not len(t.q):
         raise InputError(f"{p}:1:1: no movej/movel with a joint target found")
     return text, t

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 from pathlib import Path
 
@@ -40,15 +39,17 @@ def _arm(kill_at: str, rid: str) -> None:
     from quickhealth.station.archive import Archive
 
     if kill_at == "copy":
-        real, n = shutil.copyfile, [0]
+        from quickhealth.station import fsio
 
-        def copyfile(src, dst, *a, **k):
+        real, n = fsio._copy_plain_file, [0]
+
+        def copyfile(*a, **k):
             n[0] += 1
             if n[0] > 2:
                 _die()
-            return real(src, dst, *a, **k)
+            return real(*a, **k)
 
-        shutil.copyfile = copyfile
+        fsio._copy_plain_file = copyfile
     elif kill_at == "insert":
         Archive._insert_robot = lambda self, robot: _die()
     elif kill_at == "rename":

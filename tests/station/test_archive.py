@@ -8,7 +8,7 @@ import pytest
 import qh_runs as _runs
 
 from quickhealth.identify.errors import InputError
-from quickhealth.station.archive import Archive, default_root, safe_name
+from quickhealth.station.archive import MARKER, Archive, default_root, safe_name
 from quickhealth.station.cli import main
 
 
@@ -88,6 +88,13 @@ def test_names_cannot_escape_the_archive(tmp_path, run_dirs, bad):
     assert not any((tmp_path).glob("x*")) and not (tmp_path / "b").exists()
 
 
+def test_the_archive_names_the_trends_figures():
+    from quickhealth.identify import trend
+    from quickhealth.station import archive
+
+    assert archive.FIGURES == trend.FIGURES
+
+
 def test_archive_location_from_environment(tmp_path, monkeypatch):
     monkeypatch.setenv("QUICKHEALTH_ARCHIVE", str(tmp_path / "env-arch"))
     assert default_root() == tmp_path / "env-arch"
@@ -119,12 +126,18 @@ def test_duplicate_and_bad_inputs(tmp_path, run_dirs, index_url):
     rec = a.add_run("ur5-a", run_dirs[2], run_id="r0", replace_existing=True)
     assert [r.run_id for r in a.runs("ur5-a")] == ["r0"] and rec.time_utc.startswith("2026-03")
     assert json.loads((a.folder(rec) / "run.json").read_text())["time_utc"].startswith("2026-03")
-    # a folder without a row (a writer killed before its commit) is replaced by the next add
-    (a.root / "robots" / "ur5-a" / "ghost").mkdir()
-    (a.root / "robots" / "ur5-a" / "ghost" / "half.png").write_bytes(b"x")
-    assert a.orphans() == [a.root / "robots" / "ur5-a" / "ghost"]
+    # a folder without a row is replaced by the next add only when it carries this index's
+    # mark (a writer of this index killed before its commit); one of unknown origin is kept
+    ghost = a.root / "robots" / "ur5-a" / "ghost"
+    ghost.mkdir()
+    (ghost / "half.png").write_bytes(b"x")
+    assert a.orphans() == [ghost]
+    with pytest.raises(InputError, match=r"ghost: holds a folder this index did not put there"):
+        a.add_run("ur5-a", run_dirs[1], run_id="ghost")
+    assert (ghost / "half.png").read_bytes() == b"x" and a.orphans() == [ghost]
+    (ghost / MARKER).write_text(a._mark("ur5-a", "ghost"))
     a.add_run("ur5-a", run_dirs[1], run_id="ghost")
-    assert not (a.root / "robots" / "ur5-a" / "ghost" / "half.png").exists() and not a.orphans()
+    assert not (ghost / "half.png").exists() and not a.orphans()
     assert not list((a.root / "robots" / "ur5-a").glob(".incoming-*"))
     # a run folder that is the archive's own registers again in place (refit): row updated
     own = a.folder(a.get("ur5-a", "ghost"))
@@ -218,7 +231,12 @@ def test_cli_errors_are_one_line_with_status_2(tmp_path, run_dirs, capsys):
     assert main(["archive", "add", str(run_dirs[0]), "--robot", "../evil", "--archive", arch]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "robot '../evil' is not allowed" in err[0]
-    assert not (tmp_path / "evil").exists()
+    assert not (tmp_path / "evil").exists() and not (tmp_path / "arch").exists()
+    assert main(["trend", "nobody", "--archive", arch]) == 2  # reading never makes an archive
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "arch: no archive there" in err[0]
+    assert not (tmp_path / "arch").exists()
+    main(["archive", "add", str(run_dirs[0]), "--robot", "ok", "--archive", arch])
     assert main(["trend", "nobody", "--archive", arch]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has no runs" in err[0]
@@ -278,3 +296,38 @@ def test_old_archives_gain_the_new_index(tmp_path, run_dirs, index_url):
     b = Archive.open(tmp_path / "arch", url=index_url)
     assert "ix_runs_robot_time" in {i["name"] for i in sa.inspect(b.engine).get_indexes("runs")}
     assert [r.run_id for r in b.runs("ur5-a")] == ["r0"]
+
+
+def test_an_index_server_that_stops_answering_is_one_line_not_a_hang(tmp_path, run_dirs, pg_server):
+    """A server that stops answering in the middle of a session (the server and the backends
+    serving the archive frozen with SIGSTOP: a hung host, a dead link) is cut off by the
+    client's watchdog after three time-outs, and the reconnection by the connect time-out:
+    HardwareError (exit 3) after seconds, instead of a command that hangs forever."""
+    import os
+    import signal
+    import time
+
+    import sqlalchemy as sa
+
+    from quickhealth.identify.errors import HardwareError
+
+    url = pg_server.new_database()
+    Archive.open(tmp_path / "arch", url=url).add_run("ur5-a", run_dirs[0])
+    a = Archive.open(tmp_path / "arch", url=url, timeout_s=0.5)
+    assert [r.run_id for r in a.runs("ur5-a")] == ["r0"]
+    with a.engine.connect() as con:  # the backends serving this archive's pooled connections
+        q = "select pid from pg_stat_activity where datname = current_database()"
+        backends = [int(r[0]) for r in con.execute(sa.text(q))]
+    backends.append(int((pg_server.base / "data" / "postmaster.pid").read_text().split()[0]))
+    for pid in backends:
+        os.kill(pid, signal.SIGSTOP)  # backends of this test's own server
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(HardwareError, match=r"did not answer within (0\.5|2) s \(reading\)"):
+            a.runs("ur5-a")
+        dt = time.monotonic() - t0
+    finally:
+        for pid in backends:
+            os.kill(pid, signal.SIGCONT)
+    assert dt < 10, dt
+    assert [r.run_id for r in a.runs("ur5-a")] == ["r0"]  # a new connection works again

@@ -204,8 +204,8 @@ def _radians(text):
         (["--robot", "../ur5"], "robot description file not found"),
         (["--robot", "kuka"], "unknown robot 'kuka'"),
         (["--robot", "ur5", "--effects", "nosuch:j9"], "unknown effect"),
-        (["--robot", "ur5", "--sigma-pos-mm", "0"], "--sigma-pos-mm must be > 0"),
-        (["--robot", "ur5", "--max-order", "-1"], "--max-order must be in"),
+        (["--robot", "ur5", "--sigma-pos-mm", "0"], "--sigma-pos-mm: 0 is not a position"),
+        (["--robot", "ur5", "--max-order", "-1"], "--max-order: -1 is not a Chebyshev order"),
     ],
 )
 def test_fit_bad_options_exit_2(tmp_path, capsys, args, pattern):

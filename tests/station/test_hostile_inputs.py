@@ -8,7 +8,11 @@ handful also run through the installed ``quickhealth`` script in a subprocess.
 
 Classes (issue 13 "What was seen"): 1 bad data -> confident verdict, 2 unsafe compensation,
 3 the URScript reader, 4 crashes exiting 1, 5 outputs destroying inputs, 6 memory bounds,
-7 (trend: tests/identify/test_trend.py), 8 small but misleading.
+7 (trend: tests/identify/test_trend.py), 8 small but misleading.  Issue 27 added the archive
+(another index's run, links, disk full, refused adds creating nothing, damaged and
+unreachable indexes), numeric option bounds and the usage errors that were internal errors;
+the runner also checks that no process is left running and no staging folder is left.  The
+workers of parallel commands: tests/station/test_workers_end.py.
 """
 
 from __future__ import annotations
@@ -87,6 +91,7 @@ class Case:
     absent: list[Path] = field(default_factory=list)  # must not exist afterwards
     n_lines: int = 1
     check: Callable[[], None] | None = None
+    patch: Callable[[pytest.MonkeyPatch], None] | None = None  # a fault at the hardware edge
 
 
 def _digest(p: Path) -> str | None:
@@ -246,7 +251,7 @@ def _(b, t):
     return Case(
         _fit(b["dir"] / "meas.csv", t, "--margin", "nan"),
         2,
-        r"--margin: invalid finite_float value|'nan' is not a finite number",
+        r"--margin: nan is not a BIC margin \(a number in \[0, 10000\]\)",
         [b["dir"] / "meas.csv"],
         [t / "out"],
     )
@@ -257,7 +262,7 @@ def _(b, t):
     return Case(
         _fit(b["dir"] / "meas.csv", t, "--margin", "inf"),
         2,
-        r"'inf' is not a finite number",
+        r"--margin: inf is not a BIC margin",
         [],
         [t / "out"],
     )
@@ -268,7 +273,7 @@ def _(b, t):
     return Case(
         _fit(b["dir"] / "meas.csv", t, "--sigma-pos-mm", "nan"),
         2,
-        r"--sigma-pos-mm.*'nan' is not a finite number",
+        r"--sigma-pos-mm: nan is not a position uncertainty in mm",
         [],
         [t / "out"],
     )
@@ -302,7 +307,7 @@ def _(b, t):
             "nan",
         ],
         2,
-        "not a finite number",
+        r"--threshold-mm: nan is not a length in mm",
         [],
         [t / "o.csv"],
     )
@@ -1795,14 +1800,541 @@ def _(b, t):
     )  # fmt: skip
 
 
+# ---- issue 27: the archive, faults and degenerate data, round two
+
+
+def _run2(b, t: Path, where: str) -> Path:
+    """A copy of the fitted run folder named run2 under ``t/where``."""
+    import shutil
+
+    d = t / where / "run2"
+    shutil.copytree(b["dir"] / "run1", d)
+    return d
+
+
+def _add(run: Path, arch: Path, *extra: str) -> list[str]:
+    return ["archive", "add", str(run), "--robot", "r", "--archive", str(arch), *extra]
+
+
+@case("archive-add-over-another-indexs-run")
+def _(b, t):
+    from quickhealth.station.archive import Archive
+
+    arch = t / "A"
+    Archive.open(arch).add_run("r", _run2(b, t, "a"), time_utc="2026-01-01T08:00:00Z")
+    other = _run2(b, t, "other")  # the other station's run2: another measurement
+    (other / "notes.txt").write_text("the other station's run\n")
+    theirs = arch / "robots" / "r" / "run2"
+    return Case(
+        _add(other, arch, "--db", f"sqlite:///{t / 'other.sqlite'}"),
+        2,
+        r"robots/r/run2: holds a run put there by another index .* refusing to replace it",
+        [theirs, theirs / "report.json", theirs / "model.json", arch / "index.sqlite"],
+        [t / "other.sqlite", theirs / "notes.txt"],
+    )
+
+
+@case("archive-add-symlink-out-of-the-run")
+def _(b, t):
+    (t / "outside").mkdir()
+    (t / "outside" / "secret").write_text("not for the archive\n")
+    run = _run_copy(b, t, lambda r: (r / "notes").symlink_to("../outside/secret"))
+    return Case(
+        _add(run, t / "arch"),
+        2,
+        r"run/notes: a symbolic link \(-> \.\./outside/secret\): a run folder is copied as "
+        r"regular files and folders only",
+        [run, t / "outside" / "secret"],
+        [t / "arch"],
+    )
+
+
+@case("archive-add-symlink-loop")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: (r / "images").mkdir())
+    (run / "images" / "loop").symlink_to("..")
+    return Case(
+        _add(run, t / "arch"), 2, r"images/loop: a symbolic link \(-> \.\.\)", [run], [t / "arch"]
+    )
+
+
+@case("archive-add-fifo-in-the-run")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: os.mkfifo(r / "pipe"))
+    return Case(_add(run, t / "arch"), 2, r"run/pipe: not a regular file", [run], [t / "arch"])
+
+
+@case("archive-add-disk-full")
+def _(b, t):
+    import errno
+
+    from quickhealth.station import fsio
+
+    run = _run_copy(b, t, lambda r: None)
+
+    def full(mp: pytest.MonkeyPatch) -> None:
+        written = [0]
+
+        def write(fd: int, data) -> int:
+            written[0] += len(data)
+            if written[0] > 20_000:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return os.write(fd, data)
+
+        mp.setattr(fsio, "_write_out", write)
+
+    return Case(
+        _add(run, t / "arch"),
+        3,
+        r"arch/robots/r/\.incoming-run-\w+/run/\w+\.\w+: writing failed: No space left on device",
+        [run],
+        [t / "arch"],  # the staging folder and the new archive are removed again
+        patch=full,
+    )
+
+
+@case("archive-add-bad-time-creates-nothing")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    return Case(
+        _add(run, t / "arch", "--time", "yesterday"), 2, r"time 'yesterday' is not an ISO 8601",
+        [run], [t / "arch"],
+    )  # fmt: skip
+
+
+@case("archive-add-year-99999-creates-nothing")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    return Case(
+        _add(run, t / "arch", "--time", "99999-01-01T00:00:00Z"), 2,
+        r"time '99999-01-01T00:00:00Z' is not an ISO 8601 time of years 1\.\.9999",
+        [run], [t / "arch"],
+    )  # fmt: skip
+
+
+@case("archive-add-300-character-run-id-creates-nothing")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    return Case(
+        _add(run, t / "arch", "--run-id", "x" * 300), 2, r"run id 'x+' is not allowed",
+        [run], [t / "arch"],
+    )  # fmt: skip
+
+
+@case("archive-add-300-character-robot-creates-nothing")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    argv = _add(run, t / "arch")
+    argv[argv.index("--robot") + 1] = "r" * 300
+    return Case(argv, 2, r"robot 'r+' is not allowed", [run], [t / "arch"])
+
+
+@case("archive-names-a-file")
+def _(b, t):
+    f = t / "index.sqlite"
+    f.write_bytes(b"not a folder")
+    return Case(
+        ["archive", "list", "--archive", str(f)], 2,
+        r"index\.sqlite: names a file; the archive is a folder", [f],
+    )  # fmt: skip
+
+
+def _report_v1(r: Path) -> None:
+    """Label the run's report.json version 1 (it holds the archive's figures, not every key of
+    version 2), so that ``quickhealth report`` reads it."""
+    doc = json.loads((r / "report.json").read_text())
+    doc["schema"] = "quickhealth.report/1"
+    (r / "report.json").write_text(json.dumps(doc))
+
+
+def _damaged(b, t, kind: str, argv_of: Callable[[Path], list[str]], code: int = 2) -> Case:
+    import shutil
+
+    arch = _archived(b, t)
+    ix = arch / "index.sqlite"
+    good = ix.read_bytes()
+    ix.unlink()
+    if kind == "truncated":
+        ix.write_bytes(good[:3000])
+    elif kind == "garbage":
+        ix.write_bytes(bytes(range(256)) * 20)
+    elif kind == "wrong-schema":
+        import sqlite3
+
+        con = sqlite3.connect(ix)
+        con.execute("create table runs (a integer)")
+        con.execute("create table robots (b integer)")
+        con.commit()
+        con.close()
+    else:
+        ix.mkdir()
+    pattern = {
+        "truncated": r"index\.sqlite: the archive index is damaged or not a quickhealth index "
+        r"\(database disk image is malformed\); restore it from a backup",
+        "garbage": r"index\.sqlite: the archive index is damaged or not a quickhealth index "
+        r"\(file is not a database\)",
+        "wrong-schema": r"index\.sqlite: not a quickhealth archive index \(its table 'runs' "
+        r"lacks robot, run_id",
+        "directory": r"index\.sqlite: not a usable archive index: it is a folder",
+    }[kind]
+    keep = [arch / "robots" / "cell3" / "run1"]
+    if kind != "directory":
+        keep.append(ix)
+    shutil.copytree(b["dir"] / "run1", t / "new")
+    _report_v1(t / "new")
+    return Case(argv_of(arch), code, pattern, keep, [arch / "robots" / "cell3" / "new"])
+
+
+for _kind in ("truncated", "garbage", "wrong-schema", "directory"):
+    CASES[f"index-{_kind}-archive-list"] = lambda b, t, k=_kind: _damaged(
+        b, t, k, lambda a: ["archive", "list", "--archive", str(a)]
+    )
+CASES["index-garbage-trend"] = lambda b, t: _damaged(
+    b, t, "garbage", lambda a: ["trend", "cell3", "--archive", str(a)]
+)
+CASES["index-truncated-archive-add"] = lambda b, t: _damaged(
+    b, t, "truncated",
+    lambda a: ["archive", "add", str(t / "new"), "--robot", "cell3", "--archive", str(a)],
+)  # fmt: skip
+CASES["index-wrong-schema-report"] = lambda b, t: _damaged(
+    b, t, "wrong-schema",
+    lambda a: ["report", str(t / "new"), "--robot", "cell3", "--archive", str(a),
+               "--no-diagnose", "--out", str(t / "r.html")],
+)  # fmt: skip
+
+
+def _db(b, t, url: str, code: int, pattern: str) -> Case:
+    run = _run_copy(b, t, lambda r: None)
+    return Case(_add(run, t / "arch", "--db", url), code, pattern, [run], [t / "arch"])
+
+
+@case("db-url-malformed")
+def _(b, t):
+    return _db(b, t, "::not a url::", 2, r"--db '::not a url::': not a database URL")
+
+
+@case("db-url-unknown-dialect")
+def _(b, t):
+    return _db(b, t, "mysql://u@localhost/qh", 2, r"--db mysql://u@localhost/qh: cannot use a "
+               r"'mysql' database here")  # fmt: skip
+
+
+@case("db-url-sqlite-in-a-missing-folder")
+def _(b, t):
+    return _db(b, t, f"sqlite:///{t}/no/such/dir/x.sqlite", 2,
+               r"x\.sqlite: not a usable archive index: its folder .*/no/such/dir does not exist")  # fmt: skip
+
+
+def _free_port() -> int:
+    import socket
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+@case("db-server-closed-port")
+def _(b, t):
+    url = f"postgresql+psycopg://qh@127.0.0.1:{_free_port()}/qh"
+    return _db(b, t, url, 3, r"cannot use the index server postgresql\+psycopg://qh@127\.0\.0\.1:"
+               r"\d+/qh \(reading\): connection failed: .*Connection refused")  # fmt: skip
+
+
+@case("db-server-never-answers")
+def _(b, t):
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    held: list[socket.socket] = []
+
+    def accept() -> None:  # accepts every connection and never says a word
+        while True:
+            try:
+                held.append(srv.accept()[0])
+            except OSError:
+                return
+
+    threading.Thread(target=accept, daemon=True).start()
+    url = f"postgresql+psycopg://qh@127.0.0.1:{srv.getsockname()[1]}/qh"
+    c = _db(b, t, url, 3, r"the index server postgresql\+psycopg://qh@127\.0\.0\.1:\d+/qh did not "
+            r"answer within 2 s \(reading\)")  # fmt: skip
+    c.argv += ["--db-timeout", "1"]
+
+    def check() -> None:
+        srv.close()
+        for s in held:
+            s.close()
+
+    c.check = check
+    return c
+
+
+@case("db-timeout-zero")
+def _(b, t):
+    return Case(
+        ["archive", "list", "--archive", str(t / "arch"), "--db-timeout", "0"], 2,
+        r"--db-timeout: 0 is not a time in s", [], [t / "arch"],
+    )  # fmt: skip
+
+
+@case("trend-latest-run-folder-deleted")
+def _(b, t):
+    import shutil
+
+    from quickhealth.station.archive import Archive
+
+    arch = _archived(b, t)
+    Archive.open(arch).add_run("cell3", b["dir"] / "run1", run_id="run3",
+                               time_utc="2026-02-01T08:00:00Z")  # fmt: skip
+    shutil.rmtree(arch / "robots" / "cell3" / "run3")
+    return Case(
+        ["trend", "cell3", "--archive", str(arch), "--json", str(t / "t.json")], 2,
+        r"latest run run3 of robot cell3: its folder .*/run3 is missing \(deleted behind the "
+        r"index\?\): it cannot be judged", [arch / "index.sqlite"], [t / "t.json"],
+    )  # fmt: skip
+
+
+@case("trend-marks-a-deleted-older-run")
+def _(b, t):
+    import shutil
+
+    from quickhealth.station.archive import Archive
+
+    arch = _archived(b, t)
+    a = Archive.open(arch)
+    for k, rid in enumerate(("run2", "run3")):
+        a.add_run("cell3", b["dir"] / "run1", run_id=rid, time_utc=f"2026-0{k + 2}-01T08:00:00Z")
+    shutil.rmtree(arch / "robots" / "cell3" / "run2")
+
+    def check() -> None:
+        doc = json.loads((t / "t.json").read_text())
+        assert doc["run_ids"] == ["run1", "run3"], doc["run_ids"]
+
+    return Case(
+        ["trend", "cell3", "--archive", str(arch), "--json", str(t / "t.json")], 0,
+        r"warning: run run2: its folder .*/run2 is missing \(deleted behind the index\?\): left "
+        r"out of the trend\n(.|\n)*latest run run3: healthy", [arch / "index.sqlite"],
+        check=check,
+    )  # fmt: skip
+
+
+@case("report-marks-a-deleted-archive-folder")
+def _(b, t):
+    import shutil
+
+    arch = _archived(b, t)
+    run = _run_copy(b, t, _report_v1)
+    shutil.rmtree(arch / "robots" / "cell3" / "run1")
+
+    def check() -> None:
+        html = (t / "r.html").read_text()
+        assert "its folder" in html and "is missing" in html, "trend section not marked"
+
+    return Case(
+        ["report", str(run), "--robot", "cell3", "--run-id", "run1", "--archive", str(arch),
+         "--no-diagnose", "--out", str(t / "r.html")], 0, r"wrote .*r\.html",
+        [arch / "index.sqlite"], check=check,
+    )  # fmt: skip
+
+
+@case("reprocess-scheduler-not-an-address")
+def _(b, t):
+    arch = _archived(b, t)
+    return Case(
+        ["reprocess", "--archive", str(arch), "--scheduler", "::not a url::"], 2,
+        r"--scheduler '::not a url::': not a Dask scheduler address",
+        [arch / "index.sqlite"], [arch / "robots" / "cell3" / "run1" / "reprocessed"],
+    )  # fmt: skip
+
+
+@case("reprocess-workers-0")
+def _(b, t):
+    return Case(
+        ["reprocess", "--archive", str(t / "arch"), "--workers", "0"], 2,
+        r"--workers: 0 is not a number of worker processes \(an integer in 1\.\.256\)", [],
+        [t / "arch"],
+    )  # fmt: skip
+
+
+@case("plan-seed-negative")
+def _(b, t):
+    return Case(
+        ["plan", "--cell", "reference", "--n", "20", "--seed", "-1", "--out", str(t / "p")], 2,
+        r"--seed: -1 is not a seed \(an integer in 0\.\.4294967295\)", [], [t / "p"],
+    )  # fmt: skip
+
+
+@case("plan-n-100000")
+def _(b, t):
+    return Case(
+        ["plan", "--cell", "reference", "--n", "100000", "--out", str(t / "p")], 2,
+        r"--n: 100000 is not a number of poses \(an integer in 1\.\.1000\)", [], [t / "p"],
+    )  # fmt: skip
+
+
+@case("fit-margin-minus-1000")
+def _(b, t):
+    return Case(
+        _fit(b["dir"] / "meas.csv", t, "--margin", "-1000"), 2,
+        r"--margin: -1000 is not a BIC margin \(a number in \[0, 10000\]\)", [], [t / "out"],
+    )  # fmt: skip
+
+
+@case("fit-sigma-pos-1e-300")
+def _(b, t):
+    return Case(
+        _fit(b["dir"] / "meas.csv", t, "--sigma-pos-mm", "1e-300"), 2,
+        r"--sigma-pos-mm: 1e-300 is not a position uncertainty in mm", [], [t / "out"],
+    )  # fmt: skip
+
+
+def _bad_calibration(b, t, edit: Callable[[dict], None]) -> Case:
+    from quickhealth.station.vision_io import rig_to_json
+    from quickhealth.vision.reference import reference_rig
+
+    run = t / "vrun"
+    (run / "images").mkdir(parents=True)
+    (run / "images" / "index.csv").write_text("pose_id,q1,q2,q3,q4,q5,q6\nP1,0,-90,0,0,0,0\n")
+    doc = rig_to_json(reference_rig())
+    edit(doc)
+    (run / "calibration.json").write_text(json.dumps(doc))
+    return Case(["vision", "measure", str(run)], 2, "", [run / "calibration.json"],
+                [run / "measurements.csv"])  # fmt: skip
+
+
+@case("vision-calibration-singular-K")
+def _(b, t):
+    def edit(d: dict) -> None:
+        d["cameras"][0]["K"] = [[0, 0, 0], [0, 0, 0], [0, 0, 1]]
+
+    return _with(_bad_calibration(b, t, edit), r"calibration\.json: left camera: focal lengths "
+                 r"fx = 0, fy = 0 px must be positive \(K is singular or mirrored\)")  # fmt: skip
+
+
+@case("vision-calibration-nan-distortion")
+def _(b, t):
+    def edit(d: dict) -> None:
+        d["cameras"][1]["dist"] = [float("nan"), 0, 0, 0, 0]
+
+    return _with(_bad_calibration(b, t, edit), r"calibration\.json: right camera: distortion "
+                 r"\[nan, 0\.0, 0\.0, 0\.0, 0\.0\] is not finite or absurd")  # fmt: skip
+
+
+@case("urdf-joint-axis-zero")
+def _(b, t):
+    urdf = t / "three.urdf"
+    urdf.write_text(_URDF3.replace('<axis xyz="0.6 0 0.8"/>', '<axis xyz="0 0 0"/>'))
+    csv = b["dir"] / "meas.csv"
+    return Case(
+        ["identify", "fit", str(csv), "--robot", str(urdf), "--out", str(t / "out"), "--quiet"],
+        2, r"three\.urdf: joint 'j3' has the axis \[0\.0, 0\.0, 0\.0\]: a revolute joint needs a "
+        r"direction", [urdf, csv], [t / "out"],
+    )  # fmt: skip
+
+
+_URDF3 = """<?xml version="1.0"?>
+<robot name="three">
+  <link name="base"/><link name="l1"/><link name="l2"/><link name="l3"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>
+    <origin xyz="0 0 0.3" rpy="0 0 0"/><axis xyz="0 0 1"/>
+    <limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0.1 0 0.2" rpy="0.3 0 0"/><axis xyz="0 1 0"/>
+    <limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/>
+    <origin xyz="0.4 0 0" rpy="0 0.2 0.1"/><axis xyz="0.6 0 0.8"/>
+    <limit lower="-2.5" upper="2.5" effort="1" velocity="1"/></joint>
+</robot>
+"""
+
+
+@case("run-out-cannot-be-made")
+def _(b, t):
+    plan = t / "plan" / "plan.json"
+    plan.parent.mkdir()
+    assert main(["plan", "--cell", "reference", "--n", "12", "--out", str(plan.parent)]) == 0
+    out = Path("/sys/qh-corpus-run")  # the kernel refuses a new folder here, even to root
+    return Case(
+        ["run", "--cell", "reference", "--plan", str(plan), "--out", str(out), "--sim"], 2,
+        r"/sys/qh-corpus-run: cannot write: (Operation not permitted|Permission denied|Read-only)",
+        [plan], [out],
+    )  # fmt: skip
+
+
+@case("file-name-with-a-newline")
+def _(b, t):
+    csv = t / "two\nlines.csv"
+    csv.write_bytes((b["dir"] / "meas.csv").read_bytes())
+    return Case(
+        ["identify", "fit", str(csv), "--robot", "kuka", "--out", str(t / "out"), "--quiet"], 2,
+        r"unknown robot 'kuka'", [csv], [t / "out"],
+    )  # fmt: skip
+
+
+@case("missing-file-name-with-a-newline")
+def _(b, t):
+    return Case(
+        ["identify", "fit", str(t / "no\nsuch.csv"), "--robot", "ur5", "--out", str(t / "out")],
+        2, r"no\\nsuch\.csv: file not found", [], [t / "out"],
+    )  # fmt: skip
+
+
+@case("csv-comment-line-of-a-million-characters")
+def _(b, t):
+    text = (b["dir"] / "meas.csv").read_text()
+    csv = _csv(b, t, text="# note: " + "x" * 1_000_000 + "\n" + text)
+    return Case(
+        _fit(csv, t), 2,
+        r"bad\.csv:1:1: line of 1000008 characters is too long \(at most 16384\)", [csv],
+        [t / "out"],
+    )  # fmt: skip
+
+
+@case("vision-index-line-of-a-million-characters")
+def _(b, t):
+    return _with(
+        _index_run(b, t, "x" * 1_000_000 + ",0,-90,0,0,0,0\n"),
+        r"index\.csv:2:1: line of 1000014 characters is too long \(at most 16384\)",
+    )
+
+
 # ------------------------------------------------------------------------------ runner
 
 
+def _children() -> set[int]:
+    """This process's children still running (none where /proc is missing)."""
+    me, out = os.getpid(), set()
+    for d in os.listdir("/proc") if os.path.isdir("/proc") else []:
+        if d.isdigit():
+            try:
+                fields = Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == me and fields[0] != "Z":
+                out.add(int(d))
+    return out
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_hostile_input(name, base, tmp_path, capsys):
+def test_hostile_input(name, base, tmp_path, capsys, monkeypatch):
+    import time
+
     c = CASES[name](base, tmp_path)
     before = {p: _digest(p) for p in c.inputs}
+    kids = _children()
+    if c.patch is not None:
+        c.patch(monkeypatch)
     rc = main(c.argv)
+    monkeypatch.undo()
+    t_end = time.monotonic() + 5
+    while _children() - kids and time.monotonic() < t_end:
+        time.sleep(0.05)
+    assert not _children() - kids, f"processes left running: {_children() - kids}"
     out, err = capsys.readouterr()
     assert "Traceback" not in out + err
     assert rc == c.code, (rc, err)
@@ -1819,14 +2351,17 @@ def test_hostile_input(name, base, tmp_path, capsys):
         assert _digest(p) == h, f"{p} changed"
     for p in c.absent:
         assert not p.exists() and not p.is_symlink(), f"{p} was written"
-    leftovers = [p for p in tmp_path.rglob(".*.tmp")]
+    leftovers = [
+        p for pat in (".*.tmp", ".incoming-*", ".identify-*", ".reprocess-*")
+        for p in tmp_path.rglob(pat)
+    ]  # fmt: skip
     assert not leftovers, leftovers
     if c.check is not None:
         c.check()
 
 
 def test_corpus_covers_sixty_cases():
-    assert len(CASES) >= 60, len(CASES)
+    assert len(CASES) >= 146, len(CASES)  # issue 13's 106, issue 27's 40
 
 
 def test_unexpected_error_is_exit_3_one_line_traceback_only_with_debug(monkeypatch, capsys):

@@ -48,7 +48,7 @@ def test_small_plan_writes_everything(tmp_path, capsys):
 
 def test_n_zero_is_refused(tmp_path, capsys):
     rc = main(["plan", "--cell", "reference", "--n", "0", "--out", str(tmp_path / "o")])
-    _one_line_error(capsys, rc, r"--n: need at least 1 target pose, got 0")
+    _one_line_error(capsys, rc, r"--n: 0 is not a number of poses \(an integer in 1\.\.1000\)")
     assert not (tmp_path / "o").exists()
 
 

@@ -83,6 +83,12 @@ def test_twenty_poses_match_the_twin_within_the_vision_accuracy(
 
     dR = m.R @ np.swapaxes(T[:, :3, :3], 1, 2)
     assert np.degrees(np.linalg.norm(log_so3(dR), axis=1)).max() < 0.2
+    # the run folder holds the calibration of its (scaled) cameras: `vision measure RUN`
+    # measures the stored images again and finds the same poses (issue 27)
+    again = tmp_path / "again.csv"
+    assert main(["vision", "measure", str(out), "--jobs", "2", "--out", str(again)]) == 0
+    m2 = read_measurements(again)
+    assert m2.pose_id == m.pose_id and np.abs(m2.pos - m.pos).max() < 1e-6  # 1 µm
 
 
 @pytest.mark.timeout(150)
