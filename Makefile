@@ -13,11 +13,14 @@ LOCK   := requirements.lock
 # The environment is exactly requirements.lock (every version pinned, every file checked by
 # sha256): pip bootstraps the locked uv, uv makes .venv equal to the lock (from its cache after
 # the first time), then quickhealth goes in editable with the locked setuptools.  docs/install.md
+# --compile-bytecode: the .pyc files are made once here; where PYTHONDONTWRITEBYTECODE is set
+# (this workplace sets it) every process would otherwise compile scipy, matplotlib and textual
+# from source again (about 5 s of CPU per command).
 $(STAMP): pyproject.toml $(LOCK)
 	$(PYTHON) -m venv $(VENV)
 	$(PYTHON) tools/lockfile.py bootstrap uv > $(VENV)/uv-requirement.txt
 	$(PY) -m pip install --quiet --require-hashes --no-deps -r $(VENV)/uv-requirement.txt
-	$(UV) pip sync --quiet --python $(PY) --require-hashes $(LOCK)
+	$(UV) pip sync --quiet --python $(PY) --require-hashes --compile-bytecode $(LOCK)
 	$(UV) pip install --quiet --python $(PY) --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
