@@ -216,7 +216,9 @@ def candidate_names(
 ) -> list[str]:
     """Every effect worth testing on this data set, minus those already in the model.
 
-    Compliance needs link masses and a joint whose gravity torque varies; backlash needs a
+    Compliance is tested in its mass form (with link masses) and in its lumped form (the
+    moments estimated, payload included) for every joint whose gravity load varies; backlash
+    needs a
     joint approached from both sides; thermal a varying ``temp`` column; drift a varying
     ``time`` column.  Cyclic harmonics go up to ``max_harmonic`` cycles per revolution.
     """
@@ -226,8 +228,9 @@ def candidate_names(
     if robot.masses is not None and robot.coms is not None:
         tau = gravity_torques(robot, meas.q)
         out += [f"compliance:j{k + 1}" for k in range(nj) if np.ptp(tau[:, k]) > 1e-6]
-    else:
-        out += _lumped_compliance_candidates(robot, meas)
+    # the lumped form estimates the moments themselves: an unknown payload (a tracker's
+    # probe of 1-1.5 kg on a UR10) is in it, where the mass form knows the links only
+    out += _lumped_compliance_candidates(robot, meas)
     app = meas.approach_sign()
     out += [f"backlash:j{k + 1}" for k in range(nj) if np.unique(app[:, k]).size > 1]
     out += [f"cyclic:j{k + 1}:h{m}" for k in range(nj) for m in range(1, max_harmonic + 1)]
@@ -300,6 +303,19 @@ class Candidate:
     significant: bool
     evidence: str
     explained_share: float = float("nan")
+    predicted_rot_drop_mrad: float | None = None
+    rot_rms_after_mrad: float | None = None
+
+    @property
+    def orientation_only(self) -> bool:
+        """True when the effect would lower the orientation residual but not the position's
+        (below 1 % of the position RMS): it moves the target's orientation, not the TCP."""
+        return (
+            self.predicted_rot_drop_mrad is not None
+            and self.predicted_rot_drop_mrad > 0
+            and self.predicted_rms_drop_mm
+            <= max(1e-4, 0.01 * (self.rms_after_mm + self.predicted_rms_drop_mm))
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """The contract's keys (``effect``, ``score``, ``predicted_rms_drop_mm``, ``evidence``)
@@ -317,6 +333,9 @@ class Candidate:
             "rms_after_mm": self.rms_after_mm,
             "params": list(self.params),
             "explained_share": self.explained_share,
+            "predicted_rot_drop_mrad": self.predicted_rot_drop_mrad,
+            "rot_rms_after_mrad": self.rot_rms_after_mrad,
+            "orientation_only": self.orientation_only,
         }
 
 
@@ -328,7 +347,9 @@ class Diagnosis:
     ----------
     verdict : Verdict
     candidates : tuple of Candidate
-        Best first (smallest p-value, then largest predicted drop).
+        Best first: the significant ones by how much they lower the position RMS (then the
+        orientation RMS; one that only moves the orientation comes after every one that moves
+        the TCP, and says so), then the rest by p-value.
     n_tested : int
         Number of candidates tested (the Bonferroni factor).
     alpha : float
@@ -393,9 +414,14 @@ class Diagnosis:
         ]
         for i, c in enumerate(self.candidates[:top], 1):
             mark = "*" if c.significant else " "
+            rot = (
+                f", {c.predicted_rot_drop_mrad:.4f} mrad"
+                if c.predicted_rot_drop_mrad is not None
+                else ""
+            )
             lines.append(
                 f"{mark}{i:2d}. {c.effect:<16} score {c.score:7.2f}  "
-                f"drop {c.predicted_rms_drop_mm:.4f} mm  — {c.evidence}"
+                f"drop {c.predicted_rms_drop_mm:.4f} mm{rot}  — {c.evidence}"
             )
         if self.verdict is Verdict.ADEQUATE and self.noise_scale <= 1.5 and not self.order_hints:
             lines.append(
@@ -502,7 +528,7 @@ def diagnose(
     c = wp.n_comp
     res_now = wp.whiten.unwhite(r.reshape(-1, c))
     rms_now = rms_pos_mm(res_now)
-    rms_rot = float(np.sqrt(np.mean(np.sum(res_now[:, 3:] ** 2, axis=1))) * 1e3) if c == 6 else None
+    rms_rot = _rms_rot_mrad(res_now) if c == 6 else None
     m_tests = max(len(names), 1)
     effects: list[Effect] = []
     for name in names:
@@ -527,6 +553,7 @@ def diagnose(
         p_adj = float(np.exp(logp_adj))
         score = max(0.0, float(-logp_adj / np.log(10.0)))
         rms_after = rms_pos_mm(res_now - fit_res)
+        rot_after = _rms_rot_mrad(res_now - fit_res) if c == 6 else None
         lm = S / s2_c
         dbic = -S / s2_c + k * np.log(n_obs)
         share = float(S / rss) if rss > 0 else 0.0
@@ -543,6 +570,10 @@ def diagnose(
             significant=bool(p_adj < alpha and share >= min_share),
             evidence="",
             explained_share=share,
+            predicted_rot_drop_mrad=(
+                None if rms_rot is None or rot_after is None else float(rms_rot - rot_after)
+            ),
+            rot_rms_after_mrad=rot_after,
         )
         raw.append((logp_adj, cand))
         if effect.name.startswith("cyclic:"):
@@ -552,7 +583,8 @@ def diagnose(
             while len(spec_list) < h:
                 spec_list.append(0.0)
             spec_list[h - 1] = float(lm)
-    raw.sort(key=lambda t: (t[0], -t[1].predicted_rms_drop_mm))
+    raw = _prefer_mass_form(raw, alpha)
+    raw.sort(key=lambda t: _rank(t[1], t[0]))
     cands = tuple(
         replace(c_, evidence=_evidence(c_, state, spectra, m_tests, rms_now)) for _, c_ in raw
     )
@@ -595,6 +627,46 @@ def diagnose(
         suggested=suggested,
         order_hints=tuple(hints),
     )
+
+
+def _rms_rot_mrad(res: F) -> float:
+    """Orientation RMS ``sqrt(mean |w|²)`` of residuals ``(n, 6)`` (rad) in mrad."""
+    return float(np.sqrt(np.mean(np.sum(res[:, 3:] ** 2, axis=1))) * 1e3)
+
+
+def _prefer_mass_form(
+    raw: list[tuple[float, Candidate]], alpha: float
+) -> list[tuple[float, Candidate]]:
+    """Of a joint's two compliance forms, the lumped one (more parameters: it estimates the
+    moments, an unknown payload included) only counts where it explains significantly more
+    than the mass form (nested χ² test at ``alpha``); otherwise it is marked not significant,
+    so the simpler form with the known masses is ranked and suggested."""
+    from scipy import stats
+
+    by_name = {c.effect: c for _, c in raw}
+    out = []
+    for logp, c in raw:
+        mass = by_name.get(c.effect.removesuffix(":lumped"))
+        if c.effect.endswith(":lumped") and c.significant and mass is not None:
+            extra = c.lm_statistic - mass.lm_statistic
+            k = c.dof - mass.dof
+            p = float(stats.chi2.sf(max(extra, 0.0), k)) if k > 0 else 1.0
+            if p >= alpha:
+                c = replace(c, significant=False)
+        out.append((logp, c))
+    return out
+
+
+def _rank(c: Candidate, logp_adj: float) -> tuple[float, ...]:
+    """Sort key: significant candidates first, by position RMS drop (a TCP that moves
+    matters more than an orientation), those that only move the orientation after them by
+    their orientation drop; then the rest by p-value."""
+    if not c.significant:
+        return (2.0, logp_adj, -c.predicted_rms_drop_mm)
+    rot = c.predicted_rot_drop_mrad or 0.0
+    if c.orientation_only:
+        return (1.0, -rot, logp_adj)
+    return (0.0, -c.predicted_rms_drop_mm, -rot)
 
 
 def _in_model(state: LoopState) -> tuple[str, ...]:
@@ -823,6 +895,13 @@ def _evidence(
         f"{p} after Bonferroni over {m_tests} candidates; adding it would lower the position "
         f"RMS from {rms_now:.4f} to {c.rms_after_mm:.4f} mm"
     )
+    if c.rot_rms_after_mrad is not None and c.predicted_rot_drop_mrad is not None:
+        base += (
+            f" and the orientation RMS from {c.rot_rms_after_mrad + c.predicted_rot_drop_mrad:.4f}"
+            f" to {c.rot_rms_after_mrad:.4f} mrad"
+        )
+    if c.orientation_only:
+        base = "moves only the orientation, not the TCP position: " + base
     est = ", ".join(
         f"{n} ≈ {v:.3g} {u}"
         for n, v, u in zip(effect.param_names, c.params, effect.param_units, strict=False)
