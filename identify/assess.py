@@ -137,6 +137,8 @@ def assess(
     else:
         fitted = fit_model(robot, measurements, spec, eff, noise, prior)
     fitted = believable(fitted, measurements)
+    if progress is not None:
+        progress("workspace TCP error and joint curves")
     return evaluate(
         measurements,
         fitted,

@@ -32,7 +32,7 @@ SYNOPSIS::
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import Any
@@ -474,6 +474,8 @@ def diagnose(
     max_harmonic: int = 30,
     max_suggested: int = 3,
     min_share: float = 0.1,
+    progress: Callable[[str], None] | None = None,
+    advance: Callable[[int, int, str], None] | None = None,
 ) -> Diagnosis:
     """Test the residuals of a fitted model for every candidate effect.
 
@@ -498,6 +500,9 @@ def diagnose(
         in the model, and so on while one stays significant, up to this many effects
         (``Diagnosis.suggested``).  A large effect leaves side peaks in other candidates;
         this tells them apart from a second real effect.
+    progress, advance : callable, optional
+        Receive each stage's name, and ``(done, total, what)`` while the candidates are
+        tested (the command line's progress bar).
 
     The residuals and Jacobians are computed here (:func:`whitened`) with the model's
     instrument and encoder noise (:func:`whitening`), so the candidates' columns and the
@@ -507,6 +512,8 @@ def diagnose(
     -------
     Diagnosis
     """
+    say = progress or (lambda s: None)
+    say("linearising the model at its estimate")
     wp = whitened(state, meas)
     r, J = wp.r, wp.J
     names = (
@@ -541,7 +548,7 @@ def diagnose(
     raw: list[tuple[float, Candidate]] = []
     spectra: dict[str, list[float]] = {}
     bases = _bases(state, wp, Q, r)
-    for effect, one, logp_adj, s2_c, one_plain in _scan(wp, bases, effects, m_tests):
+    for effect, one, logp_adj, s2_c, one_plain in _scan(wp, bases, effects, m_tests, advance):
         if one is None:
             not_ident.append(
                 f"{effect.name}: the fitted model already expresses it (its Jacobian lies in "
@@ -591,6 +598,7 @@ def diagnose(
     verdict = Verdict.MISSING_EFFECT if cands and cands[0].significant else Verdict.ADEQUATE
     suggested: tuple[str, ...] = ()
     if verdict is Verdict.MISSING_EFFECT:
+        say("forward selection of the effects to add together")
         suggested = _forward(
             state, wp, Q, r, effects, cands[0].effect, m_tests, alpha, max_suggested
         )
@@ -756,6 +764,7 @@ def _scan(
     bases: _Bases,
     effects: Sequence[Effect],
     m_tests: int,
+    advance: Callable[[int, int, str], None] | None = None,
 ) -> list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]]:
     """Score test of every effect.
 
@@ -768,7 +777,9 @@ def _scan(
 
     out: list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]] = []
     plain = bases[()]
-    for effect in effects:
+    for i, effect in enumerate(effects):
+        if advance is not None:
+            advance(i, len(effects), "testing candidate effects")
         nuisance = _nuisance_joints(effect, bases.state.robot.n_joints)
         b = bases[nuisance]
         one = _one_step(wp, b.Q, b.r_perp, effect)

@@ -41,7 +41,7 @@ from .errormodel import (
 )
 from .measurements import Measurements
 from .robot import RobotModel
-from .transforms import log_so3, rot_x, rot_y, rpy_to_R, small_error_transform
+from .transforms import log_so3, rpy_to_R, small_error_transform
 
 F = NDArray[np.float64]
 

@@ -147,6 +147,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RecursionError:
         sys.stderr.write("quickhealth: error: input nested too deeply (recursion limit)\n")
         return 2
+    except BrokenPipeError:  # the reader of stdout went away (`… | head`): nothing to say
+        try:  # further writes (the interpreter's flush at exit) go nowhere
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+        return 0
     except OSError as exc:
         if debug:
             traceback.print_exc()

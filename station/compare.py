@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", type=Path, help="write the comparison as JSON here")
     p.add_argument("--plots", type=Path, help="folder for compare.png")
+    p.add_argument(
+        "--quiet", action="store_true", help="no progress on stderr (bar or stage lines)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,14 +71,12 @@ def run(args: argparse.Namespace) -> int:
     nj = fitted.robot.n_joints
     train = read_measurements(args.meas, nj)
     held = read_measurements(args.heldout, nj) if args.heldout else None
-    cmp = compare_effect(
-        fitted,
-        train,
-        args.effects,
-        heldout=held,
-        folds=args.folds,
-        progress=lambda s: print(f"  {s}", file=sys.stderr, flush=True),
-    )
+    from quickhealth.station.progress import Progress
+
+    with Progress(quiet=args.quiet) as say:  # a bar on a terminal, stage lines in a log
+        cmp = compare_effect(
+            fitted, train, args.effects, heldout=held, folds=args.folds, progress=say
+        )
     print("\n".join(cmp.summary()))
     if args.json:
         write_text_atomic(args.json, json.dumps(cmp.to_dict(), indent=1) + "\n")

@@ -69,6 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--candidates",
         help="comma-separated effects to test instead of all (e.g. uniformscale,depthscale)",
     )
+    p.add_argument(
+        "--quiet", action="store_true", help="no progress on stderr (bar or stage lines)"
+    )
     p.set_defaults(func=run_diagnose)
 
     t = sub.add_parser(
@@ -152,7 +155,18 @@ def run_diagnose(args: argparse.Namespace) -> int:
             if c != "uniformscale":
                 parse_effect(c, fitted.robot)  # InputError for unknown names
     state = state_from_fitted(fitted)
-    diag = diagnose(state, meas, candidates=cands, alpha=args.alpha, max_harmonic=args.max_harmonic)
+    from quickhealth.station.progress import Progress
+
+    with Progress(quiet=args.quiet) as say:
+        diag = diagnose(
+            state,
+            meas,
+            candidates=cands,
+            alpha=args.alpha,
+            max_harmonic=args.max_harmonic,
+            progress=say,
+            advance=say.advance,
+        )
     write_text_atomic(args.json, json.dumps(diag.to_dict(), indent=1) + "\n")
     print("\n".join(diag.summary(top=args.top)))
     for s in diag.not_identifiable:

@@ -163,7 +163,9 @@ def _fit(args: argparse.Namespace) -> int:
         sigma_rot=float(np.radians(args.sigma_rot_deg)),
         sigma_q=float(np.radians(args.sigma_q_deg)),
     )
-    say = (lambda s: None) if args.quiet else (lambda s: print(f"  {s}", file=sys.stderr))
+    from quickhealth.station.progress import Progress
+
+    say = Progress(quiet=args.quiet)  # a bar on a terminal, stage lines in a log
     say(
         f"{meas.n_poses} poses, {'full pose' if meas.has_orientation else 'position only'}; searching orders up to {args.max_order}"
     )
@@ -180,12 +182,14 @@ def _fit(args: argparse.Namespace) -> int:
             progress=say,
         )
     except InputError as exc:
+        say.close()
         if render is not None:
             render.close()
         if "too few" not in str(exc):
             raise InputError(f"{args.meas}: {exc}") from None
         n_lines = len(Path(args.meas).read_text(encoding="utf-8").splitlines())
         raise InputError(f"{args.meas}:{n_lines}:1: {exc}") from None
+    say("writing the model, report and residuals")
     # write everything into a temporary directory first: nothing half-written on failure
     make_dirs(out.parent)
     try:
@@ -207,6 +211,7 @@ def _fit(args: argparse.Namespace) -> int:
             (tmp / f.name).replace(out / f.name)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+        say.close()
     for line in a.summary():
         print(line)
     print(f"wrote {out / 'model.json'}, {out / 'report.json'}, {out / 'residuals.csv'}")
