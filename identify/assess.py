@@ -29,7 +29,7 @@ from .fit import FittedModel, ParameterPrior, fit_model
 from .linearize import InstrumentNoise
 from .measurements import Measurements
 from .robot import RobotModel
-from .sanity import NumericalError, check_plausible, weakest_directions
+from .sanity import NumericalError, check_plausible, check_residuals, weakest_directions
 from .select import Selection, select_orders
 from .workspace import JointCurves, WorkspaceError, all_joint_curves, workspace_error
 
@@ -182,6 +182,7 @@ def believable(fitted: FittedModel, measurements: Measurements) -> FittedModel:
             f"{fitted.chi2_data:.6g}): no model written; look for rows far from the rest "
             "(residuals.csv of a fit with --max-order 0) or lower --max-order"
         )
+    check_residuals(fitted, "the data cannot support a model")
     try:
         check_plausible(fitted, "the data cannot support a model")
     except InputError as exc:

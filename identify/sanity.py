@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from .errors import InputError, QuickhealthError
 from .fit import FittedModel
+from .measurements import Measurements
 
 F = NDArray[np.float64]
 
@@ -33,6 +34,12 @@ MAX_TCP_CORRECTION = 0.05
 MAX_ROT_CORRECTION = 0.05
 #: Joint commands the correction is sampled at (uniform over the identified ranges).
 EXTENT_SAMPLES = 1000
+#: Largest believable residual of a fitted model: position RMS (m, 3-D) and orientation RMS
+#: (rad).  What a model of a real robot leaves is its unmodelled error and the instrument's
+#: noise: tenths of a millimetre on an arm, 2 mm on a cable-driven one.  Beyond these the
+#: joints and the measured poses do not belong together.
+MAX_RESIDUAL_POS = 0.01
+MAX_RESIDUAL_ROT = np.radians(2.0)
 
 
 class NumericalError(QuickhealthError):
@@ -105,6 +112,55 @@ def check_plausible(fitted: FittedModel, name: str = "model") -> CorrectionExten
                 "beyond any real robot once base and tool are registered"
             )
     return ext
+
+
+def check_residuals(fitted: FittedModel, name: str = "the data") -> None:
+    """Refuse a fit whose residuals no robot model leaves (one line).
+
+    Raises
+    ------
+    InputError
+        Position RMS above :data:`MAX_RESIDUAL_POS` or orientation RMS above
+        :data:`MAX_RESIDUAL_ROT`: columns swapped, another robot's file, wrong units.
+    """
+    rot = fitted.rms_rot
+    if fitted.rms_pos > MAX_RESIDUAL_POS or (rot is not None and rot > MAX_RESIDUAL_ROT):
+        what = f"position RMS {fitted.rms_pos * 1e3:.4g} mm" + (
+            f", orientation RMS {np.degrees(rot):.4g} deg" if rot is not None else ""
+        )
+        raise InputError(
+            f"{name}: the model leaves residuals no robot's model leaves ({what}; limits "
+            f"{MAX_RESIDUAL_POS * 1e3:.0f} mm, {np.degrees(MAX_RESIDUAL_ROT):.0f} deg): the "
+            "joint readings and the measured poses do not belong together (columns swapped, "
+            "another robot's file, wrong units or robot description)"
+        )
+
+
+#: New data may leave this many times the model's own residual RMS, and this much (m) more,
+#: before the model is taken not to describe them (another robot or set-up).
+FOREIGN_FACTOR = 10.0
+FOREIGN_MARGIN = 0.002
+
+
+def check_describes(fitted: FittedModel, meas: Measurements, name: str = "the data") -> float:
+    """Refuse data the model does not describe (one line); returns their position RMS (m).
+
+    A diagnosis compares residuals with the model's structure; on another robot's or another
+    set-up's data (residuals of centimetres against a model that left tenths of a
+    millimetre) every candidate would be "significant" or none: neither is an answer.
+    """
+    T = fitted.predict(meas.q, time=meas.time, temp=meas.temp)
+    res = meas.pos - T[:, :3, 3]
+    rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
+    limit = max(FOREIGN_FACTOR * fitted.rms_pos, fitted.rms_pos + FOREIGN_MARGIN)
+    if not rms <= limit:
+        raise InputError(
+            f"{name}: the model does not describe this data: position RMS {rms * 1e3:.4g} mm "
+            f"against the {fitted.rms_pos * 1e3:.4g} mm it was fitted to (limit "
+            f"{limit * 1e3:.3g} mm): another robot or set-up, or a robot changed beyond its "
+            "model; fit this data first (identify fit)"
+        )
+    return rms
 
 
 def weakest_directions(fitted: FittedModel, k: int = 3) -> list[str]:

@@ -89,7 +89,7 @@ class Chi2Check:
     dof: int
     median: float
     ratio_to_median: float
-    verdict: str  # "ok", "instrument", "prior"
+    verdict: str  # "ok", "instrument", "prior", "overfit"
     message: str
 
 
@@ -520,6 +520,19 @@ def chi2_check(
         if fitted.noise.rescaled
         else "the stated instrument uncertainty"
     )
+    q001 = chi2_ppf(0.001, dof)
+    if fitted.chi2_data < q001:  # the check fails both ways: far below the noise is overfitting
+        return Chi2Check(
+            fitted.chi2_data,
+            dof,
+            med,
+            ratio,
+            "overfit",
+            f"chi2 check FAILED: {fitted.chi2_data:.0f} is {ratio:.2f} x its median {med:.0f}, "
+            f"below its 0.1 % point {q001:.0f}: the model follows the noise ({fitted.n_free} "
+            f"parameters for {fitted.n_poses} poses), or {stated} is too large; measure more "
+            "poses, lower --max-order, or check the stated uncertainty",
+        )
     if ratio <= factor:
         q999 = chi2_ppf(0.999, dof)
         if fitted.chi2_data <= q999:
@@ -717,13 +730,18 @@ def _search(
         labels = parameter_labels(fitted.spec, effects)
         pos_of = {lb: i for i, lb in enumerate(labels)}
         free_pos = {int(ix): k for k, ix in enumerate(lin.free_idx)}
+        # the data must support the model with margin: at most half as many parameters as
+        # measured components (as many residual degrees of freedom as parameters, so the
+        # χ² check keeps its power; a 14-pose run fitted 62 parameters to 84 numbers)
+        room = max_parameters(meas.n_poses * lin.d) - lin.n_free
         moves: list[tuple[float, StepKind, int, int, int]] = []
         for j in range(nj):
             for m in range(6):
                 cur = int(orders[j + 1, m])
                 sig = prior.joint_rot if m >= 3 else prior.joint_pos
-                if cur < max_order:
-                    bics = _score_raises(lin, j, m, cur, max_order, sig)
+                top = min(max_order, cur + max(room, 0))
+                if cur < top:
+                    bics = _score_raises(lin, j, m, cur, top, sig)
                     moves += [
                         (float(bic), StepKind.RAISE, j, m, cur + 1 + i)
                         for i, bic in enumerate(bics)
@@ -793,6 +811,11 @@ def _search(
         noise=noise,
         prior=prior,
     )
+
+
+def max_parameters(n_components: int) -> int:
+    """The most parameters a raise may bring a model to: half the measured components."""
+    return n_components // 2
 
 
 def _need(kind: StepKind, margin: float) -> float:

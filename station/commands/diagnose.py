@@ -154,6 +154,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
         for c in cands:
             if c != "uniformscale":
                 parse_effect(c, fitted.robot)  # InputError for unknown names
+    from quickhealth.identify.sanity import check_describes
+
+    check_describes(fitted, meas, str(args.meas))
     state = state_from_fitted(fitted)
     from quickhealth.station.progress import Progress
 

@@ -57,6 +57,11 @@ OPTIONAL_COLUMNS = (
     "srot",
 )
 
+#: Per-row uncertainties an instrument can state: 1 nm … 1 m, 1e-6 … 90 deg (outside them
+#: the number is a typing error, and 1e-300 weighted one row above all others).
+SIGMA_POS_MM_RANGE = (1e-6, 1e3)
+SIGMA_ROT_DEG_RANGE = (1e-6, 90.0)
+
 #: How far from 1 a quaternion's norm may be (rounding of written cells) before it is refused.
 QUAT_NORM_TOL = 1e-3
 
@@ -105,6 +110,7 @@ def check_poses_for_fit(meas: Measurements, robot: RobotModel, name: str) -> Non
             f"{name}: only {distinct} distinct joint configuration(s) in {meas.n_poses} rows; "
             f"a fit needs at least {MIN_DISTINCT_POSES}"
         )
+    _check_position_scale(meas, robot, name)
     span = np.degrees(np.ptp(meas.q, axis=0))
     still = [j + 1 for j in range(meas.n_joints) if span[j] < MIN_JOINT_SPAN_DEG]
     if still:
@@ -112,6 +118,41 @@ def check_poses_for_fit(meas: Measurements, robot: RobotModel, name: str) -> Non
             f"{name}: joint(s) {', '.join(map(str, still))} move less than "
             f"{MIN_JOINT_SPAN_DEG} deg over the data: their error motions cannot be identified; "
             "measure with every joint moving"
+        )
+
+
+#: Measured positions may span this many times more or less than the robot's flange does over
+#: the same joints (a tool lever or a short robot explain a factor of a few, units 1000).
+POSITION_SCALE_LIMIT = 20.0
+#: A row this far (m) from the median measured position is not the same set-up.
+MAX_POSITION_OFFSET_M = 50.0
+
+
+def _check_position_scale(meas: Measurements, robot: RobotModel, name: str) -> None:
+    """Refuse positions in the wrong unit or from another set-up (one line).
+
+    The spread of the measured points (RMS distance from their centroid) against that of the
+    nominal flange over the same joints: a ratio near 1/1000 is metres in a millimetre
+    column; a row tens of metres from the others is not the same instrument set-up.
+    """
+    pos = meas.pos
+    if np.all(np.isnan(pos)):
+        return
+    far = np.linalg.norm(pos - np.median(pos, axis=0), axis=1)
+    if far.max() > MAX_POSITION_OFFSET_M:
+        i = int(np.argmax(far))
+        raise InputError(
+            f"{name}: row {i + 1}: its position is {far[i]:.4g} m from the median of the "
+            "others: not the same instrument set-up (a typing error, or another file's row?)"
+        )
+    T = robot.fk(meas.q).reshape(-1, 4, 4)
+    flange = np.sqrt(np.mean(np.sum((T[:, :3, 3] - T[:, :3, 3].mean(0)) ** 2, axis=1)))
+    measured = np.sqrt(np.mean(np.sum((pos - pos.mean(0)) ** 2, axis=1)))
+    if flange > 0 and not 1 / POSITION_SCALE_LIMIT < measured / flange < POSITION_SCALE_LIMIT:
+        raise InputError(
+            f"{name}: the measured positions spread {measured * 1e3:.4g} mm while the robot's "
+            f"flange moves {flange * 1e3:.4g} mm over these joints: positions in another unit "
+            "(CSV v1 needs mm), or the wrong robot description?"
         )
 
 
@@ -314,13 +355,25 @@ def parse_measurements(
                 + (f" ({bad.size} rows in all)" if bad.size > 1 else "")
             )
         rot = quat_to_R(quat)
+
+    def uncertainty(cols: Sequence[str], unit: str, lo: float, hi: float) -> F:
+        """Positive uncertainties within what an instrument can state (``lo`` … ``hi``)."""
+        vals = np.stack([numbers(c, True) for c in cols], axis=1)
+        bad = np.argwhere((vals < lo) | (vals > hi))
+        if bad.size:
+            i, j = (int(v) for v in bad[0])
+            raise InputError(
+                f"{name}:{rows[i][0]}:{col[cols[j]] + 1}: column {cols[j]!r}: uncertainty "
+                f"{vals[i, j]:.6g} {unit} is outside what an instrument states "
+                f"({lo:g} to {hi:g} {unit})"
+            )
+        return vals
+
     sig_pos = (
-        np.stack([numbers(c, True) for c in ("sx", "sy", "sz")], axis=1) * 1e-3
-        if "sx" in col
-        else None
+        uncertainty(("sx", "sy", "sz"), "mm", *SIGMA_POS_MM_RANGE) * 1e-3 if "sx" in col else None
     )
     sig_rpy = (
-        np.radians(np.stack([numbers(c, True) for c in ("spitch", "syaw", "sroll")], axis=1))
+        np.radians(uncertainty(("spitch", "syaw", "sroll"), "deg", *SIGMA_ROT_DEG_RANGE))
         if "spitch" in col
         else None
     )
@@ -328,7 +381,11 @@ def parse_measurements(
         raise InputError(
             f"{name}:{header_line}:{col['spitch'] + 1}: angle uncertainties without angle columns"
         )
-    sig_rot = np.radians(numbers("srot", True)) if "srot" in col else None
+    sig_rot = (
+        np.radians(uncertainty(("srot",), "deg", *SIGMA_ROT_DEG_RANGE)[:, 0])
+        if "srot" in col
+        else None
+    )
     pose_id = tuple(cells[col["pose_id"]] for _, cells in rows) if "pose_id" in col else None
     return Measurements(
         q=q,

@@ -91,6 +91,10 @@ def read_dh_toml(path: str | os.PathLike[str]) -> RobotModel:
     return robot
 
 
+#: A robot's flange must move at least this much (m) over its joint ranges.
+MIN_REACH_M = 0.01
+
+
 def check_robot(robot: RobotModel, name: str) -> None:
     """Finite link transforms and limits, sane sizes (a robot under 20 m, limits within ±4 turns)."""
     links = np.asarray(robot.links, float)
@@ -103,6 +107,15 @@ def check_robot(robot: RobotModel, name: str) -> None:
         raise InputError(f"{name}: joint limits are not all finite numbers")
     if np.any(hi <= lo) or np.abs(np.concatenate([lo, hi])).max() > 8 * math.pi + 1e-9:
         raise InputError(f"{name}: joint limits must satisfy q_min < q_max within ±1440 deg")
+    # meaning: the flange must move when the joints do (every length zero, or lengths in km
+    # read as mm, makes a "robot" whose every pose is the same point)
+    q = np.random.default_rng(0).uniform(lo, hi, (64, robot.n_joints))
+    p = robot.fk(q).reshape(-1, 4, 4)[:, :3, 3]
+    if np.ptp(p, axis=0).max() < MIN_REACH_M:
+        raise InputError(
+            f"{name}: the flange moves less than {MIN_REACH_M * 1e3:g} mm over the joint "
+            "ranges: every link length is (near) zero; check the lengths and length_unit"
+        )
 
 
 def _dh_from_doc(p: Path, doc: dict[str, Any]) -> RobotModel:

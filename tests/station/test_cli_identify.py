@@ -356,3 +356,23 @@ def test_command_table_names_the_module_of_every_command() -> None:
             mod.register(sub)
             found.update({name: info.name for name in sub.choices})
     assert found == commands.COMMAND_MODULES
+
+
+def test_a_small_run_fits_at_most_the_parameters_its_data_support(tmp_path):
+    """Issue 27's overfit case: a 14-pose full-pose run is 84 numbers.  The search raises no
+    order beyond half of them (42 parameters: as many residual degrees of freedom as
+    parameters); before, it fitted 62 and left 0.00007 mm against 0.03 mm of noise."""
+    from quickhealth.identify.twin import make_twin, random_joints
+
+    twin = make_twin(seed=2)
+    q = random_joints(twin.robot, 14, seed=5, T_instr_base=twin.truth.T_instr_base)
+    f = tmp_path / "m14.csv"
+    formats.write_measurements(f, twin.measure(q, seed=6))
+    assert (
+        main(["identify", "fit", str(f), "--robot", "ur5", "--out", str(tmp_path / "o"), "--quiet"])
+        == 0
+    )
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert rep["n_poses"] == 14 and rep["n_params"] <= 42
+    assert rep["rms_pos_mm"] > 0.01  # the residual is the noise's size, not fitted away
+    assert rep["chi2_check"]["verdict"] in ("ok", "overfit")

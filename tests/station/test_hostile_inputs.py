@@ -2303,6 +2303,106 @@ def _(b, t):
     )
 
 
+# ---- issue 27: degenerate data is refused, never fitted (the identify side)
+
+
+@case("fit-positions-in-metres")
+def _(b, t):
+    rows = [r[:6] + [v / 1000.0 for v in r[6:]] for r in _good_rows(b)]
+    csv = _csv(b, t, rows)
+    return Case(
+        _fit(csv, t),
+        2,
+        r"bad\.csv: the measured positions spread 0\.\d+ mm while the robot's flange moves "
+        r"\d+(\.\d+)? mm over these joints: positions in another unit \(CSV v1 needs mm\)",
+        [csv],
+        [t / "out"],
+    )
+
+
+@case("fit-one-row-at-1e15-mm")
+def _(b, t):
+    rows = _good_rows(b)
+    rows[9][6] = 1e15
+    csv = _csv(b, t, rows)
+    return Case(
+        _fit(csv, t),
+        2,
+        r"bad\.csv: row 10: its position is 1e\+12 m from the median of the others: not the "
+        r"same instrument set-up",
+        [csv],
+        [t / "out"],
+    )
+
+
+@case("fit-q6-overwritten-to-span-1.5-deg")
+def _(b, t):
+    rows = _good_rows(b)
+    for i, r in enumerate(rows):
+        r[5] = 17.0 + 1.5 * i / (len(rows) - 1)  # the poses were measured elsewhere
+    csv = _csv(b, t, rows)
+    return Case(
+        _fit(csv, t),
+        2,
+        r"bad\.csv: the data cannot support a model: the model leaves residuals no robot's model "
+        r"leaves \(position RMS \d+(\.\d+)? mm; limits 10 mm, 2 deg\): the joint readings and "
+        r"the measured poses do not belong together",
+        [csv],
+        [t / "out"],
+    )
+
+
+@case("fit-sx-1e-300")
+def _(b, t):
+    rows = [r + [0.03, 0.03, 0.03] for r in _good_rows(b)]
+    rows[4][9] = 1e-300
+    p = _csv(b, t, rows)
+    p.write_text(p.read_text().replace("x,y,z\n", "x,y,z,sx,sy,sz\n", 1))
+    return Case(
+        _fit(p, t),
+        2,
+        r"bad\.csv:6:10: column 'sx': uncertainty 1e-300 mm is outside what an instrument "
+        r"states \(1e-06 to 1000 mm\)",
+        [p],
+        [t / "out"],
+    )
+
+
+@case("fit-robot-with-every-length-zero")
+def _(b, t):
+    text = (ROOT / "fixtures" / "robots" / "ur5.toml").read_text()
+    text = re.sub(r"(?m)^(a|d) = .*$", r"\1 = 0.0", text)
+    robot = t / "zero.toml"
+    robot.write_text(text)
+    argv = _fit(b["dir"] / "meas.csv", t)
+    argv[argv.index("ur5")] = str(robot)
+    return Case(
+        argv,
+        2,
+        r"zero\.toml: the flange moves less than 10 mm over the joint ranges: every link "
+        r"length is \(near\) zero",
+        [robot],
+        [t / "out"],
+    )
+
+
+@case("diagnose-another-robots-data")
+def _(b, t):
+    other = make_twin(seed=7)
+    q = random_joints(other.robot, 60, seed=8, T_instr_base=other.truth.T_instr_base)
+    csv = t / "other.csv"
+    formats.write_measurements(csv, other.measure(q, seed=9))
+    model = b["dir"] / "model.json"
+    return Case(
+        ["diagnose", str(model), str(csv), "--json", str(t / "d.json")],
+        2,
+        r"other\.csv: the model does not describe this data: position RMS \d+(\.\d+)? mm "
+        r"against the 0\.0\d+ mm it was fitted to",
+        [model, csv],
+        [t / "d.json"],
+    )
+
+
 # ------------------------------------------------------------------------------ runner
 
 
