@@ -86,6 +86,8 @@ def test_ur10_every_command_accepts_the_model_and_it_beats_classic_calibration(u
     p, pc = _pred(d / "p.csv"), _pred(d / "pc.csv")
     assert p["meas_minus_model_mm"].mean() < pc["meas_minus_model_mm"].mean()
     cover = np.mean(p["meas_minus_model_mm"] <= p["band95_mm"])
+    print(f"UR10 held-out mean {p['meas_minus_model_mm'].mean():.3f} mm (classic "
+          f"{pc['meas_minus_model_mm'].mean():.3f}), health {health:.3f} mm, band95 {cover:.1%}")  # fmt: skip
     assert 0.90 <= cover <= 0.98, cover
     assert main(["diagnose", str(model), str(train), "--json", str(d / "diag.json")]) == 0
     diag = json.loads((d / "diag.json").read_text())
@@ -119,19 +121,21 @@ def test_ur10_every_command_accepts_the_model_and_it_beats_classic_calibration(u
 
 def test_ur10_health_figure_does_not_depend_on_base_or_tool_parametrisation(ur10, tmp_path):
     """The same data with the instrument frame moved (1 m, 40 deg) and with the target frame
-    defined 25 mm and 15 deg away on the same probe: the fit splits error between base, tool
-    and joint constants differently, the health figure stays within 1 %."""
+    turned 15 deg about the measured point: the fit's base and tool take other values and
+    split error with the joint constants otherwise, the health figure stays within 1 %."""
     _, train, _, _, _ = ur10
     meas = formats.read_measurements(train, 6)
+    meas = meas.subset(np.arange(0, meas.n_poses, 2))  # 600 rows: the test's time budget
     # one isotropic uncertainty per row (the file's sx, sy, sz differ by 20 %): per-axis
     # sigmas would not turn with the instrument frame, and the data would not be the same
     iso = np.sqrt(np.mean(meas.sigma_pos**2, axis=1, keepdims=True))
     meas = replace(meas, sigma_pos=np.repeat(iso, 3, axis=1))
     G = exp_so3(np.array([0.3, -0.5, 0.4]))  # 40 deg
     moved = replace(meas, pos=meas.pos @ G.T + [1.0, -0.4, 0.2], rot=G[None] @ meas.R)
+    # the tool frame turned 15 deg about the measured point (the TCP, a point, stays: moving
+    # it would change which point's error is the health figure)
     X = exp_so3(np.radians([10.0, -10.0, 5.0]))
-    x = np.array([0.015, -0.01, 0.0172])  # 25 mm
-    other_tool = replace(meas, pos=meas.pos + meas.R @ x, rot=meas.R @ X)
+    other_tool = replace(meas, rot=meas.R @ X)
     health = {}
     for name, m in (("as measured", meas), ("moved", moved), ("tool", other_tool)):
         f = tmp_path / f"{name.replace(' ', '_')}.csv"
@@ -139,6 +143,7 @@ def test_ur10_health_figure_does_not_depend_on_base_or_tool_parametrisation(ur10
         r = _fit(f, tmp_path / name.replace(" ", "_"), R.UR10_ROBOT)
         health[name] = r["workspace"]["mean_mm"]
     base = health["as measured"]
+    print("health figure (mm):", {k: round(v, 4) for k, v in health.items()})
     assert all(abs(h / base - 1) < 0.01 for h in health.values()), health
 
 
