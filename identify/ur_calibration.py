@@ -236,11 +236,13 @@ def kinematics_of(robot: RobotModel, reference: RobotModel | None = None) -> Kin
         A, B = _fk(kin.links("ur_calibration"), q_s), _fk(kin.links("urdf"), q_s)
         rot = log_so3(np.swapaxes(B[:, :3, :3], -1, -2) @ A[:, :3, :3])
         return np.concatenate(
-            [(A[:, :3, 3] - B[:, :3, 3]).ravel(), 0.1 * rot.ravel(), 1e-4 * extra]
+            [(A[:, :3, 3] - B[:, :3, 3]).ravel(), 0.1 * rot.ravel(), 1e-6 * extra]
         )
 
     sol = least_squares(mismatch, np.zeros(5), xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    extra = sol.x if np.sum(sol.fun**2) < np.sum(mismatch(np.zeros(5)) ** 2) else np.zeros(5)
+    c0, c1 = float(np.sum(mismatch(np.zeros(5)) ** 2)), float(np.sum(sol.fun**2))
+    # frames that are already the best stay as they are: writing a file read back gives it again
+    extra = sol.x if c0 - c1 > max(1e-6 * c0, 1e-24) else np.zeros(5)
     O = origins(extra)
     Fp5 = np.linalg.multi_dot(list(O))
     rest = np.linalg.inv(Fp5) @ flange  # identity for every UR arm's DH table
