@@ -28,7 +28,7 @@ from .errors import InputError
 from .fit import FittedModel, ParameterPrior, fit_model
 from .linearize import InstrumentNoise
 from .measurements import Measurements
-from .robot import RobotModel
+from .robot import RobotModel, nominal_of
 from .sanity import NumericalError, check_plausible, check_residuals, weakest_directions
 from .select import Selection, select_orders
 from .workspace import JointCurves, WorkspaceError, all_joint_curves, workspace_error
@@ -77,6 +77,7 @@ class Assessment:
             f"workspace TCP error (model{', ' + cond if cond else ''}): mean "
             f"{ws.mean * 1e3:.3f} mm, std {ws.std * 1e3:.3f} mm, max {ws.max * 1e3:.3f} mm"
         )
+        lines.append(f"errors against the nominal kinematics of {nominal_of(self.fitted.robot)}")
         return lines
 
 

@@ -7,7 +7,9 @@ Uses of the fitted model, each a pure function:
    ``urdf_text`` that writes any :class:`RobotModel` as a URDF (joint origins);
 2. ``dh_deltas``         UR-style kinematics parameters: ``delta_theta, delta_a, delta_d,
    delta_alpha`` per joint on the manufacturer's DH table, fitted to the corrected kinematics,
-   with what DH cannot express reported as a residual; ``ur_calibration_text`` formats them;
+   with what DH cannot express reported as a residual; ``ur_calibration_text`` formats them
+   (a controller's ``calibration.conf`` layout); ``ur_kinematics_text`` writes the corrected
+   kinematics as the UR ROS driver's calibration YAML instead (exact, no DH fit);
    ``export_notes`` says what both leave out (every effect, the base and tool corrections);
 3. ``compensate_program`` rewrites a program's joint targets so that the *modelled* TCP lands
    on the nominal target: the joint error model (all Chebyshev orders) and every robot effect
@@ -59,8 +61,9 @@ from .errors import InputError
 from .fit import FittedModel
 from .linearize import forward, joint_angle_jacobian, loop_pose
 from .measurements import approach_from_order
-from .robot import RobotModel, chain, from_dh
+from .robot import RobotModel, chain, from_dh, nominal_of
 from .transforms import R_to_rpy, inv_T, log_so3, small_error_transform
+from .ur_calibration import KinematicsExport, kinematics_of, kinematics_yaml
 from .urscript import joint_targets, replace_targets
 
 F = NDArray[np.float64]
@@ -333,6 +336,45 @@ def ur_calibration_text(cal: DhCalibration, notes: Sequence[str] = ()) -> str:
         f"delta_d = {vec(cal.delta_d)}\n"
         f"delta_alpha = {vec(cal.delta_alpha)}\n"
     )
+
+
+def ur_kinematics_text(
+    robot: RobotModel,
+    spec: ErrorModelSpec,
+    coeffs: ArrayLike,
+    notes: Sequence[str] = (),
+) -> tuple[str, KinematicsExport]:
+    """The corrected kinematics (:func:`corrected_robot`) as the UR ROS driver's calibration
+    YAML (:mod:`.ur_calibration`): the file ``ur_calibration`` writes and ur_description's URDF
+    reads, so ROS, a planner and ``--calibration`` use the same kinematics.
+
+    The joint frames are placed like those of ``robot`` (the nominal model: its DH layout, or
+    the controller calibration it was read from), so the URDF's links and meshes stay where
+    they were.  What the layout cannot hold (a tilted or offset flange: a tool error) is left
+    out and said in the header, with ``notes`` (e.g. :func:`export_notes`).
+
+    Raises
+    ------
+    ValueError
+        The robot does not have six joints.
+    """
+    rc = corrected_robot(robot, spec, coeffs)
+    ex = kinematics_of(rc, reference=robot)
+    head = [
+        "quickhealth: corrected kinematics (the identified constant joint errors) in the "
+        "layout of the UR ROS driver's ur_calibration (kinematics_params of ur_description)",
+        f"nominal: {nominal_of(robot)}",
+        "lengths m, angles rad as ur_calibration writes them: R = Rx(roll) * Ry(pitch) * "
+        f"Rz(yaw); read as URDF origin rpy (Rz * Ry * Rx) the flange moves at most "
+        f"{ex.urdf_pos * 1e3:.4f} mm, {ex.urdf_rot * 1e3:.4f} mrad",
+    ]
+    if ex.flange_pos > 1e-9 or ex.flange_rot > 1e-9:
+        head.append(
+            f"left out of the export: the flange offset the layout cannot hold "
+            f"({ex.flange_pos * 1e3:.4f} mm, {ex.flange_rot * 1e3:.4f} mrad): it belongs to "
+            "the tool's TCP"
+        )
+    return kinematics_yaml(ex.kinematics, [*head, *notes]), ex
 
 
 # ------------------------------------------------------------------ compensate program

@@ -49,6 +49,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from quickhealth.identify.errors import InputError  # noqa: E402
+from quickhealth.identify.robot import nominal_of  # noqa: E402
 from quickhealth.station.formats.common import json_plain as _plain  # noqa: E402
 
 F = NDArray[np.float64]
@@ -418,6 +419,7 @@ def build_report(
     # 1. summary
     lines = [
         f"robot: {fitted.robot.name}" + (f" ({robot})" if robot else ""),
+        f"errors against the nominal kinematics of {nominal_of(fitted.robot)}",
         f"run: {rid}" + (f", {meta['time_utc']}" if "time_utc" in meta else ""),
     ]
     for k in ("plan_hash", "cell", "calibration_id", "software_version"):

@@ -4,7 +4,8 @@
 :func:`write_report_json`; the schema (``SCHEMA``) and its one checker (:func:`check_report`)
 live with the file format in :mod:`quickhealth.station.formats.report` and are re-exported
 here (docs/identify.md, "report.json").  Schema ``quickhealth.report/2``: the assessment's
-keys (``formats.report.REQUIRED``); a producer may add a ``run`` object (the station's run
+keys (``formats.report.REQUIRED``) and ``nominal`` (which nominal kinematics the figures are
+against: robot, controller calibration file and its SHA-256); a producer may add a ``run`` object (the station's run
 id, robot name, verdict, threshold) and ``input`` (the measurement file), and ``quickhealth
 report`` adds ``coverage``, ``diagnosis``, ``trend`` and ``iso9283`` sections.  Units: mm,
 degrees, mrad (joint curves), °C, s.
@@ -44,6 +45,7 @@ def report_of(
         "rms_pos_mm": float(fm.rms_pos * 1e3),
         "converged": bool(fm.converged),
         "robot": fm.robot.name,
+        "nominal": _nominal(fm.robot),
         "effects": [e.name for e in fm.effects],
         "orders": {
             spec.frame_name(f): dict(
@@ -163,3 +165,12 @@ def with_sections(doc: Mapping[str, Any], sections: Mapping[str, Mapping[str, An
             new[key] = s["data"]
     new["provenance"] = provenance()
     return json.dumps(_plain(new), indent=1, allow_nan=False) + "\n"
+
+
+def _nominal(robot: Any) -> dict[str, Any]:
+    """Which nominal kinematics the figures are against: the robot as named, and the
+    controller calibration file (name, SHA-256) when one replaced its nominal kinematics."""
+    from quickhealth.identify.robot import Nominal, nominal_of
+
+    nom = robot.nominal if robot.nominal is not None else Nominal(robot.name)
+    return {**nom.as_dict(), "description": nominal_of(robot)}

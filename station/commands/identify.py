@@ -1,6 +1,7 @@
 """``quickhealth identify``: fit the error model to measurements, predict new commands.
 
-quickhealth identify fit MEAS.csv --robot ROBOT --out DIR [--effects LIST] [--max-order N]
+quickhealth identify fit MEAS.csv --robot ROBOT [--calibration CAL.yaml] --out DIR
+    [--effects LIST] [--max-order N]
     [--sigma-pos-mm S] [--sigma-rot-deg S] [--sigma-q-deg S] [--plots] [--auto-rescale]
 quickhealth identify predict DIR/model.json INPUT --out PRED.csv [--threshold-mm T]
     INPUT: a measurement CSV, a CSV of joint columns only, or a URScript file (.script)
@@ -44,7 +45,14 @@ def register(subparsers: Any) -> None:
         description="Implicit-loop ML fit of the paper's error model with BIC order selection.",
     )
     f.add_argument("meas", help="measurement file, CSV v1")
-    f.add_argument("--robot", required=True, help="built-in name (ur5) or .toml/.urdf file")
+    f.add_argument(
+        "--robot", required=True, help="built-in name (ur3 … ur30, ur10e) or .toml/.urdf file"
+    )
+    f.add_argument(
+        "--calibration",
+        default=None,
+        help="the controller's calibration (UR ROS driver kinematics YAML) as nominal kinematics",
+    )
     f.add_argument("--out", required=True, help="output directory")
     f.add_argument("--effects", default=None, help="comma-separated effect names")
     f.add_argument(
@@ -145,14 +153,14 @@ def _fit(args: argparse.Namespace) -> int:
         write_error,
     )
 
-    robot = formats.load_robot(args.robot)
+    robot = formats.load_robot(args.robot, args.calibration)
     outputs = ["model.json", "report.json", "residuals.csv"]
     if args.plots:
         outputs += ["workspace_histogram.png", "residuals.png"]
         outputs += [f"joint{j}_curves.png" for j in range(1, robot.n_joints + 1)]
     refuse_overwriting_inputs(
         [("--out", out / n) for n in outputs],
-        [args.meas, args.robot if Path(args.robot).is_file() else None],
+        [args.meas, args.robot if Path(args.robot).is_file() else None, args.calibration],
     )
     _, other = fit_folder_owner(out, Path(args.meas))
     forced = claim_output_folder(out, other, force=args.force)

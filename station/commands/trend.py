@@ -7,7 +7,7 @@ quickhealth trend ROBOT [--threshold-mm X] [--figure max] [--tolerance-mm X] [--
     Exit 1 when the latest run is flagged: above the threshold, outside its control limits,
     or with an error curve that changed beyond the combined uncertainty (--fail-on threshold:
     only the threshold counts).
-quickhealth export MODEL.json [--urdf OUT.urdf] [--ur-calibration OUT.conf] [--json OUT.json]
+quickhealth export MODEL.json [--urdf OUT.urdf] [--ur-calibration OUT.yaml|OUT.conf] [--json OUT.json]
 quickhealth compensate MODEL.json PROGRAM --out NEW_PROGRAM [--errors ERR.csv] [--tcp-mm X,Y,Z]
     [--temp-c C] [--time-s S] [--leave-out EFFECTS] [--max-correction-deg D]
 quickhealth report RUN_DIR [--out report.html] [--archive DIR --robot NAME]
@@ -144,7 +144,8 @@ def register(subparsers: Any) -> None:
     e.add_argument(
         "--ur-calibration",
         default=None,
-        help="UR-style kinematics deltas (calibration.conf layout) to write",
+        help="OUT.yaml: the corrected kinematics as the UR ROS driver's calibration YAML; "
+        "any other name: UR-style DH deltas (calibration.conf layout)",
     )
     e.add_argument("--json", default=None, help="the deltas and residuals as JSON")
     e.set_defaults(func=_export)
@@ -375,6 +376,7 @@ def _export(args: argparse.Namespace) -> int:
         dh_deltas,
         export_notes,
         ur_calibration_text,
+        ur_kinematics_text,
         urdf_text,
     )
     from quickhealth.identify.errors import InputError
@@ -404,17 +406,37 @@ def _export(args: argparse.Namespace) -> int:
                 "joint origins with the identified constant joint errors",
             )
         )
-    if args.ur_calibration or args.json:
+    as_yaml = bool(args.ur_calibration) and Path(args.ur_calibration).suffix.lower() in (
+        ".yaml",
+        ".yml",
+    )
+    if as_yaml:
+        try:
+            text, kex = ur_kinematics_text(fm.robot, fm.spec, fm.coeffs, notes)
+        except ValueError as exc:
+            raise InputError(f"{args.model}: {exc}") from None
+        if not np.all(np.isfinite(kex.kinematics.xyz)) or not np.all(
+            np.isfinite(kex.kinematics.rpy)
+        ):
+            raise InputError(f"{args.model}: the corrected kinematics are not finite")
+        docs.append((args.ur_calibration, text, "corrected kinematics, UR ROS driver YAML"))
+    if (args.ur_calibration and not as_yaml) or args.json:
         try:
             cal = dh_deltas(fm.robot, fm.spec, fm.coeffs)
         except ValueError as exc:
-            raise InputError(f"{args.model}: {exc}") from None
+            hint = ""
+            if fm.robot.nominal is not None and fm.robot.nominal.calibration is not None:
+                hint = (
+                    f" (fitted against the controller calibration {fm.robot.nominal.calibration}:"
+                    " export --ur-calibration OUT.yaml instead)"
+                )
+            raise InputError(f"{args.model}: {exc}{hint}") from None
         print(
             f"DH deltas: corrected kinematics differ from nominal by "
             f"{cal.nominal_residual_pos_rms * 1e3:.4f} mm rms; DH cannot express "
             f"{cal.residual_pos_rms * 1e3:.4f} mm rms of it"
         )
-        if args.ur_calibration:
+        if args.ur_calibration and not as_yaml:
             docs.append(
                 (args.ur_calibration, ur_calibration_text(cal, notes), "UR-style DH deltas")
             )

@@ -3,7 +3,8 @@
 - :mod:`.measurements`: measurement CSV v1 (CONTRACTS.md), and the meaning checks before a fit;
 - :mod:`.model`: model.json (``quickhealth.model/1``);
 - :mod:`.report`: report.json (``quickhealth.report/2``): schema, writer, reader, checker;
-- :mod:`.robot`: robot descriptions (``--robot``: built-in name, DH table TOML, URDF);
+- :mod:`.robot`: robot descriptions (``--robot``: built-in name, DH table TOML, URDF) and
+  the controller calibration (``--calibration``: the UR ROS driver's kinematics YAML);
 - :mod:`.urscript`: URScript programs (joint targets for ``predict``, ``compensate``);
 - :mod:`.tracker`: laser-tracker exports of any column layout (``import tracker``, presets);
 - :mod:`.wam`: the Barrett WAM laser-tracker data set (the tracker importer's ``wam`` preset);
@@ -61,9 +62,11 @@ from .report import (
 )
 from .robot import (
     BUILTIN_ROBOTS,
+    calibrated_robot,
     check_robot,
     load_robot,
     read_dh_toml,
+    read_ur_calibration,
     read_urdf,
     robot_from_json,
     robot_to_json,
@@ -93,6 +96,7 @@ __all__ = [
     "WORKSPACE_KEYS",
     "MiB",
     "TrackerLayout",
+    "calibrated_robot",
     "check_joint_limits",
     "check_model",
     "check_poses_for_fit",
@@ -107,6 +111,7 @@ __all__ = [
     "parse_measurements",
     "parse_tracker",
     "read_dh_toml",
+    "read_ur_calibration",
     "read_measurements",
     "read_model",
     "read_report",

@@ -1,6 +1,8 @@
-"""Robot descriptions (``--robot``): a built-in name, a DH table (TOML) or a URDF.
+"""Robot descriptions (``--robot``): a built-in name, a DH table (TOML) or a URDF, and the
+controller's calibration (``--calibration``) that replaces a robot's nominal kinematics.
 
-- a built-in name: ``ur5``;
+- a built-in name, case-insensitive: ``ur3``, ``ur5``, ``ur10`` (CB3), ``ur3e``, ``ur5e``,
+  ``ur10e``, ``ur16e``, ``ur20``, ``ur30`` (e-Series);
 - a DH table file ``*.toml`` (format below);
 - a URDF file ``*.urdf``, read through pinocchio (revolute joints, any axis).
 
@@ -39,18 +41,31 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import RobotModel, from_dh, ur5
+from quickhealth.identify.robot import (
+    BUILTIN_ROBOTS,
+    Nominal,
+    RobotModel,
+    builtin_robot,
+    from_dh,
+    with_kinematics,
+)
+from quickhealth.identify.ur_calibration import KEYS, SEGMENTS, UrKinematics
 
 from .common import read_text_limited
 
 F = NDArray[np.float64]
 
-BUILTIN_ROBOTS = {"ur5": ur5}
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+#: A controller calibration further than this from the arm's nominal kinematics (flange
+#: position anywhere in the joint ranges) belongs to another arm model (UR5 vs UR5e: 73 mm;
+#: real calibrations differ from nominal by a few mm).
+MAX_CALIBRATION_OFFSET = 0.03  # m
 
 
-def load_robot(spec: str) -> RobotModel:
-    """A robot from a built-in name (``ur5``) or a description file path (``.toml``, ``.urdf``).
+def load_robot(spec: str, calibration: str | os.PathLike[str] | None = None) -> RobotModel:
+    """A robot from a built-in name (``ur10e``, any case) or a description file path
+    (``.toml``, ``.urdf``); with ``calibration``, its kinematics replaced by the controller
+    calibration in that UR ROS driver kinematics YAML (:func:`read_ur_calibration`).
 
     A bare name (no path separator, no file suffix) is only looked up among the built-ins,
     so a name can never reach outside them (``../x`` is a path, never a name).
@@ -59,19 +74,127 @@ def load_robot(spec: str) -> RobotModel:
     is_path = ("/" in s) or ("\\" in s) or s.lower().endswith((".toml", ".urdf"))
     if not is_path:
         if s.lower() in BUILTIN_ROBOTS and _NAME.fullmatch(s):
-            return BUILTIN_ROBOTS[s.lower()]()
+            robot = builtin_robot(s)
+        else:
+            raise InputError(
+                f"unknown robot {spec!r}: built-in robots are {', '.join(BUILTIN_ROBOTS)}; "
+                "or give a path to a .toml DH table or a .urdf file"
+            )
+    else:
+        p = Path(s)
+        if not p.is_file():
+            raise InputError(f"{p}: robot description file not found")
+        if p.suffix.lower() == ".toml":
+            robot = read_dh_toml(p)
+        elif p.suffix.lower() == ".urdf":
+            robot = read_urdf(p)
+        else:
+            raise InputError(f"{p}: unknown robot description format (use .toml or .urdf)")
+    if calibration is None:
+        return robot
+    return calibrated_robot(robot, calibration, robot_label=s)
+
+
+def read_ur_calibration(path: str | os.PathLike[str]) -> tuple[UrKinematics, str]:
+    """The ``kinematics`` block of a UR ROS driver calibration YAML (the file ``ur_calibration``
+    writes, the layout of ur_description's ``default_kinematics.yaml``) and the file's SHA-256.
+
+    Every segment (``shoulder`` … ``wrist_3``) needs ``x, y, z`` (m) and ``roll, pitch, yaw``
+    (rad) as finite numbers; ``hash`` is optional.  One line, naming the file, for anything
+    else.
+    """
+    import hashlib
+
+    import yaml
+
+    p = Path(path)
+    text = read_text_limited(p, "robot")  # size, regular file, UTF-8 before YAML sees it
+    try:
+        sha = hashlib.sha256(p.read_bytes()).hexdigest()  # as `sha256sum FILE` prints it
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read: {exc.strerror}") from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        at = f":{where.line + 1}:{where.column + 1}" if where is not None else ""
+        what = getattr(exc, "problem", None) or "not valid YAML"
+        raise InputError(f"{p}{at}: not valid YAML: {what}") from None
+    kin = doc.get("kinematics") if isinstance(doc, dict) else None
+    if not isinstance(kin, dict):
         raise InputError(
-            f"unknown robot {spec!r}: built-in robots are {', '.join(BUILTIN_ROBOTS)}; "
-            "or give a path to a .toml DH table or a .urdf file"
+            f"{p}: no 'kinematics:' block (expected the UR ROS driver's calibration YAML, "
+            "as ur_calibration writes it)"
         )
-    p = Path(s)
-    if not p.is_file():
-        raise InputError(f"{p}: robot description file not found")
-    if p.suffix.lower() == ".toml":
-        return read_dh_toml(p)
-    if p.suffix.lower() == ".urdf":
-        return read_urdf(p)
-    raise InputError(f"{p}: unknown robot description format (use .toml or .urdf)")
+    unknown = [str(k) for k in kin if k not in SEGMENTS and k != "hash"]
+    missing = [k for k in SEGMENTS if k not in kin]
+    if unknown or missing:
+        raise InputError(
+            f"{p}: kinematics has "
+            + "; ".join(
+                ([f"no {', '.join(missing)}"] if missing else [])
+                + ([f"unknown {', '.join(unknown)}"] if unknown else [])
+            )
+            + f" (expected the segments {', '.join(SEGMENTS)} and hash)"
+        )
+    vals = np.empty((6, 6))
+    for i, seg in enumerate(SEGMENTS):
+        block = kin[seg]
+        if not isinstance(block, dict):
+            raise InputError(f"{p}: kinematics.{seg} must hold {', '.join(KEYS)}")
+        for j, key in enumerate(KEYS):
+            v = block.get(key)
+            if isinstance(v, str):  # YAML 1.1 reads "1e-05" (no dot) as a string
+                try:
+                    v = float(v)
+                except ValueError:
+                    pass
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise InputError(f"{p}: kinematics.{seg}.{key} = {v!r} is not a number")
+            vals[i, j] = float(v)
+    if np.abs(vals[:, :3]).max() > 20.0:
+        raise InputError(f"{p}: a joint origin is more than 20 m away: not metres?")
+    if np.abs(vals[:, 3:]).max() > 4 * math.pi:
+        raise InputError(f"{p}: an angle is larger than 4π: not radians?")
+    h = kin.get("hash", "")
+    return UrKinematics(xyz=vals[:, :3], rpy=vals[:, 3:], hash=str(h) if h is not None else ""), sha
+
+
+def calibrated_robot(
+    robot: RobotModel, path: str | os.PathLike[str], robot_label: str | None = None
+) -> RobotModel:
+    """``robot`` whose nominal kinematics are the controller calibration in ``path``.
+
+    The joint readings keep their meaning; inertial data, limits and speeds stay the robot's
+    (centres of mass ride on their links, :func:`~quickhealth.identify.robot.with_kinematics`).
+    Refused: a robot without six joints, and a calibration further than
+    :data:`MAX_CALIBRATION_OFFSET` from the robot's own kinematics (another arm model's file).
+    """
+    p = Path(path)
+    if robot.n_joints != 6:
+        raise InputError(
+            f"{p}: a UR calibration has 6 joints, robot {robot.name!r} has {robot.n_joints}"
+        )
+    kin, sha = read_ur_calibration(p)
+    label = robot_label if robot_label is not None else robot.name
+    if "/" in label or "\\" in label:
+        label = Path(label).name
+    new = with_kinematics(
+        robot,
+        kin.links(),
+        nominal=Nominal(label, calibration=p.name, calibration_sha256=sha),
+        convention="urdf",
+    )
+    q = np.random.default_rng(0).uniform(robot.q_min, robot.q_max, size=(256, 6))
+    off = np.linalg.norm(new.fk(q)[:, :3, 3] - robot.fk(q)[:, :3, 3], axis=1).max()
+    if not off <= MAX_CALIBRATION_OFFSET:
+        raise InputError(
+            f"{p}: these kinematics put the flange up to {off * 1e3:.0f} mm from the "
+            f"{robot.name}'s nominal ones (a calibration moves it a few mm): the calibration "
+            f"of another arm model? Give the arm it was read from with --robot "
+            f"(built-in: {', '.join(BUILTIN_ROBOTS)})"
+        )
+    return new
 
 
 def read_dh_toml(path: str | os.PathLike[str]) -> RobotModel:
@@ -303,6 +426,11 @@ def robot_to_json(robot: RobotModel) -> dict[str, Any]:
         "coms": None if robot.coms is None else robot.coms.tolist(),
         "joint_names": list(robot.joint_names),
         "dh": robot.dh,
+        "qd_max": None if robot.qd_max is None else robot.qd_max.tolist(),
+        "qdd_max": None if robot.qdd_max is None else robot.qdd_max.tolist(),
+        "controller": robot.controller,
+        "control_hz": robot.control_hz,
+        "nominal": None if robot.nominal is None else robot.nominal.as_dict(),
     }
 
 
@@ -336,6 +464,20 @@ def robot_from_json(d: dict[str, Any]) -> RobotModel:
     names = d.get("joint_names", ())
     if not isinstance(names, list | tuple) or len(names) not in (0, nj):
         raise InputError(f"robot.joint_names must list {nj} names")
+    qd_max = _shaped(d, "qd_max", (nj,), optional=True)
+    qdd_max = _shaped(d, "qdd_max", (nj,), optional=True)
+    hz = d.get("control_hz")
+    if hz is not None and (isinstance(hz, bool) or not isinstance(hz, int | float)):
+        raise InputError("robot.control_hz is not a number")
+    nom = d.get("nominal")
+    nominal = None
+    if isinstance(nom, dict) and isinstance(nom.get("robot"), str):
+        cal, sha = nom.get("calibration"), nom.get("calibration_sha256")
+        nominal = Nominal(
+            nom["robot"],
+            calibration=cal if isinstance(cal, str) else None,
+            calibration_sha256=sha if isinstance(sha, str) else None,
+        )
     return RobotModel(
         name=str(d["name"]),
         links=links,
@@ -347,4 +489,9 @@ def robot_from_json(d: dict[str, Any]) -> RobotModel:
         joint_names=tuple(str(n) for n in names),
         dh=d.get("dh") if isinstance(d.get("dh"), dict) else None,
         convention=str(d.get("convention", "generic")),
+        qd_max=qd_max,
+        qdd_max=qdd_max,
+        controller=str(d.get("controller") or ""),
+        control_hz=None if hz is None else float(hz),
+        nominal=nominal,
     )
