@@ -156,8 +156,7 @@ def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = Non
     from quickhealth.identify.transforms import make_T, rpy_to_R
     from quickhealth.vision.pose7d import PoseMeasurement, Rejection, measure_stereo
 
-    from .hardware.target import T_target_plate, target0_from_plate
-    from .hardware.world import reference_target
+    from .hardware.target import T_target_plate, reference_target, target0_from_plate
     from .journal import JOURNAL, read_journal
     from .vision_io import read_gray, read_rig
 

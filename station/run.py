@@ -155,7 +155,7 @@ class Station:
         robot_name: str = "sim-ur5",
         closers: list[Callable[[], None]] | None = None,
     ) -> Station:
-        """A station in the simulated ``world`` (``hardware.world.SimWorld``) of ``cell``.
+        """A station in the simulated ``world`` (``sim.world.SimWorld``) of ``cell``.
 
         The nominal geometry comes from the cell file; the target and the self-check board
         from the world.  Used by ``--sim``, the TUI's in-process cell and the tests.
@@ -1000,7 +1000,7 @@ def ur_station(
         for f in reversed(closers):
             f()
         raise
-    from .hardware.world import reference_board, reference_target
+    from .hardware.target import reference_board, reference_target
 
     return Station(
         robot=robot,

@@ -49,7 +49,7 @@ def _demo(args: argparse.Namespace) -> int:
 
     from quickhealth.identify.errors import InputError
     from quickhealth.station.demo import run_demo
-    from quickhealth.station.hardware.world import parse_degradation
+    from quickhealth.station.sim.world import parse_degradation
 
     if args.n < 1:
         raise InputError(f"--n must be at least 1, got {args.n}")

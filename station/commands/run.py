@@ -206,7 +206,7 @@ def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: igno
 
     try:
         if args.sim:
-            from quickhealth.station.hardware.world import parse_degradation
+            from quickhealth.station.sim.world import parse_degradation
 
             station, _ = sim_station(
                 args.cell,

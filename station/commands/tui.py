@@ -67,20 +67,27 @@ def run(args: argparse.Namespace) -> int:
             "tui: give --sim for the simulated cell, --robot-ip IP for a real robot, "
             "or --data MEAS.csv"
         )
-    station = Station.open(
+    common = dict(
         cell=args.cell,
         plan=args.plan,
         archive=args.archive,
         robot_name=args.robot_name,
-        sim=args.sim,
-        robot_ip=args.robot_ip,
-        motor_port=args.motor_port,
-        cameras=None if not args.cameras else tuple(args.cameras.split(",", 1)),
-        calibration=args.calibration,
         n_poses=args.n,
         threshold_mm=args.threshold_mm,
         say=lambda line: print(f"quickhealth: {line}", file=sys.stderr, flush=True),
     )
+    if args.sim:
+        from ..tui.simulated import open_simulated  # the simulation, only under --sim
+
+        station = open_simulated(**common)
+    else:
+        station = Station.open(
+            robot_ip=args.robot_ip,
+            motor_port=args.motor_port,
+            cameras=None if not args.cameras else tuple(args.cameras.split(",", 1)),
+            calibration=args.calibration,
+            **common,
+        )
     return _run_app(station)
 
 

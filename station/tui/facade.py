@@ -324,7 +324,6 @@ class Station:
         plan: Path | None = None,
         archive: Path = Path("archive"),
         robot_name: str = "ur5-sim",
-        sim: bool = True,
         robot_ip: str | None = None,
         motor_port: str | None = None,
         cameras: tuple[str, str] | None = None,
@@ -333,98 +332,34 @@ class Station:
         threshold_mm: float = 2.0,
         run_id: str | None = None,
         say: Callable[[str], None] | None = None,
-        speed_factor: float = 1.0,
-        image_scale: float = 0.3,
     ) -> Station:
-        """The station for ``quickhealth tui``: the simulated cell (controller simulator
-        subprocess, emulated pan motor, rendered cameras) or the real one.
+        """The station for ``quickhealth tui`` on the real cell: UR robot, serial pan motor,
+        two cameras (``quickhealth tui --sim``: :func:`~.simulated.open_simulated`).
 
-        ``say`` receives a line before each slow step (planning, starting the cell)."""
-        from datetime import UTC, datetime
-
+        ``say`` receives a line before each slow step (planning, connecting)."""
         from quickhealth.station import run as station_run
-        from quickhealth.station.planning import load_cell, load_plan
 
         tell = say or (lambda line: None)
-        c = load_cell(cell)
-        if plan is None:
-            tell(f"planning cell {c.name}: {n_poses} candidate targets…")
-        the_plan = load_plan(plan) if plan is not None else make_plan(c, n_poses, 0)
-        if sim:
-            tell("starting the simulated cell (UR controller simulator, pan motor, cameras)…")
-            from quickhealth.station.sim.cell import sim_station
-
-            hw, simcell = sim_station(cell, image_scale=image_scale, speed_factor=speed_factor)
-        else:
-            tell(f"connecting to the robot at {robot_ip}…")
-            if not (robot_ip and motor_port and cameras and calibration):
-                raise InputError(
-                    "tui: a real station needs --robot-ip, --motor-port, --cameras and --calibration"
-                )
-            hw = station_run.ur_station(
-                cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
+        c, the_plan = cell_and_plan(cell, plan, n_poses, tell)
+        tell(f"connecting to the robot at {robot_ip}…")
+        if not (robot_ip and motor_port and cameras and calibration):
+            raise InputError(
+                "tui: a real station needs --robot-ip, --motor-port, --cameras and --calibration"
             )
-            simcell = None
-        rid = run_id or datetime.now(UTC).strftime("%Y-%m-%d-%H%M%S")
-        station = cls(
+        hw = station_run.ur_station(
+            cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
+        )
+        return cls(
             robot=c.robot,
             robot_name=robot_name,
             archive_root=Path(archive),
-            run_id=rid,
+            run_id=run_id or new_run_id(),
             cell_name=c.name,
             threshold_mm=threshold_mm,
-            sim=sim,
+            sim=False,
             hardware=hw,
             plan=the_plan,
             plan_path=plan,
-        )
-        station.simcell = simcell  # the simulated cell's handles (controller, emulator) or None
-        return station
-
-    @classmethod
-    def simulated(
-        cls,
-        archive_root: str | Path,
-        *,
-        n_candidates: int = 40,
-        plan_seed: int = 0,
-        plan: Any = None,
-        twin_seed: int = 1,
-        image_scale: float = 0.3,
-        time_scale: float = 20.0,
-        run_id: str = "sim-run-1",
-        robot_name: str = "sim-ur5",
-        threshold_mm: float = 2.0,
-        max_order: int = 4,
-    ) -> Station:
-        """The built-in simulated cell, in this process (fast; for tests and demos).
-
-        The arm is the pure-Python :class:`~quickhealth.station.sim.fake_robot.FakeRobot`
-        (``time_scale`` times faster than real), the pan motor the serial emulator on a
-        pseudo-terminal behind the real serial driver, and the cameras render the digital
-        twin's true target pose (:func:`~quickhealth.station.hardware.world.build_world`) at
-        ``image_scale`` of the reference sensor.  The plan is made now from
-        ``n_candidates`` random targets unless ``plan`` is given.
-        """
-        from quickhealth.station.run import RunSettings
-
-        hw, cell = inprocess_sim_station(
-            twin_seed=twin_seed, image_scale=image_scale, time_scale=time_scale
-        )
-        if plan is None:
-            plan = make_plan(cell, n_candidates, plan_seed)
-        return cls(
-            robot=cell.robot,
-            robot_name=robot_name,
-            archive_root=Path(archive_root),
-            run_id=run_id,
-            cell_name=cell.name,
-            threshold_mm=threshold_mm,
-            sim=True,
-            hardware=hw,
-            plan=plan,
-            run_settings=RunSettings(settle_window_s=0.03 * time_scale),
-            max_order=max_order,
         )
 
     @classmethod
@@ -777,56 +712,20 @@ def make_plan(cell: Any, n_candidates: int, seed: int = 0) -> Any:
     return plan_from_dict(plan_to_dict(res), f"plan of {cell.name} (n={n_candidates}, seed={seed})")
 
 
-def inprocess_sim_station(
-    cell_name: str = "reference",
-    *,
-    twin_seed: int = 1,
-    image_scale: float = 0.3,
-    time_scale: float = 20.0,
+def cell_and_plan(
+    cell: str, plan: Path | None, n_poses: int, tell: Callable[[str], None]
 ) -> tuple[Any, Any]:
-    """A ``station.run.Station`` on the simulated cell without the controller subprocess.
+    """The cell (file or built-in name) and its plan: ``plan`` if given, else planned now."""
+    from quickhealth.station.planning import load_cell, load_plan
 
-    FakeRobot (same motion model and faults as the controller simulator), the pan-motor
-    emulator behind the real serial driver, and simulated cameras that render the twin's
-    true plate pose at the robot's actual joints and the motor's true angle.
-    Returns ``(station, cell)``.
-    """
-    import math
+    c = load_cell(cell)
+    if plan is None:
+        tell(f"planning cell {c.name}: {n_poses} candidate targets…")
+    return c, (load_plan(plan) if plan is not None else make_plan(c, n_poses, 0))
 
-    from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
-    from quickhealth.station.hardware.motor import SerialPanMotor
-    from quickhealth.station.hardware.motor_emulator import MotorEmulator
-    from quickhealth.station.hardware.world import build_world
-    from quickhealth.station.planning import load_cell
-    from quickhealth.station.run import Station as RunStation
-    from quickhealth.station.sim.fake_robot import FakeRobot
 
-    cell = load_cell(cell_name)
-    world = build_world(cell_name, twin_seed=twin_seed)
-    robot = FakeRobot(time_scale=time_scale, model=cell.robot)
-    emu = MotorEmulator().start()
-    try:
-        # The emulator answers from a thread of this process, which shares the interpreter with
-        # the UI and the renderer: give it the time a busy GIL can take.
-        motor = SerialPanMotor(emu.port, timeout=1.0)
-    except BaseException:
-        emu.stop()
-        raise
+def new_run_id() -> str:
+    """A run id from the time now (UTC): ``2026-11-01-020000``."""
+    from datetime import UTC, datetime
 
-    def scene() -> list[tuple[Any, Any]]:
-        pan = math.radians(emu.position_deg())
-        return [(world.T_instr_plate(robot.joints(), pan), world.target)]
-
-    camera = SimStereoCamera(
-        scaled_rig(world.rig, image_scale), scene, static=[(world.T_instr_board, world.board)]
-    )
-    hw = RunStation.on_simulated_world(
-        cell,
-        world,
-        robot,
-        motor,
-        camera,
-        instrument=f"simulated stereo camera ({image_scale:g} × reference sensor)",
-        closers=[emu.stop, motor.close, camera.close, robot.close],
-    )
-    return hw, cell
+    return datetime.now(UTC).strftime("%Y-%m-%d-%H%M%S")

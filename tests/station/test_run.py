@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 import qh_station_plan as _station_plan
 
-from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
 from quickhealth.station.hardware.motor import SerialPanMotor
-from quickhealth.station.hardware.motor_emulator import MotorEmulator
 from quickhealth.station.hardware.target import T_target_plate
-from quickhealth.station.hardware.world import build_world
 from quickhealth.station.journal import JOURNAL, read_journal
 from quickhealth.station.planning import load_cell, load_plan
 from quickhealth.station.run import RunSettings, Station, is_settled, run_plan
+from quickhealth.station.sim.cameras import SimStereoCamera, scaled_rig
 from quickhealth.station.sim.fake_robot import FakeRobot
+from quickhealth.station.sim.motor_emulator import MotorEmulator
+from quickhealth.station.sim.world import build_world
 
 SETTINGS = RunSettings(capture_attempts=2)
 

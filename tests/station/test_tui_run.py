@@ -15,6 +15,7 @@ from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_cell
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.facade import Station, make_plan
+from quickhealth.station.tui.simulated import in_process
 from quickhealth.station.tui.screens.confirm import ConfirmScreen
 
 
@@ -27,7 +28,7 @@ def plan():  # type: ignore[no-untyped-def]
 
 
 def sim_station(tmp: Path, plan) -> Station:  # type: ignore[no-untyped-def]
-    return Station.simulated(tmp / "archive", plan=plan, max_order=1, threshold_mm=5.0)
+    return in_process(tmp / "archive", plan=plan, max_order=1, threshold_mm=5.0)
 
 
 @pytest.mark.slow
