@@ -8,8 +8,13 @@ function of a frozen :class:`ReprocessJob`, so it pickles to any worker):
    journal) measured again with the new rig (:func:`redetect_run`), giving new measurements;
 2. refit: the run's measurements with the archived model's orders and effects (``keep``), or
    a fresh BIC order search (``select``);
-3. write ``OUT/model.json``, ``OUT/report.json`` and ``OUT/reprocess.json`` (what was done,
-   from which inputs) and return the main figures.
+3. write ``OUT/model.json``, ``OUT/report.json``, ``OUT/residuals.csv``, the data fitted
+   (``OUT/measurements.csv``) and ``OUT/reprocess.json`` (what was done, from which inputs),
+   as ``identify fit`` writes a fit (:mod:`quickhealth.station.services.fitting`), and return
+   the main figures;
+4. with ``report``: the run's report against the archive (the trend with this run's new
+   figures), its verdict and the ``run`` object added to ``OUT/report.json``, as
+   ``quickhealth report`` adds them (:mod:`quickhealth.station.services.report`).
 
 ``reprocess`` runs the jobs in parallel: local processes by default, a Dask cluster when a
 scheduler address (or a ``distributed.Client``) is given.  The results are the same either
@@ -25,17 +30,19 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from quickhealth.identify.errors import InputError, QuickhealthError
-
+from ..identify.assess import MAX_ORDER, WORKSPACE_SAMPLES
+from ..identify.errors import InputError, QuickhealthError
+from . import formats
 from .archive import Archive, safe_name
+from .services import fitting, report
+from .services.options import FitOptions, ReportOptions
+from .verdict import HealthVerdict, Threshold, ThresholdFigure
 
 
 @dataclass(frozen=True)
@@ -48,8 +55,13 @@ class ReprocessJob:
     out_dir: str
     calibration: str | None = None  # CAL.json / rig file for re-detection
     orders: str = "keep"  # "keep" the archived model's orders, or "select" anew
-    max_order: int = 6
-    workspace_samples: int = 5000
+    max_order: int = MAX_ORDER
+    workspace_samples: int = WORKSPACE_SAMPLES
+    report: bool = False  # add the report's sections and verdict to report.json
+    threshold_mm: float | None = None  # the report's threshold (of ``threshold_figure``)
+    threshold_figure: str = "max"
+    archive_root: str | None = None  # the archive of the trend (with ``report``)
+    archive_url: str | None = None
 
 
 @dataclass(frozen=True)
@@ -66,6 +78,8 @@ class ReprocessResult:
     rms_pos_mm: float = float("nan")
     figures_mm: dict[str, float] = field(default_factory=dict)
     coeffs: tuple[float, ...] = ()
+    verdict: HealthVerdict | None = None  # with the job's ``report``
+    reason: str = ""
 
     def line(self) -> str:
         """One line for the command line."""
@@ -76,6 +90,7 @@ class ReprocessResult:
             f"{self.robot}/{self.run_id}: {self.n_poses} poses, rms {self.rms_pos_mm:.4f} mm; "
             f"workspace mean {f['mean']:.3f} std {f['std']:.3f} max {f['max']:.3f} mm"
             + (" (re-detected)" if self.redetected else "")
+            + ("" if self.verdict is None else f"; {self.verdict.upper()}: {self.reason}")
         )
 
 
@@ -87,10 +102,13 @@ def jobs_for_archive(
     tag: str = "reprocessed",
     calibration: str | Path | None = None,
     orders: str = "keep",
-    max_order: int = 6,
-    workspace_samples: int = 5000,
+    max_order: int = MAX_ORDER,
+    workspace_samples: int = WORKSPACE_SAMPLES,
+    report: bool = False,
+    threshold: Threshold | None = None,
 ) -> list[ReprocessJob]:
-    """Jobs for every run of ``robot`` (or of every robot), output in ``RUN/reprocessed/TAG``."""
+    """Jobs for every run of ``robot`` (or of every robot), output in ``RUN/reprocessed/TAG``;
+    with ``report``, each reports its run against ``archive`` (``threshold``: its limit)."""
     tag = safe_name(tag, "tag")
     if orders not in ("keep", "select"):
         raise InputError(f"--orders must be keep or select, got {orders!r}")
@@ -116,6 +134,11 @@ def jobs_for_archive(
                     orders=orders,
                     max_order=max_order,
                     workspace_samples=workspace_samples,
+                    report=report,
+                    threshold_mm=None if threshold is None else threshold.mm,
+                    threshold_figure=ThresholdFigure.MAX if threshold is None else threshold.figure,
+                    archive_root=str(archive.root) if report else None,
+                    archive_url=archive.url if report else None,
                 )
             )
     if run_ids is not None:
@@ -224,54 +247,54 @@ def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = Non
 
 
 def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
-    from quickhealth.identify.assess import assess
-    from quickhealth.station import formats
-    from quickhealth.station.report_json import write_report_json
-
     src = Path(job.run_dir)
     old = formats.read_model(src / "model.json")
     if job.calibration:
         meas = redetect_run(src, job.calibration)
     else:
         meas = formats.read_measurements(src / "measurements.csv", old.robot.n_joints)
-    if job.orders == "select":
-        a = assess(
-            meas,
-            old.robot,
-            old.effects,
-            noise=old.noise,
-            prior=old.prior,
-            max_order=job.max_order,
-            workspace_samples=job.workspace_samples,
-        )
-    else:
-        a = assess(
-            meas,
-            old.robot,
-            old.effects,
-            noise=old.noise,
-            prior=old.prior,
-            spec=old.spec,
-            workspace_samples=job.workspace_samples,
-        )
-    fitted, ws = a.fitted, a.workspace
+    options = FitOptions(
+        effects=tuple(e.name for e in old.effects),
+        max_order=job.max_order,
+        noise=old.noise,
+        prior=old.prior,
+        spec=old.spec if job.orders == "keep" else None,
+        workspace_samples=job.workspace_samples,
+    )
+    a = fitting.assess(meas, old.robot, options)
+    done = {"job": asdict(job), "source_model": str(src / "model.json")}
     out = Path(job.out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".reprocess-", dir=out.parent))
-    try:
-        formats.write_model(tmp / "model.json", fitted)
-        write_report_json(tmp / "report.json", a, source=str(src / "measurements.csv"))
-        if job.calibration:
-            formats.write_measurements(tmp / "measurements.csv", meas)
-        formats.write_text_atomic(
-            tmp / "reprocess.json",
-            json.dumps({"job": asdict(job), "source_model": str(src / "model.json")}, indent=1),
+    fitting.write_fit(
+        out,
+        a,
+        source=str(src / "measurements.csv"),
+        extra={
+            "measurements.csv": formats.format_measurements(meas),
+            "reprocess.json": json.dumps(done, indent=1),
+        },
+        whole_folder=True,
+    )
+    fitted, ws = a.fitted, a.workspace
+    verdict, reason = None, ""
+    if job.report:
+        arch = Archive.open(job.archive_root, job.archive_url) if job.archive_root else None
+        threshold = (
+            None
+            if job.threshold_mm is None
+            else Threshold(job.threshold_mm, ThresholdFigure(job.threshold_figure))
         )
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        j = report.report_run(
+            out,
+            archive=arch,
+            robot=job.robot,
+            run_id=job.run_id,
+            options=ReportOptions(threshold=threshold, workspace_samples=job.workspace_samples),
+            meas=meas,
+            write_html=False,
+            in_place_of_archived=True,
+            record_verdict=False,  # the index keeps the archived run's (--update-index: this)
+        ).report.judgement
+        verdict, reason = j.verdict, j.reason
     return ReprocessResult(
         robot=job.robot,
         run_id=job.run_id,
@@ -282,6 +305,8 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
         rms_pos_mm=fitted.rms_pos * 1e3,
         figures_mm={"mean": ws.mean * 1e3, "std": ws.std * 1e3, "max": ws.max * 1e3},
         coeffs=tuple(map(float, fitted.coeffs)),
+        verdict=verdict,
+        reason=reason,
     )
 
 

@@ -1,4 +1,4 @@
-"""``quickhealth diagnose``, ``quickhealth twin`` and ``quickhealth compare``.
+"""``quickhealth diagnose`` and ``quickhealth twin``.
 
 quickhealth diagnose DIR/model.json MEAS.csv --json OUT.json [--plots DIR] [--fail-on-missing]
     Which physical effect does the model miss?  OUT.json (CONTRACTS.md):
@@ -9,9 +9,6 @@ quickhealth diagnose DIR/model.json MEAS.csv --json OUT.json [--plots DIR] [--fa
 quickhealth twin --out MEAS.csv [--effects NAME=SIZE,...] [--n N] [--seed S] [--heldout N2]
     Measurements of the digital twin (a UR5 with random errors and hidden effects, seen by
     a camera 2 m away) as CSV v1, and its truth as JSON beside it.
-
-quickhealth compare DIR/model.json MEAS.csv --effects LIST [--heldout HELD.csv]
-    The comparison of :mod:`quickhealth.station.compare` (also for ``identify compare``).
 """
 
 from __future__ import annotations
@@ -94,10 +91,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     t.add_argument("--temp-rise", type=float, default=6.0, help="warm-up during the run (K)")
     t.add_argument("--position-only", action="store_true", help="no orientation columns")
     t.set_defaults(func=run_twin)
-
-    from quickhealth.station import compare  # light: heavy imports are in its run()
-
-    compare.register(sub)
 
 
 def run_diagnose(args: argparse.Namespace) -> int:

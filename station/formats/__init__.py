@@ -2,7 +2,8 @@
 
 - :mod:`.measurements`: measurement CSV v1 (CONTRACTS.md), and the meaning checks before a fit;
 - :mod:`.model`: model.json (``quickhealth.model/1``);
-- :mod:`.report`: report.json (``quickhealth.report/2``): schema, writer, reader, checker;
+- :mod:`.report`: report.json (``quickhealth.report/2``): content, schema, writer, reader, checker;
+- :mod:`.residuals`: residuals.csv (measured minus model per pose);
 - :mod:`.robot`: robot descriptions (``--robot``: built-in name, DH table TOML, URDF);
 - :mod:`.urscript`: URScript programs (joint targets for ``predict``, ``compensate``);
 - :mod:`.wam`: the Barrett WAM laser-tracker data set;
@@ -58,8 +59,13 @@ from .report import (
     WORKSPACE_KEYS,
     check_report,
     read_report,
+    report_of,
+    trend_to_json,
+    with_sections,
     write_report,
+    write_report_json,
 )
+from .residuals import residual_table
 from .robot import (
     BUILTIN_ROBOTS,
     check_robot,
@@ -113,10 +119,15 @@ __all__ = [
     "read_urscript",
     "read_urscript_joints",
     "read_wam_csv",
+    "report_of",
+    "residual_table",
     "robot_from_json",
     "robot_to_json",
+    "trend_to_json",
+    "with_sections",
     "write_measurements",
     "write_model",
     "write_report",
+    "write_report_json",
     "write_text_atomic",
 ]

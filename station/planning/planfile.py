@@ -207,6 +207,22 @@ def dumps(doc: dict[str, Any]) -> str:
     return json.dumps(doc, indent=1, ensure_ascii=False, allow_nan=False) + "\n"
 
 
+def plan_joints(path: str | Path) -> F | None:
+    """The commanded joints of a plan.json (rad, plan order), None when the file is missing or
+    holds no poses; for reading a run's plan without validating it whole (the report)."""
+    p = Path(path)
+    if not p.is_file():
+        return None
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
+    poses = doc.get("poses") if isinstance(doc, dict) else None
+    if not isinstance(poses, list) or not poses:
+        return None
+    return np.radians(np.array([q["q_deg"] for q in poses], dtype=float))
+
+
 def load_plan(path: str | Path) -> Plan:
     """Load and validate a plan file.
 

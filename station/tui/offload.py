@@ -28,7 +28,7 @@ PRELOAD = [
     "quickhealth.identify.diagnose",
     "quickhealth.identify.compare",
     "quickhealth.identify.workspace",
-    "quickhealth.station.tui.jobs",
+    "quickhealth.station.tui.jobs",  # and the application layer it calls (fit, report, archive)
     "quickhealth.station.tui.figures",
 ]
 

@@ -15,8 +15,8 @@ from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_cell
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.facade import Station, make_plan
-from quickhealth.station.tui.simulated import in_process
 from quickhealth.station.tui.screens.confirm import ConfirmScreen
+from quickhealth.station.tui.simulated import in_process
 
 
 @pytest.fixture(scope="module")
