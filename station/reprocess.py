@@ -36,13 +36,26 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from ..identify.assess import MAX_ORDER, WORKSPACE_SAMPLES
 from ..identify.errors import InputError, QuickhealthError
+from ..identify.measurements import Measurements
+from ..identify.transforms import make_T, rpy_to_R
+from ..vision.boards import TargetDescription
+from ..vision.pose7d import PoseMeasurement, Rejection, measure_stereo
 from . import formats
 from .archive import Archive, safe_name
+from .formats.journal import Captured
+from .hardware.target import T_target_plate, reference_target, target0_from_plate
+from .journal import JOURNAL, read_journal
 from .services import fitting, report
 from .services.options import FitOptions, ReportOptions
 from .verdict import HealthVerdict, Threshold, ThresholdFigure
+from .vision_io import read_gray, read_rig
+
+F = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -156,7 +169,9 @@ def reprocess_run(job: ReprocessJob) -> ReprocessResult:
         return ReprocessResult(job.robot, job.run_id, job.out_dir, ok=False, error=str(exc))
 
 
-def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = None) -> Any:
+def redetect_run(
+    run_dir: str | Path, calibration: str | Path, target: TargetDescription | None = None
+) -> Measurements:
     """Measure a run's stored stereo images again with another camera calibration.
 
     Reads the journal's captured poses (joint readings, pan angle, time, image files), runs
@@ -171,18 +186,6 @@ def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = Non
         No journal with captured poses, a missing image, or a calibration that is not a stereo
         calibration.
     """
-    import math
-
-    import numpy as np
-
-    from quickhealth.identify.measurements import Measurements
-    from quickhealth.identify.transforms import make_T, rpy_to_R
-    from quickhealth.vision.pose7d import PoseMeasurement, Rejection, measure_stereo
-
-    from .hardware.target import T_target_plate, reference_target, target0_from_plate
-    from .journal import JOURNAL, read_journal
-    from .vision_io import read_gray, read_rig
-
     d = Path(run_dir)
     if not (d / JOURNAL).is_file():
         raise InputError(f"{d}: no {JOURNAL}: the run's images cannot be re-detected")
@@ -191,57 +194,46 @@ def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = Non
         raise InputError(f"{d / JOURNAL}: no captured poses to re-detect")
     rig = read_rig(Path(calibration))
     target = reference_target() if target is None else target
-    old: dict[str, Any] = {}
+    old: dict[str, F] = {}
     if (d / "measurements.csv").is_file():
-        from . import formats
-
         m_old = formats.read_measurements(d / "measurements.csv")
         if m_old.pose_id is not None and m_old.rpy is not None:
             T_old = make_T(rpy_to_R(*m_old.rpy.T), m_old.pos)
             old = dict(zip(m_old.pose_id, T_old, strict=True))
-    q, pos, rpy, sp, sr, t, pan_l, ids, failed = [], [], [], [], [], [], [], [], []
+    found: list[tuple[Captured, PoseMeasurement]] = []
+    failed = []
     for i in sorted(st.captured):
         rec = st.captured[i]
-        left, right = (read_gray(d / p) for p in rec["images"])
+        left, right = (read_gray(d / p) for p in rec.images)
         for cam, img in zip(rig.cameras, (left, right), strict=True):
             if tuple(cam.image_size) != (img.shape[1], img.shape[0]):
                 raise InputError(
                     f"{calibration}: calibrated for {cam.image_size[0]}×{cam.image_size[1]} px "
                     f"images, the run's are {img.shape[1]}×{img.shape[0]} px"
                 )
-        pan = math.radians(rec["pan_deg"])
-        hint = old[rec["name"]] @ T_target_plate(pan) if rec["name"] in old else None
-        m = measure_stereo(rig, target, left, right, roi_hint=hint, pan=pan)
+        hint = old[rec.name] @ T_target_plate(rec.pan) if rec.name in old else None
+        m = measure_stereo(rig, target, left, right, roi_hint=hint, pan=rec.pan)
         if isinstance(m, Rejection) and hint is not None:
-            m = measure_stereo(rig, target, left, right, pan=pan)  # search the whole images
+            m = measure_stereo(rig, target, left, right, pan=rec.pan)  # search the whole images
         if isinstance(m, Rejection):
-            failed.append(rec["name"])
+            failed.append(rec.name)
             continue
-        m0 = PoseMeasurement(
-            target0_from_plate(m.T_left_target, pan), m.cov, m.rms_px, m.n_corners, m.n_outliers
-        )
-        q.append(np.radians(rec["q_deg"]))
-        pos.append(m0.position)
-        rpy.append(m0.rpy)
-        sp.append(m0.sigma_pos)
-        sr.append(m0.sigma_rpy)
-        t.append(rec["time_s"])
-        pan_l.append(pan)
-        ids.append(rec["name"])
-    if not ids:
+        T0 = target0_from_plate(m.T_left_target, rec.pan)
+        found.append((rec, PoseMeasurement(T0, m.cov, m.rms_px, m.n_corners, m.n_outliers)))
+    if not found:
         raise InputError(f"{d}: the target was found in none of the images with {calibration}")
     meta = {"redetected_with": str(calibration)}
     if failed:
         meta["redetect_failed"] = " ".join(failed)
     return Measurements(
-        q=np.array(q),
-        pos=np.array(pos),
-        rpy=np.array(rpy),
-        time=np.array(t, float),
-        pan=np.array(pan_l),
-        sigma_pos=np.array(sp),
-        sigma_rpy=np.array(sr),
-        pose_id=tuple(ids),
+        q=np.array([c.q for c, _ in found]),
+        pos=np.array([m.position for _, m in found]),
+        rpy=np.array([m.rpy for _, m in found]),
+        time=np.array([c.time_s for c, _ in found], float),
+        pan=np.array([c.pan for c, _ in found]),
+        sigma_pos=np.array([m.sigma_pos for _, m in found]),
+        sigma_rpy=np.array([m.sigma_rpy for _, m in found]),
+        pose_id=tuple(c.name for c, _ in found),
         meta=meta,
     )
 
@@ -264,7 +256,7 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
     a = fitting.assess(meas, old.robot, options)
     done = {"job": asdict(job), "source_model": str(src / "model.json")}
     out = Path(job.out_dir)
-    fitting.write_fit(
+    files = fitting.write_fit(
         out,
         a,
         source=str(src / "measurements.csv"),
@@ -274,7 +266,7 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
         },
         whole_folder=True,
     )
-    fitted, ws = a.fitted, a.workspace
+    doc = files.report  # the figures as report.json holds them (mm)
     verdict, reason = None, ""
     if job.report:
         arch = Archive.open(job.archive_root, job.archive_url) if job.archive_root else None
@@ -301,10 +293,10 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
         out_dir=str(out),
         ok=True,
         redetected=bool(job.calibration),
-        n_poses=fitted.n_poses,
-        rms_pos_mm=fitted.rms_pos * 1e3,
-        figures_mm={"mean": ws.mean * 1e3, "std": ws.std * 1e3, "max": ws.max * 1e3},
-        coeffs=tuple(map(float, fitted.coeffs)),
+        n_poses=a.fitted.n_poses,
+        rms_pos_mm=doc["rms_pos_mm"],
+        figures_mm={k: doc["workspace"][f"{k}_mm"] for k in ("mean", "std", "max")},
+        coeffs=tuple(map(float, a.fitted.coeffs)),
         verdict=verdict,
         reason=reason,
     )

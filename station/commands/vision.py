@@ -223,14 +223,18 @@ def _read_journal(run: Path) -> tuple[list[str], Any, Any, Any, Any, list[tuple[
     if not st.captured:
         raise InputError(f"{run / JOURNAL}: no captured poses")
     recs = [st.captured[i] for i in sorted(st.captured)]
+    ids = [r.name for r in recs]
     try:
-        ids = [str(r["name"]) for r in recs]
-        q = np.radians(np.array([r["q_deg"] for r in recs], dtype=float))
-        pan = np.radians(np.array([r.get("pan_deg", np.nan) for r in recs], dtype=float))
-        time = np.array([r.get("time_s", np.nan) for r in recs], dtype=float)
-        files = [(run / r["images"][0], run / r["images"][1]) for r in recs]
-    except (KeyError, IndexError, TypeError, ValueError) as exc:
-        raise InputError(f"{run / JOURNAL}: captured record lacks {exc}") from None
+        q = np.array([r.q for r in recs], dtype=float)
+    except ValueError as exc:
+        raise InputError(
+            f"{run / JOURNAL}: captured joint angles differ in number ({exc})"
+        ) from None
+    pan = np.array([r.pan for r in recs], dtype=float)
+    time = np.array([r.time_s for r in recs], dtype=float)
+    if any(len(r.images) != 2 for r in recs):
+        raise InputError(f"{run / JOURNAL}: a captured record does not name two images")
+    files = [(run / r.images[0], run / r.images[1]) for r in recs]
     for i, pid in enumerate(ids):
         _check_pose_id(pid, f"{run / JOURNAL}: captured pose {i + 1}")
     if q.ndim != 2 or not np.all(np.isfinite(q)):

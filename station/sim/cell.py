@@ -23,13 +23,16 @@ SYNOPSIS
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from ..hardware.motor import SerialPanMotor
-from ..hardware.robot import UrRobot
+from ...identify.transforms import inv_T
+from ..hardware.cameras import StereoCamera
+from ..hardware.motor import PanMotor, SerialPanMotor
+from ..hardware.robot import Robot, UrRobot
 from ..hardware.target import T_target_plate
 from ..planning import load_cell
 from ..planning.cell import Cell
@@ -175,7 +178,7 @@ def sim_station(
         camera_seed=camera_seed,
     )
     w = sc.world
-    st = Station.on_simulated_world(
+    st = station_in_world(
         c,
         w,
         sc.robot,
@@ -185,6 +188,39 @@ def sim_station(
         closers=[sc.stop_simulators],
     )
     return st, sc
+
+
+def station_in_world(
+    cell: Cell,
+    world: SimWorld,
+    robot: Robot,
+    motor: PanMotor,
+    camera: StereoCamera,
+    *,
+    instrument: str = "simulated stereo camera",
+    robot_name: str = "sim-ur5",
+    closers: list[Callable[[], None]] | None = None,
+) -> Station:
+    """A run's :class:`~quickhealth.station.run.Station` in the simulated ``world`` of ``cell``.
+
+    The nominal geometry comes from the cell file; the target and the self-check board from
+    the world.  Used by ``--sim``, the TUI's in-process cell and the tests.
+    """
+    return Station(
+        robot=robot,
+        motor=motor,
+        camera=camera,
+        target=world.target,
+        T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
+        T_flange_target=cell.T_flange_target,
+        board=world.board,
+        T_instr_board=world.T_instr_board,
+        cell_name=cell.name,
+        cell_sha256=cell.sha256,
+        instrument=instrument,
+        robot_name=robot_name,
+        closers=list(closers or []),
+    )
 
 
 def inprocess_sim_station(
@@ -221,7 +257,7 @@ def inprocess_sim_station(
     camera = SimStereoCamera(
         scaled_rig(world.rig, image_scale), scene, static=[(world.T_instr_board, world.board)]
     )
-    hw = Station.on_simulated_world(
+    hw = station_in_world(
         cell,
         world,
         robot,

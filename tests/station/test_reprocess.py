@@ -212,8 +212,9 @@ def imaged_run(tmp_path_factory):
     from quickhealth.station.hardware.motor import SerialPanMotor
     from quickhealth.station.hardware.target import T_target_plate
     from quickhealth.station.planning import load_cell, load_plan
-    from quickhealth.station.run import RunSettings, Station, run_plan
+    from quickhealth.station.run import RunSettings, run_plan
     from quickhealth.station.sim.cameras import SimStereoCamera, scaled_rig
+    from quickhealth.station.sim.cell import station_in_world
     from quickhealth.station.sim.fake_robot import FakeRobot
     from quickhealth.station.sim.motor_emulator import MotorEmulator
     from quickhealth.station.sim.world import build_world
@@ -237,9 +238,7 @@ def imaged_run(tmp_path_factory):
         return [(T, world.target)]
 
     camera = SimStereoCamera(rig, scene, static=[(world.T_instr_board, world.board)])
-    station = Station.on_simulated_world(
-        cell, world, robot, motor, camera, closers=[emu.stop, motor.close]
-    )
+    station = station_in_world(cell, world, robot, motor, camera, closers=[emu.stop, motor.close])
     run_dir = base / "imaged"
     try:
         run_plan(station, plan, run_dir, settings=RunSettings(capture_attempts=2))
