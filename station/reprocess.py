@@ -48,12 +48,12 @@ from ..vision.pose7d import PoseMeasurement, Rejection, measure_stereo
 from . import formats
 from .archive import Archive, safe_name
 from .formats.journal import Captured
+from .formats.vision import read_gray, read_rig
 from .hardware.target import T_target_plate, reference_target, target0_from_plate
 from .journal import JOURNAL, read_journal
 from .services import fitting, report
 from .services.options import FitOptions, ReportOptions
 from .verdict import HealthVerdict, Threshold, ThresholdFigure
-from .vision_io import read_gray, read_rig
 
 F = NDArray[np.float64]
 

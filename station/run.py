@@ -926,11 +926,11 @@ def ur_station(
     calibration: str,
 ) -> Station:
     """A :class:`Station` on real hardware: UR robot, serial pan motor, two OpenCV cameras."""
+    from .formats.vision import read_rig
     from .hardware.cameras import OpenCvStereoCamera
     from .hardware.motor import SerialPanMotor
     from .hardware.robot import UrRobot
     from .planning import load_cell
-    from .vision_io import read_rig
 
     c = load_cell(cell)
     rig = read_rig(Path(calibration))

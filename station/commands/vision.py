@@ -65,10 +65,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
     matplotlib.use("Agg")
     from quickhealth.identify.errors import InputError
-    from quickhealth.station import vision_io as io
     from quickhealth.vision.boards import parse_board_spec
     from quickhealth.vision.calibrate import Verdict, calibrate, detect_board
     from quickhealth.vision.plots import plot_coverage, plot_residuals, plot_uncertainty
+
+    from ..formats import vision as io
 
     board = parse_board_spec(args.board)
     left = io.expand_glob(args.left, "--left")
@@ -133,8 +134,9 @@ def _init_worker(rig: Any, target: Any) -> None:
 
 def _measure_one(job: tuple[str, str, str, float | None, float | None]) -> Any:
     from quickhealth.identify.errors import InputError
-    from quickhealth.station import vision_io as io
     from quickhealth.vision.pose7d import measure_stereo
+
+    from ..formats import vision as io
 
     pid, lp, rp, pan, t = job
     rig = _WORKER["rig"]
@@ -258,8 +260,9 @@ def run_measure(args: argparse.Namespace) -> int:
 
     from quickhealth.identify.errors import InputError
     from quickhealth.station import formats
-    from quickhealth.station import vision_io as io
     from quickhealth.vision.pose7d import PoseMeasurement, to_measurements
+
+    from ..formats import vision as io
 
     run: Path = args.run_dir
     if not run.is_dir():

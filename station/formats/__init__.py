@@ -7,6 +7,9 @@
 - :mod:`.robot`: robot descriptions (``--robot``: built-in name, DH table TOML, URDF);
 - :mod:`.urscript`: URScript programs (joint targets for ``predict``, ``compensate``);
 - :mod:`.wam`: the Barrett WAM laser-tracker data set;
+- :mod:`.journal`: the run journal's records (typed in SI, stored in mm and degrees);
+- :mod:`.vision`: the 7D camera's files (images, CAL.json, target descriptions; OpenCV, so
+  imported by name, not re-exported here);
 - :mod:`.common`: what they share: the read limits and the one atomic write (``fsio``).
 
 Every unit conversion between the file boundary (mm, degrees) and the library (m, rad)

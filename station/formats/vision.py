@@ -17,12 +17,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.vision.boards import TargetDescription, reference_target
-from quickhealth.vision.calibrate import CalibrationResult
-from quickhealth.vision.camera import CameraModel, StereoRig
-
-from .fsio import write_atomic
+from ...identify.errors import InputError
+from ...vision.boards import TargetDescription, reference_target
+from ...vision.calibrate import CalibrationResult
+from ...vision.camera import CameraModel, StereoRig
+from ..fsio import write_atomic
 
 U8 = NDArray[np.uint8]
 

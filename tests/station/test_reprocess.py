@@ -209,6 +209,7 @@ def imaged_run(tmp_path_factory):
 
     import qh_station_plan as station_plan
 
+    from quickhealth.station.formats.vision import rig_to_json, write_json
     from quickhealth.station.hardware.motor import SerialPanMotor
     from quickhealth.station.hardware.target import T_target_plate
     from quickhealth.station.planning import load_cell, load_plan
@@ -218,7 +219,6 @@ def imaged_run(tmp_path_factory):
     from quickhealth.station.sim.fake_robot import FakeRobot
     from quickhealth.station.sim.motor_emulator import MotorEmulator
     from quickhealth.station.sim.world import build_world
-    from quickhealth.station.vision_io import rig_to_json, write_json
 
     base = tmp_path_factory.getbasetemp()
     plan = load_plan(station_plan.plan_file(base))
