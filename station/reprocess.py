@@ -374,7 +374,7 @@ def _run_dask(
     from distributed import Client, as_completed
     from distributed.scheduler import KilledWorker
 
-    from quickhealth.identify.errors import HardwareError
+    from ..identify.errors import HardwareError
 
     own = not isinstance(scheduler, Client)
     try:

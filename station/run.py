@@ -47,12 +47,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import HardwareError, InputError
-from quickhealth.identify.measurements import Measurements
-from quickhealth.identify.transforms import R_to_rpy, inv_T, log_so3
-from quickhealth.vision.boards import TargetDescription
-from quickhealth.vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
-
+from ..identify.errors import HardwareError, InputError
+from ..identify.measurements import Measurements
+from ..identify.transforms import R_to_rpy, inv_T, log_so3
+from ..vision.boards import TargetDescription
+from ..vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
 from .formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
 from .fsio import remove_stale_temp_files
 from .hardware.cameras import StereoCamera, StereoFrame
@@ -323,7 +322,7 @@ def quick_check(
     station: Station, frame: StereoFrame, T_pred: F, target: TargetDescription, min_markers: int
 ) -> tuple[bool, str, tuple[int, int]]:
     """Markers of ``target`` found in each image's predicted region: (ok, reason, counts)."""
-    from quickhealth.vision.markers import detect_markers
+    from ..vision.markers import detect_markers
 
     rig = station.camera.rig
     counts = []

@@ -47,9 +47,9 @@ def _demo(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.demo import run_demo
-    from quickhealth.station.sim.world import parse_degradation
+    from ...identify.errors import InputError
+    from ..demo import run_demo
+    from ..sim.world import parse_degradation
 
     if args.n < 1:
         raise InputError(f"--n must be at least 1, got {args.n}")

@@ -207,9 +207,9 @@ def csv_cells(values: Any) -> list[str]:
 def _predict(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from quickhealth.identify.transforms import R_to_rpy
-    from quickhealth.station import formats
-    from quickhealth.station.fsio import refuse_overwriting_inputs
+    from ...identify.transforms import R_to_rpy
+    from .. import formats
+    from ..fsio import refuse_overwriting_inputs
 
     if args.threshold_mm is not None:
         _positive("--threshold-mm", args.threshold_mm)
@@ -306,7 +306,7 @@ def _predict_chunked(fm: Any, q: Any, thr: Any, time: Any, temp: Any) -> Any:
     """:func:`predict_commands` in blocks of ``PREDICT_CHUNK`` commands (bounded memory)."""
     import numpy as np
 
-    from quickhealth.identify.workspace import CommandPrediction, predict_commands
+    from ...identify.workspace import CommandPrediction, predict_commands
 
     parts = []
     for a in range(0, len(q), PREDICT_CHUNK):

@@ -49,8 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
-    from quickhealth.identify.errors import InputError
-
+    from ...identify.errors import InputError
     from ..tui.facade import Station
 
     if args.data is not None:

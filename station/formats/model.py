@@ -9,8 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from quickhealth.identify.errors import InputError
-
+from ...identify.errors import InputError
 from .common import load_json_limited, write_text_atomic
 from .robot import check_robot, robot_from_json, robot_to_json
 
@@ -75,9 +74,9 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
 
 def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
     """A :class:`~quickhealth.identify.fit.FittedModel` from its JSON document."""
-    from quickhealth.identify.effects import parse_effects
-    from quickhealth.identify.errormodel import ErrorModelSpec
-    from quickhealth.identify.fit import FittedModel, InstrumentNoise, ParameterPrior
+    from ...identify.effects import parse_effects
+    from ...identify.errormodel import ErrorModelSpec
+    from ...identify.fit import FittedModel, InstrumentNoise, ParameterPrior
 
     if not isinstance(doc, dict) or doc.get("schema") != MODEL_SCHEMA:
         got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__

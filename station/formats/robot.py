@@ -38,9 +38,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import RobotModel, from_dh, ur5
-
+from ...identify.errors import InputError
+from ...identify.robot import RobotModel, from_dh, ur5
 from .common import read_text_limited
 
 F = NDArray[np.float64]

@@ -9,9 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.measurements import Measurements
-
+from ...identify.errors import InputError
+from ...identify.measurements import Measurements
 from .common import MAX_FIT_ROWS, read_text_limited
 
 

@@ -23,8 +23,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import HardwareError
-from quickhealth.vision.camera import StereoRig
+from ...identify.errors import HardwareError
+from ...vision.camera import StereoRig
 
 F = NDArray[np.float64]
 U8 = NDArray[np.uint8]

@@ -21,9 +21,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.transforms import inv_T, make_T, rot_x, rot_y
-from quickhealth.vision.boards import TargetDescription, grid_markers
-from quickhealth.vision.boards import reference_target as _reference_target
+from ...identify.transforms import inv_T, make_T, rot_x, rot_y
+from ...vision.boards import TargetDescription, grid_markers
+from ...vision.boards import reference_target as _reference_target
 
 F = NDArray[np.float64]
 

@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import RobotModel, ur5
-from quickhealth.identify.transforms import inv_T, make_T, rpy_to_R
+from ...identify.errors import InputError
+from ...identify.robot import RobotModel, ur5
+from ...identify.transforms import inv_T, make_T, rpy_to_R
 
 F = NDArray[np.float64]
 

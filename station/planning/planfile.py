@@ -19,10 +19,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import RobotModel
-from quickhealth.identify.transforms import R_to_rpy, exp_so3, log_so3, make_T
-
+from ...identify.errors import InputError
+from ...identify.robot import RobotModel
+from ...identify.transforms import R_to_rpy, exp_so3, log_so3, make_T
 from ..hardware.legs import Leg
 from .cell import ROBOTS, Motion
 from .planner import DropReason, PlanResult

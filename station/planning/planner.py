@@ -37,9 +37,8 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.transforms import exp_so3, inv_T, log_so3, make_T
-
+from ...identify.errors import InputError
+from ...identify.transforms import exp_so3, inv_T, log_so3, make_T
 from ..hardware.legs import Leg
 from .cell import Cell
 from .collision import CollisionWorld

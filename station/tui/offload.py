@@ -18,7 +18,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from quickhealth.identify.errors import HardwareError
+from ...identify.errors import HardwareError
 
 PRELOAD = [
     "numpy",
