@@ -44,6 +44,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -51,9 +52,12 @@ from ..identify.errors import HardwareError, InputError
 from ..identify.measurements import Measurements
 from ..identify.transforms import R_to_rpy, inv_T, log_so3
 from ..vision.boards import TargetDescription
+from ..vision.markers import detect_markers
 from ..vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
+from .formats.common import write_text_atomic
 from .formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
-from .fsio import remove_stale_temp_files
+from .formats.measurements import write_measurements
+from .fsio import fsync_dir, remove_stale_temp_files
 from .hardware.cameras import StereoCamera, StereoFrame
 from .hardware.motor import PanMotor
 from .hardware.owner import DeviceOwner, owned
@@ -322,8 +326,6 @@ def quick_check(
     station: Station, frame: StereoFrame, T_pred: F, target: TargetDescription, min_markers: int
 ) -> tuple[bool, str, tuple[int, int]]:
     """Markers of ``target`` found in each image's predicted region: (ok, reason, counts)."""
-    from ..vision.markers import detect_markers
-
     rig = station.camera.rig
     counts = []
     ids = set(int(i) for i in target.ids)
@@ -586,15 +588,11 @@ class _Runner:
 
     def write_images(self, names: list[str], left: U8, right: U8) -> None:
         """Both images, each atomically, then the folder entry made durable."""
-        import cv2
-
         for name, img in zip(names, (left, right), strict=True):
             ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, self.cfg.png_level])
             if not ok:
                 raise HardwareError("cannot encode an image as PNG")
             write_bytes_atomic(self.dir / name, buf.tobytes(), sync_dir=False)
-        from .journal import fsync_dir
-
         fsync_dir(self.dir / "images")
 
     def submit_measure(
@@ -641,8 +639,6 @@ class _Runner:
             raise err
 
     def remeasure(self, state: JournalState, unmeasured: list[int]) -> None:
-        import cv2
-
         for i in unmeasured:
             rec = state.captured[i]
             imgs = [cv2.imread(str(self.dir / p), cv2.IMREAD_GRAYSCALE) for p in rec.images]
@@ -863,8 +859,6 @@ def write_outputs(
     settings: RunSettings,
 ) -> Path | None:
     """measurements.csv and run.json from the journal (atomic writes)."""
-    from .formats import write_measurements, write_text_atomic
-
     start = state.start or {}
     meta = {
         "run_id": str(start.get("run_id", run_dir.name)),

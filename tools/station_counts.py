@@ -26,8 +26,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 
-# Where mm and degrees belong: the file formats, the screens (TUI, HTML report, the command
-# line's printed lines) and the URScript/plan files the robot and the user read.
+# Where mm and degrees belong: the file formats and the screens (the TUI, the HTML report, the
+# command line's arguments and printed lines).
 DISPLAY = (
     "formats/",
     "tui/",

@@ -17,7 +17,10 @@ import json
 import sys
 from pathlib import Path
 
+from ...identify.compare import compare_effect, plot_comparison
 from ...identify.errors import InputError
+from ..formats import read_measurements, read_model, write_text_atomic
+from ..fsio import refuse_overwriting_inputs, write_figure
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -50,10 +53,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; prints the table, writes --json and --plots."""
-    from ...identify.compare import compare_effect, plot_comparison  # the fit: scipy, pinocchio
-    from ..formats import read_measurements, read_model, write_text_atomic
-    from ..fsio import refuse_overwriting_inputs, write_figure
-
     png = None if args.plots is None else args.plots / "compare.png"
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise InputError(f"{args.plots}: --plots must be a folder")

@@ -15,11 +15,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ...identify.errors import InputError
+import numpy as np
 
-if TYPE_CHECKING:  # types only: the model's library loads scipy and pinocchio
+from ...identify.effects.backlash import Backlash
+from ...identify.errors import InputError
+from ...identify.fit import FittedModel
+from ...identify.urscript import replace_targets
+from .. import formats
+from ..fsio import refuse_overwriting_inputs
+
+if TYPE_CHECKING:  # types only: the compensation loads scipy.optimize, --help must not wait
     from ...identify.compensate import Compensation
-    from ...identify.fit import FittedModel
     from ..services.compensation import Refused
 
 
@@ -61,13 +67,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def _compensate(args: argparse.Namespace) -> int:
     """Compensate a program; refuse (exit 2, nothing written) anything that could make it worse."""
-    import numpy as np  # with the model's library (scipy, pinocchio): --help must not wait
-
-    from ...identify.effects.backlash import Backlash
-    from ...identify.urscript import replace_targets
-    from .. import formats
-    from ..fsio import refuse_overwriting_inputs
-    from ..services.compensation import compensate, needed_conditions
+    from ..services.compensation import compensate, needed_conditions  # scipy.optimize
 
     cap = args.max_correction_deg
     if not 0 < cap <= 10:
@@ -159,9 +159,7 @@ def _compensate(args: argparse.Namespace) -> int:
 
 def _refusals(refused: Sequence[Refused], where: Sequence[str], cap: float) -> str:
     """One line per refused target (deg), each ending "nothing written"."""
-    import numpy as np
-
-    from ..services.compensation import Refusal
+    from ..services.compensation import Refusal  # scipy.optimize (loaded by now)
 
     lines = []
     for r in refused:
@@ -209,8 +207,6 @@ def _compensation_notes(
         out.append(
             f"drift extrapolated linearly to {args.time_s:g} s; the fitted run ended at {end:g} s"
         )
-    import numpy as np
-
     # a move smaller than the play leaves a real gear between its two sides
     for e, p in zip(fm.effects, fm.effect_params, strict=True):
         if not isinstance(e, backlash) or e.name not in comp.effects:

@@ -10,7 +10,11 @@ from __future__ import annotations
 import argparse
 import json
 
+import numpy as np
+
 from ...identify.errors import InputError
+from ..formats import read_model, write_text_atomic
+from ..fsio import refuse_overwriting_inputs
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -28,17 +32,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _export(args: argparse.Namespace) -> int:
-    import numpy as np  # with the model's library (scipy, pinocchio): --help must not wait
-
-    from ...identify.compensate import (
+    from ...identify.compensate import (  # scipy.optimize: --help must not wait for it
         corrected_robot,
         dh_deltas,
         export_notes,
         ur_calibration_text,
         urdf_text,
     )
-    from ..formats import read_model, write_text_atomic
-    from ..fsio import refuse_overwriting_inputs
 
     if not (args.urdf or args.ur_calibration or args.json):
         raise InputError("nothing to export: give --urdf, --ur-calibration and/or --json")

@@ -20,13 +20,21 @@ of the command line (the TUI's Results screen and ``reprocess`` fit the same way
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ...identify.errors import InputError
+from ...identify.linearize import InstrumentNoise
+from .. import formats
+from ..fsio import claim_output_folder, refuse_overwriting_inputs
+from ..services.fitting import FigureRenderer, claim_fit_folder, fit_folder
 from ..services.options import FitOptions
+from ..services.wam import wam_sign
 from . import compare
 
 # every door's instrument defaults (0.03 mm, 0.1 mrad), in the command line's units (help);
@@ -114,13 +122,6 @@ def _positive(name: str, v: float) -> None:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    import numpy as np  # with the fit (scipy, pinocchio): --help must not wait for them
-
-    from ...identify.linearize import InstrumentNoise
-    from .. import formats
-    from ..fsio import claim_output_folder, refuse_overwriting_inputs
-    from ..services.fitting import FigureRenderer, claim_fit_folder, fit_folder
-
     for name in ("sigma_pos_mm", "sigma_rot_deg"):
         if getattr(args, name) is not None:
             _positive(f"--{name.replace('_', '-')}", getattr(args, name))
@@ -339,12 +340,6 @@ def _missing(c: Any) -> list[str]:
 
 
 def _import_wam(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
-    from .. import formats
-    from ..fsio import refuse_overwriting_inputs
-    from ..services.wam import wam_sign  # the fit: scipy, pinocchio
-
     robot_file = args.robot if args.robot and Path(args.robot).is_file() else None
     refuse_overwriting_inputs([("--out", args.out)], [args.wam, robot_file])
     if args.sign == "auto":
@@ -363,7 +358,7 @@ def _import_wam(args: argparse.Namespace) -> int:
         if sign not in (1.0, -1.0):
             raise InputError(f"--sign must be auto, +1 or -1, got {args.sign!r}")
     m = formats.read_wam_csv(args.wam, sign)
-    m = replace(m, meta={**m.meta, "position": f"x_t + ({sign:+.0f}) * dif"})
+    m = dataclasses.replace(m, meta={**m.meta, "position": f"x_t + ({sign:+.0f}) * dif"})
     formats.write_measurements(args.out, m)
     print(f"wrote {args.out}: {m.n_poses} poses, position only")
     return 0

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from ...identify.errors import InputError
+from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -43,9 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def run(args: argparse.Namespace) -> int:
     """Plan, validate the plan document, then write plan.json, loop.script and plots
     (:func:`~quickhealth.station.services.planning.plan_folder`)."""
-    from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs
-    from ..planning.cell import load_cell  # the planner: the collision library, pinocchio
-    from ..services.planning import PLAN_FILES, plan_folder
+    from ..planning.cell import load_cell
+    from ..services.planning import PLAN_FILES, plan_folder  # the planner: the collision library
 
     out: Path = args.out
     if out.exists() and not out.is_dir():

@@ -17,6 +17,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ...identify.errors import InputError
+from ..fsio import refuse_overwriting_inputs
+from ..services.options import ReportOptions
 from ..verdict import Threshold, ThresholdFigure
 from .archive import add_archive_options, open_archive
 
@@ -44,8 +46,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _report(args: argparse.Namespace) -> int:
-    from ..fsio import refuse_overwriting_inputs
-    from ..services.options import ReportOptions
     from ..services.report import report_run  # matplotlib, the fit's library, the archive
 
     d = Path(args.run_dir)

@@ -15,6 +15,9 @@ import argparse
 import json
 
 from ...identify.errors import InputError
+from ..formats.common import json_plain, write_text_atomic
+from ..formats.report import trend_to_json
+from ..fsio import refuse_outputs_inside, refuse_overwriting_inputs, write_figure
 from ..verdict import Figures, HealthVerdict, Threshold, ThresholdFigure, judge, missing_effect_in
 from .archive import add_archive_options, open_archive
 
@@ -82,9 +85,6 @@ def _trend(args: argparse.Namespace) -> int:
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
     from ..archive import trend_for  # the archive and the trend: SQLAlchemy, scipy.stats
-    from ..formats.common import json_plain, write_text_atomic
-    from ..formats.report import trend_to_json
-    from ..fsio import refuse_outputs_inside, refuse_overwriting_inputs
 
     refuse_overwriting_inputs([("--json", args.json), ("--plot", args.plot)], [])
     arch = open_archive(args)
@@ -138,7 +138,6 @@ def _trend(args: argparse.Namespace) -> int:
     if args.json:
         write_text_atomic(args.json, json.dumps(json_plain(trend_to_json(res)), indent=1) + "\n")
     if args.plot:
-        from ..fsio import write_figure
         from ..report_html import trend_figure  # matplotlib: only for --plot
 
         write_figure(trend_figure(res), args.plot, dpi=100)

@@ -5,6 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ...identify.errors import InputError
+from ..services.options import TUI_THRESHOLD_MM
+
+if TYPE_CHECKING:  # the type only: the App's station loads textual, the fit and the drivers
+    from ..tui.facade import Station
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -42,15 +49,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--threshold-mm",
         type=float,
-        default=2.0,
-        help="degraded when the workspace max TCP error is above this (mm, default 2)",
+        default=TUI_THRESHOLD_MM,
+        help=f"degraded when the workspace max TCP error is above this (mm, default "
+        f"{TUI_THRESHOLD_MM:g})",
     )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ...identify.errors import InputError
-    from ..tui.facade import Station
+    from ..tui.facade import Station  # textual, the fit, the drivers: --help must not wait
 
     if args.data is not None:
         station = Station.from_data(
@@ -90,8 +97,8 @@ def run(args: argparse.Namespace) -> int:
     return _run_app(station)
 
 
-def _run_app(station) -> int:  # type: ignore[no-untyped-def]
-    from ..tui.app import QuickhealthApp
+def _run_app(station: Station) -> int:
+    from ..tui.app import QuickhealthApp  # textual
 
     try:
         return int(QuickhealthApp(station).run() or 0)

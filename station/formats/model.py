@@ -9,14 +9,18 @@ from typing import Any
 
 import numpy as np
 
+from ...identify.effects import parse_effects
+from ...identify.errormodel import ErrorModelSpec
 from ...identify.errors import InputError
+from ...identify.fit import FittedModel, InstrumentNoise, ParameterPrior
+from ..provenance import provenance
 from .common import load_json_limited, write_text_atomic
 from .robot import check_robot, robot_from_json, robot_to_json
 
 MODEL_SCHEMA = "quickhealth.model/1"
 
 
-def model_to_json(fitted: Any) -> dict[str, Any]:
+def model_to_json(fitted: FittedModel) -> dict[str, Any]:
     """JSON document of a :class:`~quickhealth.identify.fit.FittedModel` (schema-versioned)."""
     spec = fitted.spec
     return {
@@ -72,11 +76,8 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
     }
 
 
-def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
+def model_from_json(doc: dict[str, Any], name: str = "model.json") -> FittedModel:
     """A :class:`~quickhealth.identify.fit.FittedModel` from its JSON document."""
-    from ...identify.effects import parse_effects
-    from ...identify.errormodel import ErrorModelSpec
-    from ...identify.fit import FittedModel, InstrumentNoise, ParameterPrior
 
     if not isinstance(doc, dict) or doc.get("schema") != MODEL_SCHEMA:
         got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
@@ -134,7 +135,7 @@ MAX_COEFF_M = 0.02
 MAX_COEFF_RAD = 0.05
 
 
-def check_model(fm: Any, name: str) -> None:
+def check_model(fm: FittedModel, name: str) -> None:
     """Meaning of a model: coefficient count, finite numbers, sane magnitudes and ranges.
 
     Raises
@@ -199,15 +200,14 @@ def check_model(fm: Any, name: str) -> None:
             raise InputError(f"{name}: {key} is not a finite 4x4 transform")
 
 
-def write_model(path: str | os.PathLike[str], fitted: Any) -> None:
+def write_model(path: str | os.PathLike[str], fitted: FittedModel) -> None:
     """Write model.json (JSON only; never pickle), with the writer's ``provenance``."""
-    from ..provenance import provenance
 
     doc = {**model_to_json(fitted), "provenance": provenance()}
     write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
 
 
-def read_model(path: str | os.PathLike[str]) -> Any:
+def read_model(path: str | os.PathLike[str]) -> FittedModel:
     """Read model.json back into a FittedModel."""
     p = Path(path)
     # binary files (e.g. a pickle) are refused as not UTF-8: never loaded as code

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ...identify.errors import InputError
+from ...identify.urscript import joint_targets
 from .common import read_text_limited
 
 F = NDArray[np.float64]
@@ -28,7 +29,6 @@ def read_urscript(path: str | os.PathLike[str], n_joints: int) -> tuple[str, Any
         Missing or binary file, a program that does not tokenize, unreadable targets, no
         target at all.
     """
-    from ...identify.urscript import joint_targets
 
     p = Path(path)
     text = read_text_limited(p, "program")

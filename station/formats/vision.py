@@ -10,6 +10,7 @@ import csv
 import glob as _glob
 import json
 import os
+import stat
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ... import vision as vision_package
 from ...identify.errors import InputError
 from ...vision.boards import TargetDescription, reference_target
 from ...vision.calibrate import CalibrationResult
@@ -46,7 +48,7 @@ MAX_IMAGE_BYTES = 200 << 20
 def _header_pixels(path: Path) -> int | None:
     """Width x height from the file's header without decoding it (None: format unknown)."""
     try:
-        from PIL import Image
+        from PIL import Image  # Pillow reads a header without decoding; optional
 
         Image.MAX_IMAGE_PIXELS = None  # we judge the size ourselves, below
         with Image.open(path) as im:
@@ -62,8 +64,6 @@ def read_gray(path: Path) -> U8:
     Limits (docs/vision.md): a regular file of at most 200 MiB whose header claims at most
     ``MAX_IMAGE_PIXELS`` pixels; the header is read before anything is decoded.
     """
-    import stat
-
     try:
         st = path.stat()
     except OSError as exc:
@@ -208,9 +208,7 @@ def read_target(path: Path | None) -> TargetDescription:
 
 def data_path(name: str) -> Path:
     """A file shipped in quickhealth/vision/data."""
-    import quickhealth.vision as v
-
-    return Path(v.__file__).parent / "data" / name
+    return Path(vision_package.__file__).parent / "data" / name
 
 
 def read_image_index(path: Path) -> tuple[list[str], F, F, F, F]:
