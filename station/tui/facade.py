@@ -526,8 +526,12 @@ class Station:
 
     def results(self) -> Health:
         """Fit the run and write it as ``identify fit`` does (model.json, report.json,
-        residuals.csv), archive it, report it as ``quickhealth report`` does (report.html; the
-        report's sections and verdict in report.json) and summarise it with that verdict."""
+        residuals.csv), archive it, report it as ``quickhealth report`` does (the report's
+        sections and verdict in report.json) and summarise it with that verdict."""
+        with self._lock:  # one fit, archive and report at a time: a second call waits, then
+            return self._results()  # finds this one's summary
+
+    def _results(self) -> Health:
         if self.analysis is None:
             raise InputError("no measurements yet: run the plan first")
         if self._health is not None and not self.results_stale():

@@ -84,14 +84,16 @@ def report_job(
     threshold: Threshold,
     progress: Progress | None = None,
 ) -> Judgement:
-    """The run's report as ``quickhealth report`` writes it (report.html, the sections and the
-    verdict in report.json), against the robot's archive; its verdict."""
+    """The run's report as ``quickhealth report`` makes it against the robot's archive (the
+    sections, the verdict and the run object in report.json; no report.html: the screens
+    show the figures, ``quickhealth report`` writes the page); its verdict."""
     res = report_run(
         Path(run_dir),
         archive=Archive.open(archive_root, archive_url),
         robot=robot,
         run_id=run_id,
         options=ReportOptions(threshold=threshold),
+        write_html=False,
     )
     return res.report.judgement
 

@@ -60,7 +60,7 @@ async def test_every_door_gives_one_verdict_and_one_report(tmp_path: Path, capsy
     # thermal: the workspace map and the report name their reference conditions; a hidden
     # backlash makes the diagnosis (and so the verdict) say something
     twin = make_twin(seed=21, effects={"thermal": 3e-5, "backlash:j2": 4e-4})
-    q = random_joints(twin.robot, 60, seed=22, T_instr_base=twin.truth.T_instr_base)
+    q = random_joints(twin.robot, 40, seed=22, T_instr_base=twin.truth.T_instr_base)
     time, temp = schedules(len(q))
     run = tmp_path / "run"
     run.mkdir()
