@@ -183,11 +183,11 @@ def encode(rec: Record) -> dict[str, Any]:
     }
 
 
-def _m(v: Any) -> F | None:
+def _m(v: object) -> F | None:
     return None if v is None else np.asarray(v, dtype=float) / 1e3
 
 
-def _rad(v: Any) -> F | None:
+def _rad(v: object) -> F | None:
     return None if v is None else np.radians(np.asarray(v, dtype=float))
 
 

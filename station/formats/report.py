@@ -98,7 +98,7 @@ REPORT_FIGURES = ("mean_mm", "std_mm", "max_mm")
 REPORT_NUMBERS = ("n_poses", "rms_pos_mm", "chi2", "bic")
 
 
-def check_report(doc: Any, name: str = "report.json", *, complete: bool = True) -> None:
+def check_report(doc: object, name: str = "report.json", *, complete: bool = True) -> None:
     """Check a report.json document; the one checker of the format (docs/identify.md).
 
     Parameters

@@ -255,7 +255,7 @@ def _err(label: str, key: str, what: str) -> InputError:
     return InputError(f"{label}: {key}: {what}")
 
 
-def _num(label: str, key: str, v: Any, lo: float = -math.inf, hi: float = math.inf) -> float:
+def _num(label: str, key: str, v: object, lo: float = -math.inf, hi: float = math.inf) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
         raise _err(label, key, f"expected a finite number, got {v!r:.40}")
     if not lo <= v <= hi:
@@ -263,19 +263,19 @@ def _num(label: str, key: str, v: Any, lo: float = -math.inf, hi: float = math.i
     return float(v)
 
 
-def _int(label: str, key: str, v: Any, lo: int, hi: int) -> int:
+def _int(label: str, key: str, v: object, lo: int, hi: int) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
         raise _err(label, key, f"expected an integer in [{lo}, {hi}], got {v!r:.40}")
     return int(v)
 
 
-def _vec(label: str, key: str, v: Any, n: int) -> F:
+def _vec(label: str, key: str, v: object, n: int) -> F:
     if not isinstance(v, list) or len(v) != n:
         raise _err(label, key, f"expected a list of {n} numbers")
     return np.array([_num(label, f"{key}[{i}]", x) for i, x in enumerate(v)])
 
 
-def _mat(label: str, key: str, v: Any) -> F:
+def _mat(label: str, key: str, v: object) -> F:
     if not isinstance(v, list) or len(v) != 4:
         raise _err(label, key, "expected a 4×4 matrix")
     M = np.array([_vec(label, f"{key}[{i}]", r, 4) for i, r in enumerate(v)])
@@ -286,13 +286,13 @@ def _mat(label: str, key: str, v: Any) -> F:
     return M
 
 
-def _obj(label: str, key: str, v: Any) -> dict[str, Any]:
+def _obj(label: str, key: str, v: object) -> dict[str, Any]:
     if not isinstance(v, dict):
         raise _err(label, key, "expected an object")
     return v
 
 
-def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
+def plan_from_dict(doc: object, label: str = "plan") -> Plan:
     """Validate a plan document (as parsed from JSON) into a :class:`Plan`; see :func:`load_plan`."""
     doc = _obj(label, "(top)", doc)
     if doc.get("schema") != SCHEMA:
