@@ -49,7 +49,7 @@ def _demo(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TimeRemainingColumn
 
     from ..demo import run_demo  # the whole station and the simulated cell
-    from ..sim.world import parse_degradation
+    from ..sim.world import parse_degradation  # the simulated world: OpenCV, the twin
 
     if args.n < 1:
         raise InputError(f"--n must be at least 1, got {args.n}")

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from ...identify.errors import InputError
 from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs
+from ..planning.cell import load_cell
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -44,7 +45,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def run(args: argparse.Namespace) -> int:
     """Plan, validate the plan document, then write plan.json, loop.script and plots
     (:func:`~quickhealth.station.services.planning.plan_folder`)."""
-    from ..planning.cell import load_cell
     from ..services.planning import PLAN_FILES, plan_folder  # the planner: the collision library
 
     out: Path = args.out

@@ -30,8 +30,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ...identify.errors import HardwareError, InputError, QuickhealthError
+from ..formats import check_poses_for_fit, load_robot, read_measurements
 from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs, result_files
 from ..lock import RunLock
+from ..services.fitting import fit_folder
 from ..sim.process import add_arguments as add_sim_arguments
 from ..sim.process import run_from_args
 
@@ -197,8 +199,8 @@ def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
 
     try:
         if args.sim:
-            from ..sim.cell import sim_station  # the simulation, only under --sim
-            from ..sim.world import parse_degradation
+            from ..sim.cell import sim_station  # the simulation (and the twin), only under --sim
+            from ..sim.world import parse_degradation  # (the same)
 
             station, _ = sim_station(
                 args.cell,
@@ -255,8 +257,6 @@ def _register(out: Path, args: argparse.Namespace, plan: Plan) -> str:
     """Fit the finished run and add it to the archive, as ``identify fit`` and ``archive add``
     do (:func:`~quickhealth.station.services.fitting.fit_folder`, :class:`Archive`)."""
     from ..archive import Archive  # SQLAlchemy: only when archiving
-    from ..formats import check_poses_for_fit, load_robot, read_measurements
-    from ..services.fitting import fit_folder
 
     csv = out / "measurements.csv"
     try:

@@ -177,7 +177,7 @@ def read_urdf(path: str | os.PathLike[str]) -> RobotModel:
     rotation ``R_a`` with ``R_a ẑ = a`` so the joint is ``Rz(θ)`` as the error model expects.
     The flange is the last joint's frame.
     """
-    import pinocchio as pin
+    import pinocchio as pin  # a URDF file only (seconds to load): built-in robots need none
 
     p = Path(path)
     read_text_limited(p, "robot")  # size, regular file, UTF-8 before pinocchio sees it

@@ -97,7 +97,7 @@ class OpenCvStereoCamera:
         max_skew_s: float = 0.005,
         attempts: int = 3,
     ) -> None:
-        import cv2
+        import cv2  # the real cameras only: the hardware package loads without OpenCV
 
         self.rig = rig
         self.max_skew_s = max_skew_s
@@ -116,7 +116,7 @@ class OpenCvStereoCamera:
             self._caps.append(cap)
 
     def capture(self) -> StereoFrame:
-        import cv2
+        import cv2  # as above
 
         for _ in range(self.attempts):
             t0 = time.monotonic()
