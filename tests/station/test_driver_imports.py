@@ -13,6 +13,7 @@ functions) into the project's own modules, and fails naming the chain that reach
 from __future__ import annotations
 
 import ast
+from functools import cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -39,6 +40,7 @@ DRIVERS = [
 TUI_REAL = ["quickhealth.station.tui.app", "quickhealth.station.tui.facade"]
 
 
+@cache
 def source_of(module: str) -> Path | None:
     """The file of a project module (``X.py`` or ``X/__init__.py``), None when not ours."""
     for pkg, folder in PACKAGES.items():
@@ -55,6 +57,7 @@ def source_of(module: str) -> Path | None:
     return None
 
 
+@cache
 def imports_of(module: str, path: Path) -> set[str]:
     """Every module ``path`` imports, absolute names (``from . import x`` gives both)."""
     is_pkg = path.name == "__init__.py"
