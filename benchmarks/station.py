@@ -35,16 +35,17 @@ def main() -> int:
     args = ap.parse_args()
 
     from quickhealth.identify.transforms import inv_T
-    from quickhealth.station.hardware.cameras import StereoFrame, scaled_rig
+    from quickhealth.station.hardware.cameras import StereoFrame
     from quickhealth.station.hardware.motor import SerialPanMotor
-    from quickhealth.station.hardware.motor_emulator import MotorEmulator
     from quickhealth.station.hardware.target import T_target_plate
-    from quickhealth.station.hardware.world import build_world
     from quickhealth.station.planning import load_cell
     from quickhealth.station.planning.planfile import plan_from_dict, plan_to_dict
     from quickhealth.station.planning.planner import plan_loop
     from quickhealth.station.run import RunSettings, Station, run_plan
+    from quickhealth.station.sim.cameras import scaled_rig
     from quickhealth.station.sim.fake_robot import FakeRobot
+    from quickhealth.station.sim.motor_emulator import MotorEmulator
+    from quickhealth.station.sim.world import build_world
     from quickhealth.vision.render import render_stereo
 
     cell = load_cell("reference")

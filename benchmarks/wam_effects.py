@@ -33,7 +33,7 @@ from quickhealth.identify.fit import FittedModel, InstrumentNoise  # noqa: E402
 from quickhealth.identify.measurements import Measurements  # noqa: E402
 from quickhealth.identify.select import select_orders  # noqa: E402
 from quickhealth.station import formats  # noqa: E402
-from quickhealth.station.commands.identify import wam_sign  # noqa: E402
+from quickhealth.station.services.wam import wam_sign  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 NOISE = InstrumentNoise(sigma_pos=1e-3)  # --sigma-pos-mm 1: the arm's repeatability

@@ -5,7 +5,7 @@ maximum likelihood with the requested effects, and evaluates what the model says
 robot: the workspace TCP error at stated reference conditions and every joint's error
 curves with bands.  The command line (``identify fit``), the TUI, fleet reprocessing and the
 demo all call this one function and write its result with one writer
-(:mod:`quickhealth.station.report_json`), so the same input gives the same report whichever
+(:mod:`quickhealth.station.formats.report`), so the same input gives the same report whichever
 door it came through.  Pure: no files, clocks or global state.
 
 SYNOPSIS::

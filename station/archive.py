@@ -48,6 +48,8 @@ from quickhealth.identify.errors import InputError
 if TYPE_CHECKING:
     from quickhealth.identify.trend import RunState
 
+from .verdict import healthy_of
+
 ENV_VAR = "QUICKHEALTH_ARCHIVE"
 #: the main figures, as ``identify.trend.FIGURES`` (a test checks): importing the trend costs
 #: scipy.stats, about 2 s, which listing or adding a run does not need
@@ -137,15 +139,6 @@ def _iso(t: datetime) -> str:
 
 
 # ------------------------------------------------------------------ reading a run folder
-
-
-def _report_healthy(report: dict[str, Any]) -> bool | None:
-    """The verdict a report.json carries: ``run.healthy``, or an older top-level ``healthy``."""
-    run = report.get("run")
-    for v in (run.get("healthy") if isinstance(run, dict) else None, report.get("healthy")):
-        if isinstance(v, bool):
-            return v
-    return None
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -289,9 +282,9 @@ def prepare_run(
     meta : mapping, optional
         Overrides plan_hash, cell, calibration_id, software_version (at most 200 characters).
     healthy : bool, optional
-        Default: the report's ``run.healthy`` (the TUI writes it; a top-level ``healthy``
-        of older reports also counts) if present, else unknown (counts as healthy for
-        choosing the first baseline).
+        Default: the verdict the report carries (:func:`~.verdict.healthy_of`: its
+        ``verdict`` section, else ``run.healthy``, else an older top-level ``healthy``) if
+        present, else unknown (counts as healthy for choosing the first baseline).
 
     Raises
     ------
@@ -345,7 +338,7 @@ def prepare_run(
         found["software_version"] = _software_version()
     figs, _ = report_figures(report)
     if healthy is None:
-        healthy = _report_healthy(report)
+        healthy = healthy_of(report)
     rec = RunRecord(
         robot=robot,
         run_id=rid,
@@ -976,7 +969,9 @@ class Archive:
         """The run's folder in the archive."""
         return self.run_path(rec.robot, rec.run_id)
 
-    def run_state(self, rec: RunRecord, like: RunRecord | None = None) -> RunState:
+    def run_state(
+        self, rec: RunRecord, like: RunRecord | None = None, folder: Path | None = None
+    ) -> RunState:
         """What the trend needs of a run: figures and their uncertainty, error model, metadata.
 
         Parameters
@@ -987,15 +982,20 @@ class Archive:
             measurements are fitted again at the baseline's orders (cached in the run folder as
             ``model.like-<baseline>.json``), so that a term one fit selected and the other did
             not is not mistaken for a change.
+        folder : path, optional
+            Read the run's fit from this folder instead of its archive folder (a reprocessed
+            copy): its report's figures replace the index's.
         """
         from quickhealth.station import formats
 
-        folder = self.folder(rec)
+        own = folder is not None
+        folder = self.folder(rec) if folder is None else Path(folder)
         figs, sig = rec.figures_mm, {}
         rp = folder / "report.json"
         if rp.is_file():
             f2, sig = report_figures(_read_json(rp))
-            figs = {**figs, **{k: v for k, v in f2.items() if math.isnan(figs.get(k, math.nan))}}
+            keep = {} if own else {k: v for k, v in figs.items() if not math.isnan(v)}
+            figs = {**figs, **f2, **keep}
         spec = coeffs = cov = None
         mp = folder / "model.json"
         csv = folder / "measurements.csv"

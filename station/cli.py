@@ -22,8 +22,7 @@ import sys  # noqa: E402
 import traceback  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
-from quickhealth.identify.errors import QuickhealthError  # noqa: E402
-
+from ..identify.errors import QuickhealthError  # noqa: E402
 from . import commands  # noqa: E402
 from .provenance import software_version  # noqa: E402
 

@@ -1,6 +1,8 @@
 """The whole loop on the built-in simulated cell, the way a new user meets the product.
 
-Stages (each the real code path a user runs by hand; the commands are printed as it goes):
+Stages (each the application-layer function the command a user runs by hand calls, so the
+demo goes the real code path; the equivalent commands are printed as it goes and each step's
+lines are kept in ``demo.log``):
 
 1. **plan**      ``quickhealth plan --cell reference``: the fixed loop for the paper's cell
 2. **run**       ``quickhealth run --sim``: UR controller simulator driven by the real ur-rtde
@@ -10,7 +12,7 @@ Stages (each the real code path a user runs by hand; the commands are printed as
 4. **diagnose**  ``quickhealth diagnose``: is a physical effect missing?
 5. **archive**   ``quickhealth archive add`` and ``quickhealth trend``: the run against the
                  robot's baseline
-6. **report**    ``quickhealth report``: one self-contained HTML page per run
+6. **report**    ``quickhealth report``: one self-contained HTML page per run, its verdict
 
 Three runs of the same robot on the same frozen plan: the baseline, a healthy repeat a week
 later (new camera noise, nothing changed) and a run "a month later" in which one error
@@ -20,16 +22,27 @@ and the motion.
 
 from __future__ import annotations
 
-import contextlib
 import io
-import json
+import shutil
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+
+from ..identify.errormodel import MOTION_WORDS
+from ..identify.errors import HardwareError, QuickhealthError
+from .archive import Archive, trend_for
+from .formats import load_robot, read_measurements, read_model
+from .planning.cell import load_cell
+from .planning.planfile import Plan
+from .run import Progress, ProgressKind, RunResult, run_plan
+from .services.diagnosis import diagnose_model, write_diagnosis
+from .services.fitting import fit_folder
+from .services.planning import plan_folder
+from .services.report import report_run
+from .sim.cell import sim_station
 
 ROBOT = "sim-ur5"
 #: The wear the "month later" run carries: joint 2 tilts 0.5 mrad more about its x axis.
@@ -95,35 +108,30 @@ class _PoseCounter:
         self.measured = 0
         self.lock = threading.Lock()
 
-    def __call__(self, p: Any) -> None:
+    def __call__(self, p: Progress) -> None:
         with self.lock:  # the run calls back from its capture and measurement threads
             self.log.write(
                 f"{self.run_id} {p.kind}: [{p.index}/{p.n_poses}] {p.name} {p.status} {p.message}\n"
             )
-            if p.kind == "measured":
+            if p.kind == ProgressKind.MEASURED:
                 self.measured += 1
                 if self.bar is not None:
                     self.bar(self.run_id, self.measured, p.n_poses)
 
 
-class _Quiet:
-    """Run a command-line step with its output kept in the demo log, not on the screen."""
+class _Log:
+    """demo.log: each step as the command a user would type, and the lines it reports."""
 
-    def __init__(self, log: io.TextIOBase) -> None:
-        self.log = log
+    def __init__(self, path: Path) -> None:
+        self.file = open(path, "w", encoding="utf-8")  # noqa: SIM115 - closed by close()
 
-    def __call__(self, argv: Sequence[str]) -> tuple[int, str]:
-        from quickhealth.station.cli import main
+    def step(self, argv: Sequence[str], lines: Sequence[str]) -> None:
+        self.file.write(f"\n$ quickhealth {' '.join(argv)}\n")
+        self.file.writelines(f"{line}\n" for line in lines)
+        self.file.flush()
 
-        buf = io.StringIO()
-        self.log.write(f"\n$ quickhealth {' '.join(argv)}\n")
-        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-            rc = main(list(argv))
-        text = buf.getvalue()
-        self.log.write(text)
-        self.log.write(f"[exit {rc}]\n")
-        self.log.flush()
-        return rc, text
+    def close(self) -> None:
+        self.file.close()
 
 
 def run_demo(
@@ -152,14 +160,6 @@ def run_demo(
     pose_progress : callable, optional
         ``(run_id, measured, n_poses)`` after every measured pose (progress bars).
     """
-    import shutil
-
-    from quickhealth.identify.errors import HardwareError, QuickhealthError
-    from quickhealth.station.archive import Archive, trend_for
-    from quickhealth.station.planning import load_plan
-    from quickhealth.station.run import run_plan
-    from quickhealth.station.sim.cell import sim_station
-
     t_start = time.monotonic()
     out = Path(out)
     if out.exists():
@@ -167,173 +167,168 @@ def run_demo(
             raise QuickhealthError(f"{out}: exists and is not a demo folder; choose another --out")
         shutil.rmtree(out)
     out.mkdir(parents=True)
-    archive_dir = out / "archive"
-    log = open(out / "demo.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
-    quiet = _Quiet(log)
+    log = _Log(out / "demo.log")
     results: list[DemoRunResult] = []
     try:
-        # 1. plan ------------------------------------------------------------------------
-        plan_dir = out / "plan"
-        say(f"1. plan: quickhealth plan --cell reference --n {n_candidates} --seed {seed}")
-        rc, text = quiet(
-            [
-                "plan",
-                "--cell",
-                "reference",
-                "--n",
-                str(n_candidates),
-                "--seed",
-                str(seed),
-                "--out",
-                str(plan_dir),
-            ]
-        )
-        if rc != 0:
-            raise QuickhealthError(f"planning failed: {text.strip().splitlines()[-1:]}")
-        plan_summary = [ln for ln in text.splitlines() if ln.strip()][:4]
-        for ln in plan_summary:
-            say(f"   {ln}")
-        plan = load_plan(plan_dir / "plan.json")
+        plan, plan_summary = _plan(out / "plan", n_candidates, seed, say, log)
         t0 = datetime.now(UTC).replace(microsecond=0)
-
         for k, run in enumerate(demo_runs(degrade), start=1):
             t_run = time.monotonic()
-            folder = out / "runs" / run.run_id
             say("")
             say(f"{k + 1}. run {run.run_id}: {run.story}")
-            wear = ",".join(f"{a}={b:g}" for a, b in run.degrade.items())
-            say(
-                "   quickhealth run --sim --cell reference --plan plan/plan.json"
-                + (f" --sim-degrade {wear}" if wear else "")
-            )
-            station, _ = sim_station(
-                "reference",
-                twin_seed=1,
-                image_scale=image_scale,
-                speed_factor=speed_factor,
-                degrade=run.degrade or None,
-                camera_seed=run.camera_seed,
-            )
-            station.robot_name = ROBOT
-            progress = _PoseCounter(run.run_id, log, pose_progress)
-
-            try:
-                res = run_plan(station, plan, folder, progress=progress)
-            finally:
-                station.close()
-            if res.stopped:
-                raise HardwareError(f"run {run.run_id} stopped: {res.stopped}")
-            say(
-                f"   {res.n_measured} of {res.n_poses} poses measured, {res.n_failed} failed; "
-                f"instrument self-check drift {res.selfcheck_drift_mm or 0:.4f} mm"
-            )
-            csv = folder / "measurements.csv"
-
-            # 3. fit ---------------------------------------------------------------------
-            rc, text = quiet(["identify", "fit", str(csv), "--robot", "ur5", "--out", str(folder)])
-            if rc != 0:
-                raise QuickhealthError(
-                    f"fit of {run.run_id} failed: {text.strip().splitlines()[-1:]}"
-                )
-            report = json.loads((folder / "report.json").read_text())
-            ws = report.get("workspace", {})
-            figs = {
-                "mean": float(ws.get("mean_mm", float("nan"))),
-                "std": float(ws.get("std_mm", float("nan"))),
-                "max": float(ws.get("max_mm", float("nan"))),
-            }
-            say(
-                f"   fit: {report.get('n_poses')} poses, {report.get('n_params')} parameters, "
-                f"residual {report.get('rms_pos_mm', float('nan')):.4f} mm / "
-                f"{report.get('rms_rot_deg', float('nan')):.5f}°; workspace TCP error "
-                f"mean {figs['mean']:.3f} mm, std {figs['std']:.3f} mm, max {figs['max']:.3f} mm"
-            )
-
-            # 4. diagnose ----------------------------------------------------------------
-            rc, _ = quiet(
-                [
-                    "diagnose",
-                    str(folder / "model.json"),
-                    str(csv),
-                    "--json",
-                    str(folder / "diagnosis.json"),
-                ]
-            )
-            diag = json.loads((folder / "diagnosis.json").read_text()) if rc == 0 else {}
-            cands = diag.get("candidates", [])
-            diagnosis = str(diag.get("verdict", "not run"))
-            if diagnosis == "missing-effect" and cands:
-                diagnosis += f" (best: {cands[0]['effect']})"
-            say(f"   diagnose: {diagnosis}")
-
-            # 5. archive and trend ---------------------------------------------------------
-            when = (t0 + timedelta(days=run.days_after_baseline)).isoformat().replace("+00:00", "Z")
-            rc, text = quiet(
-                [
-                    "archive",
-                    "add",
-                    str(folder),
-                    "--robot",
-                    ROBOT,
-                    "--run-id",
-                    run.run_id,
-                    "--time",
-                    when,
-                    "--archive",
-                    str(archive_dir),
-                ]
-                + (["--baseline"] if run.days_after_baseline == 0 else [])
-            )
-            if rc != 0:
-                raise QuickhealthError(f"archiving {run.run_id} failed: {text.strip()}")
-            arch = Archive.open(archive_dir)
-            result = DemoRunResult(
-                run, arch.folder(arch.get(ROBOT, run.run_id)), figures_mm=figs, diagnosis=diagnosis
-            )
-            if run.days_after_baseline > 0:
-                tr = trend_for(arch, ROBOT)
-                result.flags = list(tr.flags())
-                result.verdict = "FLAGGED" if result.flags else "healthy"
-                say(f"   trend against the baseline: {result.verdict}")
-                for line in result.flags:
-                    say(f"     - {line}")
-            else:
-                result.verdict = "baseline"
-
-            # 6. report ------------------------------------------------------------------
-            html = result.folder / "report.html"
-            rc, text = quiet(
-                [
-                    "report",
-                    str(result.folder),
-                    "--out",
-                    str(html),
-                    "--robot",
-                    ROBOT,
-                    "--run-id",
-                    run.run_id,
-                    "--archive",
-                    str(archive_dir),
-                ]
-            )
-            result.report_html = html if rc == 0 and html.exists() else None
-            if result.report_html is None:
-                say(
-                    f"   report: failed ({text.strip().splitlines()[-1:] if text.strip() else 'no output'})"
-                )
+            folder = _run(out, run, plan, speed_factor, image_scale, say, log, pose_progress)
+            result = _assess(out, folder, run, t0, say, log)
             result.seconds = time.monotonic() - t_run
             results.append(result)
     finally:
         log.close()
-
     flagged_ok = _story_holds(results, degrade)
     return DemoResult(out, plan_summary, results, flagged_ok, time.monotonic() - t_start)
 
 
+def _plan(
+    out: Path, n_candidates: int, seed: int, say: Callable[[str], None], log: _Log
+) -> tuple[Plan, list[str]]:
+    """1. the fixed loop of the reference cell; the first lines of its summary."""
+    argv = ["plan", "--cell", "reference", "--n", str(n_candidates), "--seed", str(seed)]
+    say(f"1. plan: quickhealth {' '.join(argv)}")
+    res = plan_folder(load_cell("reference"), n_candidates, seed, out)
+    lines = [*res.result.summary(), f"plan {res.plan.hash}"]
+    log.step([*argv, "--out", str(out)], lines + ["wrote " + ", ".join(map(str, res.paths))])
+    summary = [ln for ln in lines if ln.strip()][:4]
+    for ln in summary:
+        say(f"   {ln}")
+    return res.plan, summary
+
+
+def _run(
+    out: Path,
+    run: DemoRun,
+    plan: Plan,
+    speed_factor: float,
+    image_scale: float,
+    say: Callable[[str], None],
+    log: _Log,
+    pose_progress: Callable[[str, int, int], None] | None,
+) -> Path:
+    """2. the plan on the simulated cell (worn as the run says); the run folder."""
+    wear = ",".join(f"{a}={b:g}" for a, b in run.degrade.items())
+    say(
+        "   quickhealth run --sim --cell reference --plan plan/plan.json"
+        + (f" --sim-degrade {wear}" if wear else "")
+    )
+    station, _ = sim_station(
+        "reference",
+        twin_seed=1,
+        image_scale=image_scale,
+        speed_factor=speed_factor,
+        degrade=run.degrade or None,
+        camera_seed=run.camera_seed,
+    )
+    station.robot_name = ROBOT
+    folder = out / "runs" / run.run_id
+    try:
+        res: RunResult = run_plan(
+            station, plan, folder, progress=_PoseCounter(run.run_id, log.file, pose_progress)
+        )
+    finally:
+        station.close()
+    if res.stopped:
+        raise HardwareError(f"run {run.run_id} stopped: {res.stopped}")
+    say(
+        f"   {res.n_measured} of {res.n_poses} poses measured, {res.n_failed} failed; "
+        f"instrument self-check drift {res.selfcheck_drift_mm or 0:.4f} mm"
+    )
+    return folder
+
+
+def _assess(
+    out: Path,
+    folder: Path,
+    run: DemoRun,
+    t0: datetime,
+    say: Callable[[str], None],
+    log: _Log,
+) -> DemoRunResult:
+    """3.–6. fit, diagnose, archive and trend, report."""
+    csv = folder / "measurements.csv"
+    robot = load_robot("ur5")
+    meas = read_measurements(csv, robot.n_joints)
+    fit = fit_folder(meas, robot, folder, source=str(csv))
+    log.step(
+        ["identify", "fit", str(csv), "--robot", "ur5", "--out", str(folder)],
+        fit.assessment.summary(),
+    )
+    report = fit.files.report
+    ws = report["workspace"]
+    figs = {k: float(ws[f"{k}_mm"]) for k in ("mean", "std", "max")}
+    say(
+        f"   fit: {report['n_poses']} poses, {report['n_params']} parameters, "
+        f"residual {report['rms_pos_mm']:.4f} mm / "
+        f"{report.get('rms_rot_deg', float('nan')):.5f}°; workspace TCP error "
+        f"mean {figs['mean']:.3f} mm, std {figs['std']:.3f} mm, max {figs['max']:.3f} mm"
+    )
+
+    diag = diagnose_model(read_model(folder / "model.json"), meas).diagnosis
+    write_diagnosis(folder / "diagnosis.json", diag)
+    log.step(
+        [
+            "diagnose",
+            str(folder / "model.json"),
+            str(csv),
+            "--json",
+            str(folder / "diagnosis.json"),
+        ],
+        diag.summary(top=5),
+    )
+    diagnosis = str(diag.verdict.value)
+    if diagnosis == "missing-effect" and diag.candidates:
+        diagnosis += f" (best: {diag.candidates[0].effect})"
+    say(f"   diagnose: {diagnosis}")
+
+    archive_dir = out / "archive"
+    when = (t0 + timedelta(days=run.days_after_baseline)).isoformat().replace("+00:00", "Z")
+    arch = Archive.open(archive_dir)
+    rec = arch.add_run(ROBOT, folder, run_id=run.run_id, time_utc=when)
+    baseline = run.days_after_baseline == 0
+    if baseline:
+        arch.set_baseline(rec.robot, rec.run_id)
+    log.step(
+        ["archive", "add", str(folder), "--robot", ROBOT, "--run-id", run.run_id, "--time", when]
+        + ["--archive", str(archive_dir)]
+        + (["--baseline"] if baseline else []),
+        [f"archived {rec.robot}/{rec.run_id} ({rec.time_utc}) in {arch.folder(rec)}"],
+    )
+    result = DemoRunResult(run, arch.folder(rec), figures_mm=figs, diagnosis=diagnosis)
+    if baseline:
+        result.verdict = "baseline"
+    else:
+        result.flags = list(trend_for(arch, ROBOT).flags())
+        result.verdict = "FLAGGED" if result.flags else "healthy"
+        say(f"   trend against the baseline: {result.verdict}")
+        for line in result.flags:
+            say(f"     - {line}")
+
+    html = result.folder / "report.html"
+    argv = ["report", str(result.folder), "--out", str(html), "--robot", ROBOT, "--run-id"]
+    argv += [run.run_id, "--archive", str(archive_dir)]
+    try:
+        rep = report_run(result.folder, archive=arch, robot=ROBOT, run_id=run.run_id, html=html)
+    except QuickhealthError as exc:  # the demo goes on; the table says the report is missing
+        log.step(argv, [f"quickhealth: error: {exc}"])
+        say(f"   report: failed ({exc})")
+        return result
+    j = rep.report.judgement
+    log.step(
+        argv,
+        [f"{j.verdict.value.upper()}: {j.reason}", f"wrote {html} and updated {rep.report_json}"],
+    )
+    result.report_html = html
+    return result
+
+
 def _story_holds(results: list[DemoRunResult], degrade: dict[str, float] | None) -> bool:
     """The healthy repeat is not flagged; the worn run is, naming the worn joint and motion."""
-    from quickhealth.identify.errormodel import MOTION_WORDS
-
     wear = dict(DEFAULT_DEGRADATION if degrade is None else degrade)
     by_id = {r.run.run_id: r for r in results}
     healthy = by_id.get("week-1")

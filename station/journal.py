@@ -7,7 +7,9 @@ goes on.  Images are written atomically (temporary file, ``fsync``, rename, dire
 arm moves on; the ``measured`` record follows them.  A capture whose images are not on disk
 (a crash in between) counts as not done and the pose is visited again on resume.
 
-Records (``type``):
+Records (``type``, a :class:`~.formats.journal.RecordKind`; their fields, typed in SI and
+stored in mm and degrees, are :mod:`quickhealth.station.formats.journal`'s, the one encoder
+and decoder):
 
 - ``start``   run id, plan hash, cell, number of poses, software version; ``provenance``
   (quickhealth, Python, numpy, scipy, OpenCV, pinocchio versions) added by :meth:`Journal.append`.
@@ -36,10 +38,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from quickhealth.identify.errors import InputError
-
+from ..identify.errors import InputError
 from .formats.common import json_plain
+from .formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
+from .formats.journal import decode as decode_record
+from .formats.journal import encode as encode_record
 from .fsio import fsync_dir, write_atomic
+from .provenance import provenance
 
 JOURNAL = "journal.jsonl"
 SCHEMA = "quickhealth.journal/1"
@@ -60,10 +65,10 @@ class JournalState:
     """What a journal says happened (built by :func:`read_journal`)."""
 
     start: dict[str, Any] | None = None
-    captured: dict[int, dict[str, Any]] = field(default_factory=dict)
-    measured: dict[int, dict[str, Any]] = field(default_factory=dict)
-    failed: dict[int, dict[str, Any]] = field(default_factory=dict)
-    selfchecks: list[dict[str, Any]] = field(default_factory=list)
+    captured: dict[int, Captured] = field(default_factory=dict)
+    measured: dict[int, Measured] = field(default_factory=dict)
+    failed: dict[int, Failed] = field(default_factory=dict)
+    selfchecks: list[SelfCheck] = field(default_factory=list)
     stops: list[dict[str, Any]] = field(default_factory=list)
     resumes: int = 0
     ended: bool = False
@@ -131,29 +136,26 @@ class _Truncated(Exception):
 def read_journal(path: Path) -> JournalState:
     """Replay a journal into a :class:`JournalState` (see the module docstring)."""
     st = JournalState()
+    line = 0
     try:
         for line, rec, end in iter_records(path):
             st.n_records += 1
             st.valid_bytes = end
-            t = rec.get("type")
-            if t == "start":
+            kind = rec.get("type")
+            if kind not in _KINDS:
+                pass  # a kind of a later version: not this reader's
+            elif kind == RecordKind.START:
                 if rec.get("schema") != SCHEMA:
                     raise InputError(f"{path}:{line}: not a {SCHEMA} journal")
                 st.start = rec
-            elif t == "captured":
-                st.captured[int(rec["index"])] = rec
-            elif t == "measured":
-                st.measured[int(rec["index"])] = rec
-            elif t == "failed":
-                st.failed[int(rec["index"])] = rec
-            elif t == "selfcheck":
-                st.selfchecks.append(rec)
-            elif t == "stop":
+            elif kind == RecordKind.STOP:
                 st.stops.append(rec)
-            elif t == "resume":
+            elif kind == RecordKind.RESUME:
                 st.resumes += 1
-            elif t == "end":
+            elif kind == RecordKind.END:
                 st.ended = True
+            else:
+                _add(st, decode_record(rec))
             if st.start is None:
                 raise InputError(f"{path}:{line}: journal does not begin with a start record")
     except _Truncated as tr:
@@ -162,8 +164,22 @@ def read_journal(path: Path) -> JournalState:
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, InputError):
             raise
-        raise InputError(f"{path}: malformed journal record ({exc})") from None
+        raise InputError(f"{path}:{line}: malformed journal record ({exc})") from None
     return st
+
+
+_KINDS = frozenset(k.value for k in RecordKind)
+
+
+def _add(st: JournalState, r: Record) -> None:
+    if isinstance(r, Captured):
+        st.captured[r.index] = r
+    elif isinstance(r, Measured):
+        st.measured[r.index] = r
+    elif isinstance(r, Failed):
+        st.failed[r.index] = r
+    elif isinstance(r, SelfCheck):
+        st.selfchecks.append(r)
 
 
 class Journal:
@@ -184,11 +200,10 @@ class Journal:
             fsync_dir(self.path.parent)
         return self
 
-    def append(self, rec: dict[str, Any]) -> None:
+    def append(self, record: Record) -> None:
         """Write one record and fsync it (``start``/``resume`` gain ``provenance``)."""
-        if rec.get("type") in ("start", "resume") and "provenance" not in rec:
-            from .provenance import provenance
-
+        rec = encode_record(record)
+        if rec.get("type") in (RecordKind.START, RecordKind.RESUME) and "provenance" not in rec:
             rec = {**rec, "provenance": provenance()}
         rec = json_plain(rec, finite_only=True)
         line = dict(rec)

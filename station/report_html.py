@@ -1,4 +1,4 @@
-"""The run report: one self-contained HTML file (plots embedded as PNG) and the same as JSON.
+"""The run report as a page: its sections (text, tables, figures) and one self-contained HTML file.
 
 Sections, in the order a reader needs them:
 
@@ -16,17 +16,16 @@ Sections, in the order a reader needs them:
 8. ISO 9283         pose accuracy AP and repeatability RP at plan poses visited repeatedly:
                     position and, for pose (7D) data, orientation (a, b, c about the base axes)
 
-``build_report`` gathers the numbers and figures from a run folder; ``render_html`` turns them
-into the page.  ``report_json`` is the page's content as JSON (also embedded in the page as
-``<script type="application/json" id="report-json">``).  Missing inputs give a section that
-says what is missing and how to get it ("Not available: ..."), never a silent gap; a section
-that does not apply to the run (ISO 9283 on a plan without repeated poses) says why ("Not
-applicable: ...").
-
-SYNOPSIS::
-
-    rep = build_report(Path("runs/r1"), archive=Archive.open(), robot="ur5-cell3")
-    Path("runs/r1/report.html").write_text(render_html(rep))
+Each ``*_section`` function turns what the report found (SI, typed: the fitted model, the
+workspace error, the trend, the :class:`~quickhealth.station.verdict.Judgement`…) into a
+:class:`Section` in the units people read (mm, degrees, mrad); :func:`render_html` turns the
+sections into the page.  Gathering the findings from a run folder is the report service's job
+(:func:`quickhealth.station.services.report.build_report`).  :meth:`Report.to_dict` is the
+page's content as JSON (also embedded in the page as
+``<script type="application/json" id="report-json">``).  A section whose input is missing says
+what is missing and how to get it ("Not available: ..."), never a silent gap; a section that
+does not apply to the run (ISO 9283 on a plan without repeated poses) says why ("Not
+applicable: ...").  ``plots=False`` leaves the figures out (report.json alone needs none).
 """
 
 from __future__ import annotations
@@ -36,8 +35,9 @@ import html
 import io
 import json
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from datetime import UTC, datetime
 from typing import Any
 
 import matplotlib
@@ -48,9 +48,17 @@ import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from quickhealth.identify.errors import InputError  # noqa: E402
-from quickhealth.identify.robot import nominal_of  # noqa: E402
-from quickhealth.station.formats.common import json_plain as _plain  # noqa: E402
+from ..identify.errormodel import MOTION_WORDS, MOTIONS  # noqa: E402
+from ..identify.fit import FittedModel  # noqa: E402
+from ..identify.measurements import Measurements  # noqa: E402
+from ..identify.report import residual_plot, workspace_histogram  # noqa: E402
+from ..identify.robot import RobotModel, nominal_of  # noqa: E402
+from ..identify.trend import TrendResult  # noqa: E402
+from ..identify.workspace import JointCurves, WorkspaceError  # noqa: E402
+from .formats.common import json_plain as _plain  # noqa: E402
+from .formats.report import trend_to_json  # noqa: E402
+from .iso9283 import PoseStats  # noqa: E402
+from .verdict import Judgement  # noqa: E402
 
 F = NDArray[np.float64]
 
@@ -80,6 +88,19 @@ class Section:
     folded: tuple[tuple[str, ...], ...] = ()  # a second table, folded away (same header)
     folded_title: str = ""
 
+    def to_dict(self) -> dict[str, Any]:
+        """The section as JSON-able data (its numbers and text; figures by key)."""
+        return {
+            "title": self.title,
+            "lines": list(self.lines),
+            "table": [list(r) for r in self.table],
+            "plots": [p.key for p in self.plots],
+            "missing": self.missing or None,
+            "not_applicable": self.not_applicable or None,
+            "data": self.data,
+            "folded": [list(r) for r in self.folded],
+        }
+
 
 @dataclass(frozen=True)
 class Report:
@@ -94,93 +115,17 @@ class Report:
         """Every figure, in page order."""
         return [p for s in self.sections for p in s.plots]
 
+    def section(self, key: str) -> Section:
+        """The section ``key`` (``"verdict"``, ``"trend"`` …)."""
+        return next(s for s in self.sections if s.key == key)
 
-# ------------------------------------------------------------------------ ISO 9283
-
-
-@dataclass(frozen=True)
-class PoseStats:
-    """ISO 9283-style figures of one repeatedly visited pose (m, rad).
-
-    Position: ``accuracy`` AP_P, ``repeatability`` RP_l.  Orientation (pose data only, else
-    None), per rotation component a, b, c about the robot base's x, y, z axes:
-    ``accuracy_abc`` AP_a, AP_b, AP_c (signed mean deviation from the commanded orientation)
-    and ``repeatability_abc`` RP_a, RP_b, RP_c (the ± half-width ``3 S``).
-    """
-
-    pose_id: str
-    n: int
-    accuracy: float  # AP_P: distance of the barycentre of attained positions from the command
-    repeatability: (
-        float  # RP_l = l̄ + 3 S_l, l = distance of each attained position to the barycentre
-    )
-    accuracy_abc: F | None = None  # (3,) rad
-    repeatability_abc: F | None = None  # (3,) rad
-
-
-def iso9283_pose_stats(
-    pose_id: tuple[str, ...],
-    attained: F,
-    commanded: F,
-    attained_R: F | None = None,
-    commanded_R: F | None = None,
-    R_meas_base: F | None = None,
-) -> list[PoseStats]:
-    """Pose accuracy and repeatability (ISO 9283 §7.2.1, §7.2.3) at poses visited ≥ 2 times.
-
-    Parameters
-    ----------
-    pose_id : tuple of str, length n
-    attained : ndarray, shape (n, 3), m
-        Measured positions.
-    commanded : ndarray, shape (n, 3), m
-        Commanded positions in the same frame (the nominal kinematics with the identified
-        base and tool).
-    attained_R, commanded_R : ndarray, shape (n, 3, 3), optional
-        Measured and commanded orientations (same frame): adds the orientation figures.
-    R_meas_base : ndarray, shape (3, 3), optional
-        The robot base's axes in that frame: the components a, b, c are rotations about them
-        (ISO 9283 states orientation in the base coordinate system); default the frame's own.
-
-    Orientation: the attained deviation of visit j is the small rotation
-    ``δ_j = log(R_attained,j · R_commandedᵀ)`` expressed in base axes, ``(a_j − a_c, b_j − b_c,
-    c_j − c_c)`` to first order; ``AP_abc = mean_j δ_j`` (§7.2.1: ``ā − a_c`` …) and
-    ``RP_abc = 3 S`` with ``S = sqrt(Σ (δ_j − δ̄)² / (n − 1))`` per component (§7.2.3).
-
-    Returns
-    -------
-    list of PoseStats, one per repeated pose, in first-visit order.
-    """
-    from quickhealth.identify.transforms import log_so3
-
-    delta = None
-    if attained_R is not None and commanded_R is not None:
-        w = log_so3(np.asarray(attained_R) @ np.swapaxes(np.asarray(commanded_R), -1, -2))
-        R_b = np.eye(3) if R_meas_base is None else np.asarray(R_meas_base, float)
-        delta = w @ R_b  # rows: R_bᵀ w, the rotation about the base axes
-    out = []
-    ids = np.asarray(pose_id)
-    seen: list[str] = []
-    for p in ids:
-        if p not in seen:
-            seen.append(str(p))
-    for p in seen:
-        sel = ids == p
-        n = int(sel.sum())
-        if n < 2:
-            continue
-        a = attained[sel]
-        bary = a.mean(axis=0)
-        l = np.linalg.norm(a - bary, axis=1)
-        s_l = math.sqrt(float(np.sum((l - l.mean()) ** 2)) / (n - 1))
-        ap = float(np.linalg.norm(bary - commanded[sel].mean(axis=0)))
-        ap_abc = rp_abc = None
-        if delta is not None:
-            d = delta[sel]
-            ap_abc = d.mean(axis=0)
-            rp_abc = 3.0 * d.std(axis=0, ddof=1)
-        out.append(PoseStats(p, n, ap, float(l.mean() + 3 * s_l), ap_abc, rp_abc))
-    return out
+    def to_dict(self) -> dict[str, Any]:
+        """The report's content as JSON-able data (sections with their numbers and text)."""
+        return {
+            "title": self.title,
+            "run_dir": self.run_dir,
+            "sections": {s.key: s.to_dict() for s in self.sections},
+        }
 
 
 # ------------------------------------------------------------------------ figures
@@ -192,7 +137,7 @@ def _png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def _coverage_figure(robot: Any, q: F, q_lo: F, q_hi: F) -> Figure:
+def _coverage_figure(robot: RobotModel, q: F, q_lo: F, q_hi: F) -> Figure:
     nj = q.shape[1]
     fig = Figure(figsize=(10.0, 5.6))
     for j in range(nj):
@@ -215,14 +160,12 @@ def _coverage_figure(robot: Any, q: F, q_lo: F, q_hi: F) -> Figure:
     return fig
 
 
-def joint_figure(curves: Any, fitted: Any = None) -> Figure:
+def joint_figure(curves: JointCurves, fitted: FittedModel | None = None) -> Figure:
     """One joint's six error motions with bands, in one row (compact; no tight_layout).
 
     A motion the data cannot identify (every coefficient held at zero, no band) is labelled
     "not identifiable" instead of drawn as a flat zero line, which would read as "no error";
     one the model does not have says "not in the model"."""
-    from quickhealth.identify.errormodel import MOTION_WORDS, MOTIONS
-
     fig = Figure(figsize=(12.0, 2.4))
     fig.subplots_adjust(left=0.05, right=0.99, bottom=0.2, top=0.8, wspace=0.45)
     th = np.degrees(curves.theta)
@@ -257,11 +200,9 @@ def joint_figure(curves: Any, fitted: Any = None) -> Figure:
     return fig
 
 
-def _motion_state(fitted: Any, joint: int, m: int, v: F, h: F) -> str:
+def _motion_state(fitted: FittedModel | None, joint: int, m: int, v: F, h: F) -> str:
     """'' for a motion to draw; else why it is not drawn."""
     if fitted is not None:
-        from quickhealth.identify.errormodel import MOTIONS
-
         if fitted.spec.orders[joint, m] < 0:
             return "not in the model"
         prefix = f"j{joint}.{MOTIONS[m]}."
@@ -301,10 +242,8 @@ def _iso_figure(stats: list[PoseStats]) -> Figure:
     return fig
 
 
-def trend_figure(result: Any) -> Figure:
+def trend_figure(result: TrendResult) -> Figure:
     """Main figures over time with the EWMA control limits, the baseline marked."""
-    from datetime import UTC, datetime
-
     figs = [f for f in ("mean", "std", "max") if f in result.charts]
     fig = Figure(figsize=(9.0, 2.6 * max(len(figs), 1)))
     t = [datetime.fromtimestamp(v, UTC) for v in result.t_s]
@@ -345,302 +284,144 @@ def trend_figure(result: Any) -> Figure:
     return fig
 
 
-# ------------------------------------------------------------------------ building
+# ------------------------------------------------------------------------ sections
 
 
-def _json(path: Path) -> dict[str, Any] | None:
-    if not path.is_file():
-        return None
-    try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
-    return doc if isinstance(doc, dict) else None
+def verdict_section(j: Judgement) -> Section:
+    """Healthy, degraded or flagged, the one-line reason, the TCP error against the baseline
+    and the top missing effect (:func:`quickhealth.station.verdict.judge`)."""
+    f, b = j.figures, j.baseline
+    if b is not None:
+        err = (
+            f"TCP error: mean {f.mean_mm:.3f} mm (baseline {b.mean_mm:.3f} mm, "
+            f"{f.mean_mm - b.mean_mm:+.3f}), max {f.max_mm:.3f} mm (baseline {b.max_mm:.3f} mm, "
+            f"{f.max_mm - b.max_mm:+.3f}) against baseline run {j.baseline_run}"
+        )
+    else:
+        err = (
+            f"TCP error: mean {f.mean_mm:.3f} mm, max {f.max_mm:.3f} mm "
+            "(no baseline: run not archived)"
+        )
+    if j.conditions:
+        err += f"; {j.conditions}"
+    top = j.top_missing_effect
+    lines = (
+        f"{j.verdict.value.upper()}: {j.reason}" + (f"; {j.uncertainty}" if j.uncertainty else ""),
+        err,
+        f"top missing effect: {top.effect}" if top is not None else "top missing effect: none",
+    )
+    return Section("verdict", "Verdict", lines, data=j.as_dict())
 
 
-def build_report(
-    run_dir: str | Path,
-    *,
-    archive: Any = None,
-    robot: str | None = None,
-    run_id: str | None = None,
-    threshold_mm: float | None = None,
-    diagnose_if_missing: bool = True,
-    workspace_samples: int = 5000,
-) -> Report:
-    """Gather every section of a run's report.
-
-    Parameters
-    ----------
-    run_dir : path
-        Folder with ``model.json`` and ``measurements.csv`` (and optionally ``report.json``,
-        ``plan.json``, ``run.json``, ``diagnosis.json``).
-    archive : Archive, optional
-        For the trend section: the archive holding this robot's runs.
-    robot, run_id : str, optional
-        The run's robot and id in the archive (run id default: the folder's name).
-    threshold_mm : float, optional
-        Threshold drawn in the trend and used for its verdict.
-    diagnose_if_missing : bool
-        Run the diagnosis when the folder has no ``diagnosis.json``.
-
-    Returns
-    -------
-    Report
-
-    Raises
-    ------
-    InputError
-        The folder has no ``model.json`` (nothing to report).
-    """
-    from quickhealth.identify.report import residual_plot, workspace_histogram
-    from quickhealth.identify.workspace import all_joint_curves, workspace_error
-    from quickhealth.station import formats
-
-    from .archive import run_metadata
-
-    d = Path(run_dir)
-    if not (d / "model.json").is_file():
-        raise InputError(f"{d}: no model.json (fit the run first: quickhealth identify fit)")
-    fitted = formats.read_model(d / "model.json")
-    meas = None
-    if (d / "measurements.csv").is_file():
-        meas = formats.read_measurements(d / "measurements.csv", fitted.robot.n_joints)
-        if meas.n_poses != fitted.n_poses:
-            meas = None  # not the data this model was fitted to
-    meta = run_metadata(d)
-    rid = run_id or meta.get("run_id") or d.resolve().name
-    if archive is not None and robot is not None:  # the index knows what the folder may not
-        rec = next((r for r in archive.runs(robot) if r.run_id == rid), None)
-        if rec is not None:
-            meta = {**meta, **{k: v for k, v in rec.meta.items() if v}, "time_utc": rec.time_utc}
-    sections: list[Section] = []
-
-    # 1. summary
+def summary_section(
+    fitted: FittedModel, run_id: str, robot: str | None, meta: Mapping[str, str]
+) -> Section:
+    """Robot, run, plan hash, cell, calibration, software; the fit's lines."""
     lines = [
         f"robot: {fitted.robot.name}" + (f" ({robot})" if robot else ""),
         f"errors against the nominal kinematics of {nominal_of(fitted.robot)}",
-        f"run: {rid}" + (f", {meta['time_utc']}" if "time_utc" in meta else ""),
+        f"run: {run_id}" + (f", {meta['time_utc']}" if "time_utc" in meta else ""),
     ]
     for k in ("plan_hash", "cell", "calibration_id", "software_version"):
         lines.append(f"{k.replace('_', ' ')}: {meta.get(k, '(unknown)')}")
     lines += list(fitted.summary())
-    sections.append(Section("summary", "Summary", tuple(lines), data={"meta": meta, "run_id": rid}))
-
-    # 2. plan coverage
-    plan = _json(d / "plan.json")
-    q_plan = None
-    if plan and isinstance(plan.get("poses"), list) and plan["poses"]:
-        q_plan = np.radians(np.array([p["q_deg"] for p in plan["poses"]], dtype=float))
-        src = "plan.json"
-    elif meas is not None:
-        q_plan, src = meas.q, "measurements.csv (executed poses)"
-    if q_plan is not None:
-        fig = _coverage_figure(fitted.robot, q_plan, fitted.spec.q_lo, fitted.spec.q_hi)
-        span = np.ptp(q_plan, axis=0) / (fitted.spec.q_hi - fitted.spec.q_lo)
-        sections.append(
-            Section(
-                "coverage",
-                "Plan coverage (paper Fig. 6)",
-                (
-                    f"{q_plan.shape[0]} poses from {src}",
-                    "share of each joint's modelled range spanned: "
-                    + ", ".join(f"j{j + 1} {s:.0%}" for j, s in enumerate(span)),
-                ),
-                plots=(Plot("coverage", "Plan coverage", _png(fig)),),
-                data={"n_poses": int(q_plan.shape[0]), "range_share": span.tolist()},
-            )
-        )
-    else:
-        sections.append(
-            Section(
-                "coverage",
-                "Plan coverage (paper Fig. 6)",
-                missing="no plan.json and no measurements.csv",
-            )
-        )
-
-    # 3. workspace error
-    ws = workspace_error(fitted, n_samples=workspace_samples)
-    cond = ws.conditions.describe()
-    sections.append(
-        Section(
-            "workspace",
-            "Workspace TCP error (paper Fig. 7)",
-            (
-                f"mean {ws.mean * 1e3:.3f} mm, std {ws.std * 1e3:.3f} mm, "
-                f"95 % {ws.p95 * 1e3:.3f} mm, max {ws.max * 1e3:.3f} mm "
-                f"over {ws.n_samples} joint commands uniform in the modelled ranges"
-                + (f", {cond}" if cond else ""),
-            ),
-            plots=(
-                Plot("workspace_hist", "Workspace error histogram", _png(workspace_histogram(ws))),
-            ),
-            data=ws.as_dict(),
-        )
-    )
-
-    # 4. joint curves
-    curves = all_joint_curves(fitted, n_points=61)
-    sections.append(
-        Section(
-            "curves",
-            "Error motions of every joint, 95 % bands (paper Fig. 8)",
-            ("bands: sampling uncertainty of the estimate; model error is not in them",),
-            plots=tuple(
-                Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(joint_figure(c, fitted)))
-                for c in curves
-            ),
-            data={"joint_curves": [c.as_dict() for c in curves]},
-        )
-    )
-
-    # 5. residuals
-    if meas is not None:
-        sections.append(
-            Section(
-                "residuals",
-                "Measured versus model",
-                (f"rms position residual {fitted.rms_pos * 1e3:.4f} mm",),
-                plots=(Plot("residuals", "Residuals", _png(residual_plot(fitted, meas))),),
-                data={"rms_pos_mm": fitted.rms_pos * 1e3},
-            )
-        )
-    else:
-        sections.append(
-            Section(
-                "residuals",
-                "Measured versus model",
-                missing="measurements.csv missing or not the fitted data",
-            )
-        )
-
-    # 6. diagnosis
-    sections.append(_diagnosis_section(d, fitted, meas, diagnose_if_missing))
-
-    # 7. trend
-    trend_sec, trend_res = _trend_section(archive, robot, rid, threshold_mm)
-    sections.append(trend_sec)
-
-    # 8. ISO 9283
-    sections.append(_iso_section(fitted, meas))
-
-    # 0. the verdict, first
-    diag_doc = next(s for s in sections if s.key == "diagnosis").data
-    sections.insert(0, _verdict_section(ws, trend_res, diag_doc, threshold_mm, noise=fitted.noise))
-
-    return Report(
-        title=f"quickhealth report: {fitted.robot.name}, run {rid}",
-        run_dir=str(d),
-        sections=tuple(sections),
-    )
+    return Section("summary", "Summary", tuple(lines), data={"meta": dict(meta), "run_id": run_id})
 
 
-VERDICTS = ("healthy", "degraded", "flagged")
-
-
-def _finite(v: float, default: float) -> float:
-    return float(v) if math.isfinite(v) else default
-
-
-def _verdict_section(
-    ws: Any, trend: Any, diag: dict[str, Any], threshold_mm: float | None, noise: Any = None
+def coverage_section(
+    fitted: FittedModel, q_plan: F | None, source: str, *, plots: bool = True
 ) -> Section:
-    """Healthy, degraded or flagged, the one-line reason, the TCP error against the baseline
-    and the top missing effect.
-
-    flagged: the trend against the baseline raised a flag (a control-chart alarm, a
-    threshold crossed, an error curve changed).  degraded: no flag, but the mean or max TCP
-    error is more than 10 % above the baseline's, the run's figure is above the threshold,
-    or the diagnosis finds a physical effect the model misses.  healthy: none of these.
-    """
-    mean, mx = ws.mean * 1e3, ws.max * 1e3
-    data: dict[str, Any] = {"mean_mm": mean, "max_mm": mx, "conditions": ws.conditions.describe()}
-    base_mean = base_max = None
-    if trend is not None:  # both figures from the archive's index: like with like
-        b, i = trend.baseline_index, trend.latest
-        mean = _finite(trend.figures_mm["mean"][i], mean)
-        mx = _finite(trend.figures_mm["max"][i], mx)
-        data.update(mean_mm=mean, max_mm=mx)
-        base_mean = trend.figures_mm["mean"][b]
-        base_max = trend.figures_mm["max"][b]
-        data.update(baseline_run=trend.run_ids[b], baseline_mean_mm=base_mean)
-        data.update(baseline_max_mm=base_max, this_is_baseline=b == i)
-    top = None
-    if diag.get("verdict") == "missing-effect":
-        sugg = diag.get("suggested") or []
-        cands = {c.get("effect"): c for c in diag.get("candidates", [])}
-        name = sugg[0] if sugg else next(iter(cands), None)
-        if name is not None:
-            top = {
-                "effect": name,
-                **{k: cands.get(name, {}).get(k) for k in ("predicted_rms_drop_mm",)},
-            }
-    data["top_missing_effect"] = top
-    flags = trend.flags() if trend is not None else []
-    rose = [
-        f"{what} TCP error {now:.3f} mm is {now / base - 1:.0%} above the baseline's {base:.3f} mm"
-        for what, now, base in (("mean", mean, base_mean), ("max", mx, base_max))
-        if base is not None and base > 0 and now > 1.1 * base
-    ]
-    fig_now = {"mean": mean, "max": mx}.get(getattr(trend, "threshold_figure", "max"), mx)
-    if flags:
-        verdict, reason = (
-            "flagged",
-            flags[0] + (f" (and {len(flags) - 1} more)" if len(flags) > 1 else ""),
+    """The commanded joint angles over each joint's modelled range (paper Fig. 6)."""
+    title = "Plan coverage (paper Fig. 6)"
+    if q_plan is None:
+        return Section("coverage", title, missing="no plan.json and no measurements.csv")
+    spec = fitted.spec
+    span = np.ptp(q_plan, axis=0) / (spec.q_hi - spec.q_lo)
+    fig = (
+        (
+            Plot(
+                "coverage",
+                "Plan coverage",
+                _png(_coverage_figure(fitted.robot, q_plan, spec.q_lo, spec.q_hi)),
+            ),
         )
-    elif threshold_mm is not None and fig_now > threshold_mm:
-        verdict, reason = (
-            "degraded",
-            f"TCP error {fig_now:.3f} mm is above the threshold {threshold_mm:g} mm",
-        )
-    elif rose:
-        verdict, reason = "degraded", rose[0]
-    elif top is not None:
-        drop = top.get("predicted_rms_drop_mm")
-        verdict = "degraded"
-        reason = f"the error model misses a physical effect: {top['effect']}" + (
-            f" (adding it would lower the residual RMS by {drop:.3f} mm)"
-            if drop is not None
-            else ""
-        )
-    else:
-        verdict = "healthy"
-        reason = (
-            "no flag against the baseline and no missing effect"
-            if trend is not None
-            else "no missing effect (no baseline to compare with: the run is not archived)"
-        )
-    if noise is not None and noise.rescaled:  # say it where it is read first
-        reason += (
-            "; uncertainty estimated from the residuals (the stated instrument uncertainty was "
-            f"too small: {noise.excess_pos * 1e3:.3g} mm added per axis)"
-        )
-    data.update(verdict=verdict, reason=reason)
-    if base_mean is not None and base_max is not None:
-        err = (
-            f"TCP error: mean {mean:.3f} mm (baseline {base_mean:.3f} mm, {mean - base_mean:+.3f}), "
-            f"max {mx:.3f} mm (baseline {base_max:.3f} mm, {mx - base_max:+.3f}) "
-            f"against baseline run {data['baseline_run']}"
-        )
-    else:
-        err = f"TCP error: mean {mean:.3f} mm, max {mx:.3f} mm (no baseline: run not archived)"
-    if data["conditions"]:
-        err += f"; {data['conditions']}"
-    lines = [f"{verdict.upper()}: {reason}", err]
-    lines.append(
-        f"top missing effect: {top['effect']}" if top is not None else "top missing effect: none"
+        if plots
+        else ()
     )
-    return Section("verdict", "Verdict", tuple(lines), data=data)
+    return Section(
+        "coverage",
+        title,
+        (
+            f"{q_plan.shape[0]} poses from {source}",
+            "share of each joint's modelled range spanned: "
+            + ", ".join(f"j{j + 1} {s:.0%}" for j, s in enumerate(span)),
+        ),
+        plots=fig,
+        data={"n_poses": int(q_plan.shape[0]), "range_share": span.tolist()},
+    )
 
 
-def _diagnosis_section(d: Path, fitted: Any, meas: Any, run_it: bool) -> Section:
+def workspace_section(ws: WorkspaceError, *, plots: bool = True) -> Section:
+    """The model's TCP error over the whole workspace (paper Fig. 7)."""
+    cond = ws.conditions.describe()
+    return Section(
+        "workspace",
+        "Workspace TCP error (paper Fig. 7)",
+        (
+            f"mean {ws.mean * 1e3:.3f} mm, std {ws.std * 1e3:.3f} mm, "
+            f"95 % {ws.p95 * 1e3:.3f} mm, max {ws.max * 1e3:.3f} mm "
+            f"over {ws.n_samples} joint commands uniform in the modelled ranges"
+            + (f", {cond}" if cond else ""),
+        ),
+        plots=(
+            (Plot("workspace_hist", "Workspace error histogram", _png(workspace_histogram(ws))),)
+            if plots
+            else ()
+        ),
+        data=ws.as_dict(),
+    )
+
+
+def curves_section(
+    curves: Sequence[JointCurves], fitted: FittedModel, *, plots: bool = True
+) -> Section:
+    """Each joint's six error motions with 95 % bands (paper Fig. 8)."""
+    return Section(
+        "curves",
+        "Error motions of every joint, 95 % bands (paper Fig. 8)",
+        ("bands: sampling uncertainty of the estimate; model error is not in them",),
+        plots=tuple(
+            Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(joint_figure(c, fitted)))
+            for c in curves
+        )
+        if plots
+        else (),
+        data={"joint_curves": [c.as_dict() for c in curves]},
+    )
+
+
+def residuals_section(
+    fitted: FittedModel, meas: Measurements | None, *, plots: bool = True
+) -> Section:
+    """Measured versus model (the data the model was fitted to)."""
+    title = "Measured versus model"
+    if meas is None:
+        return Section(
+            "residuals", title, missing="measurements.csv missing or not the fitted data"
+        )
+    return Section(
+        "residuals",
+        title,
+        (f"rms position residual {fitted.rms_pos * 1e3:.4f} mm",),
+        plots=(Plot("residuals", "Residuals", _png(residual_plot(fitted, meas))),) if plots else (),
+        data={"rms_pos_mm": fitted.rms_pos * 1e3},
+    )
+
+
+def diagnosis_section(doc: Mapping[str, Any] | None) -> Section:
+    """Which physical effect the model misses: the candidates that matter in the table, the
+    rest folded away (``doc``: the ``diagnose --json`` document, None when there is none)."""
     title = "Diagnosis: which physical effect is missing"
-    doc = _json(d / "diagnosis.json")
-    if doc is None and run_it and meas is not None:
-        from quickhealth.identify.diagnose import diagnose, state_from_fitted
-
-        doc = diagnose(state_from_fitted(fitted), meas).to_dict(top=8)
     if doc is None:
         return Section("diagnosis", title, missing="no diagnosis.json (quickhealth diagnose …)")
     head = ("effect", "score", "predicted RMS drop (mm)", "evidence")
@@ -663,56 +444,41 @@ def _diagnosis_section(d: Path, fitted: Any, meas: Any, run_it: bool) -> Section
         title,
         tuple(lines),
         table=tuple(rows) if len(rows) > 1 else (),
-        data=doc,
+        data=dict(doc),
         folded=tuple(small) if len(small) > 1 else (),
         folded_title=f"{len(small) - 1} candidates too small to matter or not significant",
     )
 
 
-def _trend_section(
-    archive: Any, robot: str | None, rid: str, threshold_mm: float | None
-) -> tuple[Section, Any]:
-    """The trend section and the trend result (None when there is no trend)."""
+def trend_section(
+    trend: TrendResult | None,
+    runs: Sequence[tuple[str, str]] = (),
+    *,
+    missing: str = "",
+    plots: bool = True,
+) -> Section:
+    """The robot's trend up to this run (``runs``: each run's id and time, UTC), or why there
+    is none (``missing``)."""
     title = "Trend against the baseline"
-    if archive is None or robot is None:
-        return Section(
-            "trend", title, missing="run not archived: quickhealth archive add RUN_DIR --robot NAME"
-        ), None
-    from quickhealth.identify.errors import InputError
-    from quickhealth.identify.trend import assess_trend
-    from quickhealth.station.archive import missing_words, trend_runs
-
-    if rid not in [r.run_id for r in archive.runs(robot)]:
-        return Section(
-            "trend", title, missing=f"run {rid} is not in the archive of robot {robot}"
-        ), None
-    try:  # runs whose archive folders are missing are left out, and said so
-        recs, missing = trend_runs(archive, robot, upto=rid)
-    except InputError as exc:
-        return Section("trend", title, missing=str(exc)), None
-    b = next((i for i, r in enumerate(recs) if r.baseline), None)
-    if b is None:
-        return Section(
-            "trend", title, missing=f"robot {robot} has no baseline before this run"
-        ), None
-    states = [archive.run_state(r, like=recs[b]) for r in recs]
-    res = assess_trend(states, b, threshold_mm=threshold_mm)
-    flags = res.flags()
+    if trend is None:
+        return Section("trend", title, missing=missing)
+    b = trend.baseline_index
+    flags = trend.flags()
     lines = [
-        f"{len(recs)} runs; baseline {recs[b].run_id}",
-        "verdict: " + ("FLAGGED" if flags else "healthy"),
+        f"{len(runs)} runs; baseline {runs[b][0]}",
+        "trend: " + ("FLAGGED" if flags else "no flag against the baseline"),
     ]
     lines += flags
-    lines += [p.words() for p in res.prognoses.values()]
-    lines += [f"warning: {w}" for w in [*missing_words(archive, missing), *res.warnings]]
+    lines += [p.words() for p in trend.prognoses.values()]
+    lines += [f"warning: {w}" for w in trend.warnings]
     rows = [("run", "time (UTC)", "mean (mm)", "std (mm)", "max (mm)", "flags")]
-    for i, r in enumerate(recs):
+    for i, (run_id, time_utc) in enumerate(runs):
         rows.append(
             (
-                r.run_id + (" (baseline)" if i == b else ""),
-                r.time_utc,
-                *(f"{res.figures_mm[f][i]:.3f}" for f in ("mean", "std", "max")),
-                str(len(res.flags(i))),
+                run_id + (" (baseline)" if i == b else ""),
+                time_utc,
+                *(f"{trend.figures_mm[f][i]:.3f}" for f in ("mean", "std", "max")),
+                str(len(trend.flags(i))),
             )
         )
     return Section(
@@ -720,32 +486,21 @@ def _trend_section(
         title,
         tuple(lines),
         table=tuple(rows),
-        plots=(Plot("trend", "Trend", _png(trend_figure(res))),),
-        data=trend_json(res),
-    ), res
+        plots=(Plot("trend", "Trend", _png(trend_figure(trend))),) if plots else (),
+        data=trend_to_json(trend),
+    )
 
 
-def _iso_section(fitted: Any, meas: Any) -> Section:
+def iso_section(
+    stats: Sequence[PoseStats], meas: Measurements | None, *, plots: bool = True
+) -> Section:
+    """ISO 9283-style pose accuracy and repeatability at the poses visited more than once."""
     title = "ISO 9283-style pose accuracy and repeatability"
     if meas is None or meas.pose_id is None:
         return Section(
             "iso9283", title, missing="no pose_id column: the plan has no repeated poses"
         )
-    from quickhealth.identify.errormodel import constant_motions
-    from quickhealth.identify.transforms import small_error_transform
-
-    T_cmd = fitted.nominal_pose(meas.q)
     rot = meas.has_orientation
-    m0 = constant_motions(fitted.spec, fitted.coeffs, 0)
-    R_base = (fitted.T_instr_base0 @ small_error_transform(m0[:3], m0[3:]))[:3, :3]
-    stats = iso9283_pose_stats(
-        meas.pose_id,
-        meas.pos,
-        T_cmd[:, :3, 3],
-        meas.R if rot else None,
-        T_cmd[:, :3, :3] if rot else None,
-        R_base,
-    )
     if not stats:
         return Section(
             "iso9283",
@@ -757,7 +512,7 @@ def _iso_section(fitted: Any, meas: Any) -> Section:
             ),
         )
 
-    def abc(v: Any, signed: bool) -> str:
+    def abc(v: F, signed: bool) -> str:
         return " / ".join(f"{x * 1e3:+.4f}" if signed else f"±{x * 1e3:.4f}" for x in v)
 
     header = ("pose", "visits", "AP (mm)", "RP (mm)")
@@ -811,71 +566,12 @@ def _iso_section(fitted: Any, meas: Any) -> Section:
         title,
         tuple(lines),
         table=tuple(rows),
-        plots=(Plot("iso9283", "ISO 9283", _png(_iso_figure(stats))),),
+        plots=(Plot("iso9283", "ISO 9283", _png(_iso_figure(list(stats)))),) if plots else (),
         data={"orientation": rot, "poses": poses},
     )
 
 
-def trend_json(res: Any) -> dict[str, Any]:
-    """A TrendResult as JSON-able numbers (mm, s, words)."""
-    return {
-        "run_ids": list(res.run_ids),
-        "t_s": list(res.t_s),
-        "baseline": res.run_ids[res.baseline_index],
-        "figures_mm": {k: list(v) for k, v in res.figures_mm.items()},
-        "flags": res.flags(),
-        "flagged": res.flagged,
-        "hints": res.hints,
-        "warnings": list(res.warnings),
-        "threshold_mm": res.threshold_mm,
-        "prognosis": {
-            f: {
-                "trend": p.trend,
-                "slope_mm_per_day": p.slope_mm_per_day,
-                "p_value": p.p_value,
-                "crossing_t_s": p.crossing_t_s,
-                "crossing_early_t_s": p.crossing_early_t_s,
-                "crossing_late_t_s": p.crossing_late_t_s,
-                "words": p.words(),
-            }
-            for f, p in res.prognoses.items()
-        },
-        "curve_changes": [
-            {
-                "joint": c.joint,
-                "motion": c.motion,
-                "max_change": c.max_change,
-                "z_max": c.z_max,
-                "p_value": c.p_value,
-                "significant": c.significant,
-            }
-            for c in res.curve_changes[res.latest]
-        ],
-    }
-
-
 # ------------------------------------------------------------------------ rendering
-
-
-def report_json(rep: Report) -> dict[str, Any]:
-    """The report's content as JSON-able data (sections with their numbers and text)."""
-    return {
-        "title": rep.title,
-        "run_dir": rep.run_dir,
-        "sections": {
-            s.key: {
-                "title": s.title,
-                "lines": list(s.lines),
-                "table": [list(r) for r in s.table],
-                "plots": [p.key for p in s.plots],
-                "missing": s.missing or None,
-                "not_applicable": s.not_applicable or None,
-                "data": s.data,
-                "folded": [list(r) for r in s.folded],
-            }
-            for s in rep.sections
-        },
-    }
 
 
 _CSS = """
@@ -935,7 +631,7 @@ def render_html(rep: Report) -> str:
         if s.not_applicable:
             out.append(f'<p class="not-applicable">Not applicable: {e(s.not_applicable)}</p>')
         for line in s.lines:
-            cls = ' class="flag"' if line.startswith(("verdict: FLAGGED", "joint ")) else ""
+            cls = ' class="flag"' if line.startswith(("trend: FLAGGED", "joint ")) else ""
             out.append(f"<p{cls}>{e(line)}</p>")
         if s.table:
             out += _table(s.table)
@@ -950,7 +646,7 @@ def render_html(rep: Report) -> str:
                 f'src="data:image/png;base64,{b64}">'
             )
         out.append("</section>")
-    payload = json.dumps(_plain(report_json(rep))).replace("</", "<\\/")
+    payload = json.dumps(_plain(rep.to_dict())).replace("</", "<\\/")
     out.append(f'<script type="application/json" id="report-json">{payload}</script>')
     out.append("</body></html>")
     return "\n".join(out)

@@ -8,8 +8,13 @@ function of a frozen :class:`ReprocessJob`, so it pickles to any worker):
    journal) measured again with the new rig (:func:`redetect_run`), giving new measurements;
 2. refit: the run's measurements with the archived model's orders and effects (``keep``), or
    a fresh BIC order search (``select``);
-3. write ``OUT/model.json``, ``OUT/report.json`` and ``OUT/reprocess.json`` (what was done,
-   from which inputs) and return the main figures.
+3. write ``OUT/model.json``, ``OUT/report.json``, ``OUT/residuals.csv``, the data fitted
+   (``OUT/measurements.csv``) and ``OUT/reprocess.json`` (what was done, from which inputs),
+   as ``identify fit`` writes a fit (:mod:`quickhealth.station.services.fitting`), and return
+   the main figures;
+4. with ``report``: the run's report against the archive (the trend with this run's new
+   figures), its verdict and the ``run`` object added to ``OUT/report.json``, as
+   ``quickhealth report`` adds them (:mod:`quickhealth.station.services.report`).
 
 ``reprocess`` runs the jobs in parallel: local processes by default, a Dask cluster when a
 scheduler address (or a ``distributed.Client``) is given.  The results are the same either
@@ -25,17 +30,32 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from quickhealth.identify.errors import InputError, QuickhealthError
+import numpy as np
+from numpy.typing import NDArray
 
+from ..identify.assess import MAX_ORDER, WORKSPACE_SAMPLES
+from ..identify.errors import InputError, QuickhealthError
+from ..identify.measurements import Measurements
+from ..identify.transforms import make_T, rpy_to_R
+from ..vision.boards import TargetDescription
+from ..vision.pose7d import PoseMeasurement, Rejection, measure_stereo
+from . import formats
 from .archive import Archive, safe_name
+from .formats.journal import Captured
+from .formats.vision import read_gray, read_rig
+from .hardware.target import T_target_plate, reference_target, target0_from_plate
+from .journal import JOURNAL, read_journal
+from .services import fitting, report
+from .services.options import FitOptions, ReportOptions
+from .verdict import HealthVerdict, Threshold, ThresholdFigure
 from .workers import Pool
+
+F = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -48,8 +68,13 @@ class ReprocessJob:
     out_dir: str
     calibration: str | None = None  # CAL.json / rig file for re-detection
     orders: str = "keep"  # "keep" the archived model's orders, or "select" anew
-    max_order: int = 6
-    workspace_samples: int = 5000
+    max_order: int = MAX_ORDER
+    workspace_samples: int = WORKSPACE_SAMPLES
+    report: bool = False  # add the report's sections and verdict to report.json
+    threshold_mm: float | None = None  # the report's threshold (of ``threshold_figure``)
+    threshold_figure: str = "max"
+    archive_root: str | None = None  # the archive of the trend (with ``report``)
+    archive_url: str | None = None
 
 
 @dataclass(frozen=True)
@@ -66,6 +91,8 @@ class ReprocessResult:
     rms_pos_mm: float = float("nan")
     figures_mm: dict[str, float] = field(default_factory=dict)
     coeffs: tuple[float, ...] = ()
+    verdict: HealthVerdict | None = None  # with the job's ``report``
+    reason: str = ""
 
     def line(self) -> str:
         """One line for the command line."""
@@ -76,6 +103,7 @@ class ReprocessResult:
             f"{self.robot}/{self.run_id}: {self.n_poses} poses, rms {self.rms_pos_mm:.4f} mm; "
             f"workspace mean {f['mean']:.3f} std {f['std']:.3f} max {f['max']:.3f} mm"
             + (" (re-detected)" if self.redetected else "")
+            + ("" if self.verdict is None else f"; {self.verdict.upper()}: {self.reason}")
         )
 
 
@@ -87,10 +115,13 @@ def jobs_for_archive(
     tag: str = "reprocessed",
     calibration: str | Path | None = None,
     orders: str = "keep",
-    max_order: int = 6,
-    workspace_samples: int = 5000,
+    max_order: int = MAX_ORDER,
+    workspace_samples: int = WORKSPACE_SAMPLES,
+    report: bool = False,
+    threshold: Threshold | None = None,
 ) -> list[ReprocessJob]:
-    """Jobs for every run of ``robot`` (or of every robot), output in ``RUN/reprocessed/TAG``."""
+    """Jobs for every run of ``robot`` (or of every robot), output in ``RUN/reprocessed/TAG``;
+    with ``report``, each reports its run against ``archive`` (``threshold``: its limit)."""
     tag = safe_name(tag, "tag")
     if orders not in ("keep", "select"):
         raise InputError(f"--orders must be keep or select, got {orders!r}")
@@ -116,6 +147,11 @@ def jobs_for_archive(
                     orders=orders,
                     max_order=max_order,
                     workspace_samples=workspace_samples,
+                    report=report,
+                    threshold_mm=None if threshold is None else threshold.mm,
+                    threshold_figure=ThresholdFigure.MAX if threshold is None else threshold.figure,
+                    archive_root=str(archive.root) if report else None,
+                    archive_url=archive.url if report else None,
                 )
             )
     if run_ids is not None:
@@ -133,7 +169,9 @@ def reprocess_run(job: ReprocessJob) -> ReprocessResult:
         return ReprocessResult(job.robot, job.run_id, job.out_dir, ok=False, error=str(exc))
 
 
-def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = None) -> Any:
+def redetect_run(
+    run_dir: str | Path, calibration: str | Path, target: TargetDescription | None = None
+) -> Measurements:
     """Measure a run's stored stereo images again with another camera calibration.
 
     Reads the journal's captured poses (joint readings, pan angle, time, image files), runs
@@ -148,19 +186,6 @@ def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = Non
         No journal with captured poses, a missing image, or a calibration that is not a stereo
         calibration.
     """
-    import math
-
-    import numpy as np
-
-    from quickhealth.identify.measurements import Measurements
-    from quickhealth.identify.transforms import make_T, rpy_to_R
-    from quickhealth.vision.pose7d import PoseMeasurement, Rejection, measure_stereo
-
-    from .hardware.target import T_target_plate, target0_from_plate
-    from .hardware.world import reference_target
-    from .journal import JOURNAL, read_journal
-    from .vision_io import read_gray, read_rig
-
     d = Path(run_dir)
     if not (d / JOURNAL).is_file():
         raise InputError(f"{d}: no {JOURNAL}: the run's images cannot be re-detected")
@@ -169,120 +194,111 @@ def redetect_run(run_dir: str | Path, calibration: str | Path, target: Any = Non
         raise InputError(f"{d / JOURNAL}: no captured poses to re-detect")
     rig = read_rig(Path(calibration))
     target = reference_target() if target is None else target
-    old: dict[str, Any] = {}
+    old: dict[str, F] = {}
     if (d / "measurements.csv").is_file():
-        from . import formats
-
         m_old = formats.read_measurements(d / "measurements.csv")
         if m_old.pose_id is not None and m_old.rpy is not None:
             T_old = make_T(rpy_to_R(*m_old.rpy.T), m_old.pos)
             old = dict(zip(m_old.pose_id, T_old, strict=True))
-    q, pos, rpy, sp, sr, t, pan_l, ids, failed = [], [], [], [], [], [], [], [], []
+    found: list[tuple[Captured, PoseMeasurement]] = []
+    failed = []
     for i in sorted(st.captured):
         rec = st.captured[i]
-        left, right = (read_gray(d / p) for p in rec["images"])
+        left, right = (read_gray(d / p) for p in rec.images)
         for cam, img in zip(rig.cameras, (left, right), strict=True):
             if tuple(cam.image_size) != (img.shape[1], img.shape[0]):
                 raise InputError(
                     f"{calibration}: calibrated for {cam.image_size[0]}×{cam.image_size[1]} px "
                     f"images, the run's are {img.shape[1]}×{img.shape[0]} px"
                 )
-        pan = math.radians(rec["pan_deg"])
-        hint = old[rec["name"]] @ T_target_plate(pan) if rec["name"] in old else None
-        m = measure_stereo(rig, target, left, right, roi_hint=hint, pan=pan)
+        hint = old[rec.name] @ T_target_plate(rec.pan) if rec.name in old else None
+        m = measure_stereo(rig, target, left, right, roi_hint=hint, pan=rec.pan)
         if isinstance(m, Rejection) and hint is not None:
-            m = measure_stereo(rig, target, left, right, pan=pan)  # search the whole images
+            m = measure_stereo(rig, target, left, right, pan=rec.pan)  # search the whole images
         if isinstance(m, Rejection):
-            failed.append(rec["name"])
+            failed.append(rec.name)
             continue
-        m0 = PoseMeasurement(
-            target0_from_plate(m.T_left_target, pan), m.cov, m.rms_px, m.n_corners, m.n_outliers
-        )
-        q.append(np.radians(rec["q_deg"]))
-        pos.append(m0.position)
-        rpy.append(m0.rpy)
-        sp.append(m0.sigma_pos)
-        sr.append(m0.sigma_rpy)
-        t.append(rec["time_s"])
-        pan_l.append(pan)
-        ids.append(rec["name"])
-    if not ids:
+        T0 = target0_from_plate(m.T_left_target, rec.pan)
+        found.append((rec, PoseMeasurement(T0, m.cov, m.rms_px, m.n_corners, m.n_outliers)))
+    if not found:
         raise InputError(f"{d}: the target was found in none of the images with {calibration}")
     meta = {"redetected_with": str(calibration)}
     if failed:
         meta["redetect_failed"] = " ".join(failed)
     return Measurements(
-        q=np.array(q),
-        pos=np.array(pos),
-        rpy=np.array(rpy),
-        time=np.array(t, float),
-        pan=np.array(pan_l),
-        sigma_pos=np.array(sp),
-        sigma_rpy=np.array(sr),
-        pose_id=tuple(ids),
+        q=np.array([c.q for c, _ in found]),
+        pos=np.array([m.position for _, m in found]),
+        rpy=np.array([m.rpy for _, m in found]),
+        time=np.array([c.time_s for c, _ in found], float),
+        pan=np.array([c.pan for c, _ in found]),
+        sigma_pos=np.array([m.sigma_pos for _, m in found]),
+        sigma_rpy=np.array([m.sigma_rpy for _, m in found]),
+        pose_id=tuple(c.name for c, _ in found),
         meta=meta,
     )
 
 
 def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
-    from quickhealth.identify.assess import assess
-    from quickhealth.station import formats
-    from quickhealth.station.report_json import write_report_json
-
     src = Path(job.run_dir)
     old = formats.read_model(src / "model.json")
     if job.calibration:
         meas = redetect_run(src, job.calibration)
     else:
         meas = formats.read_measurements(src / "measurements.csv", old.robot.n_joints)
-    if job.orders == "select":
-        a = assess(
-            meas,
-            old.robot,
-            old.effects,
-            noise=old.noise,
-            prior=old.prior,
-            max_order=job.max_order,
-            workspace_samples=job.workspace_samples,
-        )
-    else:
-        a = assess(
-            meas,
-            old.robot,
-            old.effects,
-            noise=old.noise,
-            prior=old.prior,
-            spec=old.spec,
-            workspace_samples=job.workspace_samples,
-        )
-    fitted, ws = a.fitted, a.workspace
+    options = FitOptions(
+        effects=tuple(e.name for e in old.effects),
+        max_order=job.max_order,
+        noise=old.noise,
+        prior=old.prior,
+        spec=old.spec if job.orders == "keep" else None,
+        workspace_samples=job.workspace_samples,
+    )
+    a = fitting.assess(meas, old.robot, options)
+    done = {"job": asdict(job), "source_model": str(src / "model.json")}
     out = Path(job.out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".reprocess-", dir=out.parent))
-    try:
-        formats.write_model(tmp / "model.json", fitted)
-        write_report_json(tmp / "report.json", a, source=str(src / "measurements.csv"))
-        if job.calibration:
-            formats.write_measurements(tmp / "measurements.csv", meas)
-        formats.write_text_atomic(
-            tmp / "reprocess.json",
-            json.dumps({"job": asdict(job), "source_model": str(src / "model.json")}, indent=1),
+    files = fitting.write_fit(
+        out,
+        a,
+        source=str(src / "measurements.csv"),
+        extra={
+            "measurements.csv": formats.format_measurements(meas),
+            "reprocess.json": json.dumps(done, indent=1),
+        },
+        whole_folder=True,
+    )
+    doc = files.report  # the figures as report.json holds them (mm)
+    verdict, reason = None, ""
+    if job.report:
+        arch = Archive.open(job.archive_root, job.archive_url) if job.archive_root else None
+        threshold = (
+            None
+            if job.threshold_mm is None
+            else Threshold(job.threshold_mm, ThresholdFigure(job.threshold_figure))
         )
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        j = report.report_run(
+            out,
+            archive=arch,
+            robot=job.robot,
+            run_id=job.run_id,
+            options=ReportOptions(threshold=threshold, workspace_samples=job.workspace_samples),
+            meas=meas,
+            write_html=False,
+            in_place_of_archived=True,
+            record_verdict=False,  # the index keeps the archived run's (--update-index: this)
+        ).report.judgement
+        verdict, reason = j.verdict, j.reason
     return ReprocessResult(
         robot=job.robot,
         run_id=job.run_id,
         out_dir=str(out),
         ok=True,
         redetected=bool(job.calibration),
-        n_poses=fitted.n_poses,
-        rms_pos_mm=fitted.rms_pos * 1e3,
-        figures_mm={"mean": ws.mean * 1e3, "std": ws.std * 1e3, "max": ws.max * 1e3},
-        coeffs=tuple(map(float, fitted.coeffs)),
+        n_poses=a.fitted.n_poses,
+        rms_pos_mm=doc["rms_pos_mm"],
+        figures_mm={k: doc["workspace"][f"{k}_mm"] for k in ("mean", "std", "max")},
+        coeffs=tuple(map(float, a.fitted.coeffs)),
+        verdict=verdict,
+        reason=reason,
     )
 
 
@@ -375,7 +391,7 @@ def _run_dask(
     from distributed import Client, as_completed
     from distributed.scheduler import KilledWorker
 
-    from quickhealth.identify.errors import HardwareError
+    from ..identify.errors import HardwareError
 
     own = not isinstance(scheduler, Client)
     try:

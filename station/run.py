@@ -42,18 +42,22 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import HardwareError, InputError
-from quickhealth.identify.measurements import Measurements
-from quickhealth.identify.transforms import R_to_rpy, inv_T, log_so3
-from quickhealth.vision.boards import TargetDescription
-from quickhealth.vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
-
-from .fsio import remove_stale_temp_files
+from ..identify.errors import HardwareError, InputError
+from ..identify.measurements import Measurements
+from ..identify.transforms import R_to_rpy, inv_T, log_so3
+from ..vision.boards import TargetDescription
+from ..vision.markers import detect_markers
+from ..vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
+from .formats.common import write_text_atomic
+from .formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
+from .formats.measurements import write_measurements
+from .fsio import fsync_dir, remove_stale_temp_files
 from .hardware.cameras import StereoCamera, StereoFrame
 from .hardware.motor import PanMotor
 from .hardware.owner import DeviceOwner, owned
@@ -62,7 +66,11 @@ from .hardware.target import T_target_plate, target0_from_plate
 from .journal import JOURNAL, SCHEMA, Journal, JournalState, read_journal, write_bytes_atomic
 from .provenance import software_version
 
+if TYPE_CHECKING:  # types only: the planner loads the collision library, a run needs none of it
+    from .planning.planfile import Plan, PlanPose
+
 F = NDArray[np.float64]
+U8 = NDArray[np.uint8]
 log = logging.getLogger(__name__)
 DEVICE_CLOSE_TIMEOUT_S = 5.0  # s a device's owner may take to finish its jobs and close it
 
@@ -141,40 +149,6 @@ class Station:
     instrument: str = "stereo camera"
     robot_name: str = ""
     closers: list[Callable[[], None]] = field(default_factory=list)
-
-    @classmethod
-    def on_simulated_world(
-        cls,
-        cell: Any,
-        world: Any,
-        robot: Robot,
-        motor: PanMotor,
-        camera: StereoCamera,
-        *,
-        instrument: str = "simulated stereo camera",
-        robot_name: str = "sim-ur5",
-        closers: list[Callable[[], None]] | None = None,
-    ) -> Station:
-        """A station in the simulated ``world`` (``hardware.world.SimWorld``) of ``cell``.
-
-        The nominal geometry comes from the cell file; the target and the self-check board
-        from the world.  Used by ``--sim``, the TUI's in-process cell and the tests.
-        """
-        return cls(
-            robot=robot,
-            motor=motor,
-            camera=camera,
-            target=world.target,
-            T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
-            T_flange_target=cell.T_flange_target,
-            board=world.board,
-            T_instr_board=world.T_instr_board,
-            cell_name=cell.name,
-            cell_sha256=cell.sha256,
-            instrument=instrument,
-            robot_name=robot_name,
-            closers=list(closers or []),
-        )
 
     def __post_init__(self) -> None:
         # One owner per device: the run, the pre-flight and the TUI's polls all go through a
@@ -352,8 +326,6 @@ def quick_check(
     station: Station, frame: StereoFrame, T_pred: F, target: TargetDescription, min_markers: int
 ) -> tuple[bool, str, tuple[int, int]]:
     """Markers of ``target`` found in each image's predicted region: (ok, reason, counts)."""
-    from quickhealth.vision.markers import detect_markers
-
     rig = station.camera.rig
     counts = []
     ids = set(int(i) for i in target.ids)
@@ -376,26 +348,28 @@ def quick_check(
 
 
 def measure_frame(
-    station: Station, target: TargetDescription, left: Any, right: Any, T_pred: F
+    station: Station, target: TargetDescription, left: U8, right: U8, T_pred: F
 ) -> PoseMeasurement | Rejection:
     """Full 7D measurement of one stereo pair (the vision library)."""
     return measure_stereo(station.camera.rig, target, left, right, roi_hint=T_pred)
 
 
-def _row(meas: PoseMeasurement, pan: float) -> dict[str, Any]:
-    """Measured target frame at pan 0 (mm, deg) with uncertainties."""
+def _measured(index: int, name: str, meas: PoseMeasurement, pan: float) -> Measured:
+    """The journal record of a measured pose: the target frame at pan 0 with uncertainties."""
     T0 = target0_from_plate(meas.T_left_target, pan)
     m0 = PoseMeasurement(T0, meas.cov, meas.rms_px, meas.n_corners, meas.n_outliers)
-    p, a, sp, sa = m0.position, m0.rpy, m0.sigma_pos, m0.sigma_rpy
-    return {
-        "x_mm": p * 1e3,
-        "rpy_deg": np.degrees(a),
-        "sigma_mm": sp * 1e3,
-        "sigma_deg": np.degrees(sa),
-        "rms_px": meas.rms_px,
-        "n_corners": list(meas.n_corners),
-        "n_outliers": meas.n_outliers,
-    }
+    return Measured(
+        index,
+        name,
+        True,
+        position=m0.position,
+        rpy=m0.rpy,
+        sigma_pos=m0.sigma_pos,
+        sigma_rpy=m0.sigma_rpy,
+        rms_px=meas.rms_px,
+        n_corners=tuple(meas.n_corners),
+        n_outliers=meas.n_outliers,
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -405,7 +379,7 @@ def _row(meas: PoseMeasurement, pan: float) -> dict[str, Any]:
 
 def preflight(
     station: Station,
-    plan: Any,
+    plan: Plan,
     run_dir: Path,
     n_remaining: int,
     settings: RunSettings,
@@ -489,7 +463,7 @@ class _Runner:
     def __init__(
         self,
         station: Station,
-        plan: Any,
+        plan: Plan,
         run_dir: Path,
         settings: RunSettings,
         progress: ProgressFn | None,
@@ -523,44 +497,38 @@ class _Runner:
     ) -> None:
         self.progress(Progress(kind, index, self.n, name, status, message))
 
-    def append(self, rec: dict[str, Any]) -> None:
+    def append(self, rec: Record) -> None:
         with self.jlock:
             self.journal.append(rec)
 
     # -- self-check ----------------------------------------------------------------------
-    def selfcheck(self, phase: str) -> dict[str, Any] | None:
+    def selfcheck(self, phase: str) -> SelfCheck | None:
         s = self.s
         if not self.cfg.selfcheck or s.board is None or s.T_instr_board is None:
             return None
         frame = s.camera.capture()
         m = measure_stereo(s.camera.rig, s.board, frame.left, frame.right, roi_hint=s.T_instr_board)
         if isinstance(m, Rejection):
-            rec = {
-                "type": "selfcheck",
-                "phase": phase,
-                "ok": False,
-                "reason": f"{m.reason.value}: {m.detail}",
-            }
+            rec = SelfCheck(phase, False, f"{m.reason.value}: {m.detail}")
         else:
-            rec = {
-                "type": "selfcheck",
-                "phase": phase,
-                "ok": True,
-                "T_instr_board_mm": _T_mm(m.T_left_target),
-                "sigma_mm": m.sigma_pos * 1e3,
-                "rms_px": m.rms_px,
-                "time_s": time.time() - self.t_epoch,
-            }
+            rec = SelfCheck(
+                phase,
+                True,
+                T_instr_board=m.T_left_target,
+                sigma_pos=m.sigma_pos,
+                rms_px=m.rms_px,
+                time_s=time.time() - self.t_epoch,
+            )
         self.append(rec)
         self.emit(
             ProgressKind.SELFCHECK,
-            status="ok" if rec["ok"] else "failed",
+            status="ok" if rec.ok else "failed",
             message=f"self-check ({phase})",
         )
         return rec
 
     # -- one pose --------------------------------------------------------------------------
-    def do_pose(self, pose: Any) -> None:
+    def do_pose(self, pose: PlanPose) -> None:
         s, cfg = self.s, self.cfg
         mo = self.plan.motion
         leg = Leg(pose.leg)
@@ -596,22 +564,19 @@ class _Runner:
             if ok:
                 break
         else:
-            self.append({
-                "type": "failed", "index": pose.index, "name": pose.name,
-                "q_deg": np.degrees(q_read), "pan_deg": math.degrees(pan),
-                "reason": f"{reason} after {cfg.capture_attempts} captures",
-                "time_s": time.time() - self.t_epoch,
-            })  # fmt: skip
+            self.append(Failed(
+                pose.index, pose.name, f"{reason} after {cfg.capture_attempts} captures",
+                q=q_read, pan=pan, time_s=time.time() - self.t_epoch,
+            ))  # fmt: skip
             self.emit(ProgressKind.POSE, pose.index, pose.name, "failed", reason)
             return
         td = time.monotonic()
         images = [f"images/{pose.index:04d}_{pose.name}_{side}.png" for side in "LR"]
         t_capture = time.time() - (time.monotonic() - frame.time) - self.t_epoch
-        self.append({
-            "type": "captured", "index": pose.index, "name": pose.name,
-            "q_deg": np.degrees(q_read), "q_cmd_deg": np.degrees(pose.q), "pan_deg": math.degrees(pan),
-            "time_s": t_capture, "images": images, "attempts": attempt, "markers": list(counts),
-        })  # fmt: skip
+        self.append(Captured(
+            pose.index, pose.name, q_read, pan, t_capture, tuple(images),
+            q_cmd=pose.q, attempts=attempt, markers=counts,
+        ))  # fmt: skip
         te = time.monotonic()
         self.tick("journal_s", te - td)
         # Images are written (atomically) and measured by the worker while the arm moves on;
@@ -621,25 +586,21 @@ class _Runner:
         )
         self.emit(ProgressKind.POSE, pose.index, pose.name, "captured", f"attempt {attempt}")
 
-    def write_images(self, names: list[str], left: Any, right: Any) -> None:
+    def write_images(self, names: list[str], left: U8, right: U8) -> None:
         """Both images, each atomically, then the folder entry made durable."""
-        import cv2
-
         for name, img in zip(names, (left, right), strict=True):
             ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, self.cfg.png_level])
             if not ok:
                 raise HardwareError("cannot encode an image as PNG")
             write_bytes_atomic(self.dir / name, buf.tobytes(), sync_dir=False)
-        from .journal import fsync_dir
-
         fsync_dir(self.dir / "images")
 
     def submit_measure(
         self,
         index: int,
         name: str,
-        left: Any,
-        right: Any,
+        left: U8,
+        right: U8,
         pan: float,
         T_pred: F,
         write: list[str] | None = None,
@@ -658,20 +619,12 @@ class _Runner:
                 m = measure_frame(self.s, self.s.target, left, right, T_pred)
                 self.tick("measure_s", time.monotonic() - t0)
                 if isinstance(m, Rejection):
-                    rec = {"type": "measured", "index": index, "name": name, "ok": False,
-                           "reason": f"{m.reason.value}: {m.detail}"}  # fmt: skip
-                    status = "failed"
+                    rec = Measured(index, name, False, f"{m.reason.value}: {m.detail}")
                 else:
-                    rec = {
-                        "type": "measured",
-                        "index": index,
-                        "name": name,
-                        "ok": True,
-                        **_row(m, pan),
-                    }
-                    status = "measured"
+                    rec = _measured(index, name, m, pan)
                 self.append(rec)
-                self.emit(ProgressKind.MEASURED, index, name, status, rec.get("reason", ""))
+                status = "measured" if rec.ok else "failed"
+                self.emit(ProgressKind.MEASURED, index, name, status, rec.reason)
             except BaseException as exc:  # noqa: BLE001 - reported by the main loop
                 self.worker_error = exc
 
@@ -686,18 +639,13 @@ class _Runner:
             raise err
 
     def remeasure(self, state: JournalState, unmeasured: list[int]) -> None:
-        import cv2
-
         for i in unmeasured:
             rec = state.captured[i]
-            imgs = [cv2.imread(str(self.dir / p), cv2.IMREAD_GRAYSCALE) for p in rec["images"]]
+            imgs = [cv2.imread(str(self.dir / p), cv2.IMREAD_GRAYSCALE) for p in rec.images]
             if any(im is None for im in imgs):
-                raise InputError(
-                    f"{self.dir}: image of pose {rec['name']} is missing or unreadable"
-                )
-            pan = math.radians(rec["pan_deg"])
-            T_pred = self.s.predicted_plate(np.radians(rec["q_deg"]), pan)
-            self.submit_measure(i, rec["name"], imgs[0], imgs[1], pan, T_pred)
+                raise InputError(f"{self.dir}: image of pose {rec.name} is missing or unreadable")
+            T_pred = self.s.predicted_plate(rec.q, rec.pan)
+            self.submit_measure(i, rec.name, imgs[0], imgs[1], rec.pan, T_pred)
         self.drain()
 
 
@@ -709,7 +657,7 @@ def write_calibration(station: Station, run_dir: Path) -> None:
     its images (the simulated cell's scaled cameras too), so ``quickhealth vision measure
     RUN`` measures the stored images again with the cameras that took them.  A folder that
     already has one (a resumed run) keeps it."""
-    from .vision_io import rig_to_json
+    from .formats.vision import rig_to_json
 
     cal = run_dir / CALIBRATION
     rig = getattr(station.camera, "rig", None)
@@ -721,7 +669,7 @@ def write_calibration(station: Station, run_dir: Path) -> None:
 
 def run_plan(
     station: Station,
-    plan: Any,
+    plan: Plan,
     run_dir: Path | str,
     *,
     resume: bool = False,
@@ -788,9 +736,7 @@ def run_plan(
     r = _Runner(station, plan, run_dir, settings, progress, cancel)
     # A capture counts once its images are on disk (they are written after the record).
     imaged = {
-        i
-        for i, rec in state.captured.items()
-        if all((run_dir / p).is_file() for p in rec.get("images", []))
+        i for i, rec in state.captured.items() if all((run_dir / p).is_file() for p in rec.images)
     }
     done = imaged | set(state.failed)
     unmeasured = sorted(i for i in imaged if i not in state.measured)
@@ -804,14 +750,14 @@ def run_plan(
     try:
         if resume:
             r.t_epoch = float(state.start["epoch"])
-            r.append({"type": "resume", "at_utc": _utc(), "done": len(done),
+            r.append({"type": RecordKind.RESUME, "at_utc": _utc(), "done": len(done),
                       "truncated_tail": state.truncated_tail})  # fmt: skip
             r.emit(ProgressKind.RESUME, message=f"{len(done)} of {r.n} poses done; "
                    f"{len(unmeasured)} to measure from images")  # fmt: skip
             r.remeasure(state, unmeasured)
         else:
             r.append({
-                "type": "start", "schema": SCHEMA, "run_id": run_dir.name, "plan_hash": plan.hash,
+                "type": RecordKind.START, "schema": SCHEMA, "run_id": run_dir.name, "plan_hash": plan.hash,
                 "plan_source": str(plan.source), "cell": station.cell_name, "cell_sha256": station.cell_sha256,
                 "robot": station.robot_name or station.robot.model.name, "n_poses": r.n,
                 "started_utc": _utc(), "epoch": r.t_epoch, "software": f"quickhealth {software_version()}",
@@ -857,9 +803,9 @@ def run_plan(
         r.selfcheck("end")
         st2 = read_journal(jpath)
         drift = _drift(st2.selfchecks)
-        r.append({"type": "end", "at_utc": _utc()})
+        r.append({"type": RecordKind.END, "at_utc": _utc()})
     else:
-        r.append({"type": "stop", "reason": stopped, "at_utc": _utc()})
+        r.append({"type": RecordKind.STOP, "reason": stopped, "at_utc": _utc()})
         r.emit(ProgressKind.STOP, message=stopped)
     r.journal.close()
     final = read_journal(jpath)
@@ -867,8 +813,8 @@ def run_plan(
     res = RunResult(
         run_dir=run_dir,
         n_poses=r.n,
-        n_measured=sum(1 for m in final.measured.values() if m.get("ok")),
-        n_failed=len(final.failed) + sum(1 for m in final.measured.values() if not m.get("ok")),
+        n_measured=sum(1 for m in final.measured.values() if m.ok),
+        n_failed=len(final.failed) + sum(1 for m in final.measured.values() if not m.ok),
         stopped=stopped,
         selfcheck_drift_mm=None if drift is None else drift[0],
         selfcheck_drift_deg=None if drift is None else drift[1],
@@ -885,21 +831,16 @@ def run_plan(
     return res
 
 
-def _drift(checks: list[dict[str, Any]]) -> tuple[float, float] | None:
-    ok = [c for c in checks if c.get("ok")]
+def _drift(checks: list[SelfCheck]) -> tuple[float, float] | None:
+    """The self-check board's drift between the first and the last good check (mm, deg: the
+    run's result and run.json give it so)."""
+    ok = [c.T_instr_board for c in checks if c.ok and c.T_instr_board is not None]
     if len(ok) < 2:
         return None
-    A = np.asarray(ok[0]["T_instr_board_mm"], float)
-    B = np.asarray(ok[-1]["T_instr_board_mm"], float)
-    dp = float(np.linalg.norm(A[:3, 3] - B[:3, 3]))
+    A, B = ok[0], ok[-1]
+    dp = float(np.linalg.norm(A[:3, 3] - B[:3, 3])) * 1e3
     da = float(np.degrees(np.linalg.norm(log_so3(A[:3, :3] @ B[:3, :3].T))))
     return dp, da
-
-
-def _T_mm(T: F) -> list[list[float]]:
-    M = np.array(T, dtype=float)
-    M[:3, 3] *= 1e3
-    return M.tolist()
 
 
 def _utc() -> str:
@@ -907,23 +848,23 @@ def _utc() -> str:
 
 
 def journal_measurements(
-    state: JournalState, plan: Any, meta: dict[str, str]
+    state: JournalState, plan: Plan | None, meta: dict[str, str]
 ) -> Measurements | None:
     """The measured poses of a journal as :class:`Measurements`, in execution (plan) order."""
-    idx = sorted(i for i, m in state.measured.items() if m.get("ok") and i in state.captured)
+    idx = sorted(i for i, m in state.measured.items() if m.ok and i in state.captured)
     if not idx:
         return None
     cap = [state.captured[i] for i in idx]
     mea = [state.measured[i] for i in idx]
     return Measurements(
-        q=np.radians([c["q_deg"] for c in cap]),
-        pos=np.array([m["x_mm"] for m in mea]) / 1e3,
-        rpy=np.radians([m["rpy_deg"] for m in mea]),
-        time=np.array([c["time_s"] for c in cap]),
-        pan=np.radians([c["pan_deg"] for c in cap]),
-        sigma_pos=np.array([m["sigma_mm"] for m in mea]) / 1e3,
-        sigma_rpy=np.radians([m["sigma_deg"] for m in mea]),
-        pose_id=tuple(c["name"] for c in cap),
+        q=np.array([c.q for c in cap]),
+        pos=np.array([m.position for m in mea]),
+        rpy=np.array([m.rpy for m in mea]),
+        time=np.array([c.time_s for c in cap]),
+        pan=np.array([c.pan for c in cap]),
+        sigma_pos=np.array([m.sigma_pos for m in mea]),
+        sigma_rpy=np.array([m.sigma_rpy for m in mea]),
+        pose_id=tuple(c.name for c in cap),
         meta=meta,
     )
 
@@ -931,14 +872,12 @@ def journal_measurements(
 def write_outputs(
     run_dir: Path,
     state: JournalState,
-    plan: Any,
+    plan: Plan,
     station: Station,
     drift: tuple[float, float] | None,
     settings: RunSettings,
 ) -> Path | None:
     """measurements.csv and run.json from the journal (atomic writes)."""
-    from .formats import write_measurements, write_text_atomic
-
     start = state.start or {}
     meta = {
         "run_id": str(start.get("run_id", run_dir.name)),
@@ -964,13 +903,13 @@ def write_outputs(
         "n_captured": len(state.captured),
         "n_measured": 0 if meas is None else meas.n_poses,
         "failed": [
-            {"index": i, "name": f["name"], "reason": f["reason"]}
+            {"index": i, "name": f.name, "reason": f.reason}
             for i, f in sorted(state.failed.items())
         ]
         + [
-            {"index": i, "name": m["name"], "reason": m["reason"]}
+            {"index": i, "name": m.name, "reason": m.reason}
             for i, m in sorted(state.measured.items())
-            if not m.get("ok")
+            if not m.ok
         ],
         "stopped": state.stops[-1]["reason"] if state.stops and not state.ended else None,
         "complete": state.ended,
@@ -999,11 +938,11 @@ def ur_station(
     calibration: str,
 ) -> Station:
     """A :class:`Station` on real hardware: UR robot, serial pan motor, two OpenCV cameras."""
+    from .formats.vision import read_rig
     from .hardware.cameras import OpenCvStereoCamera
     from .hardware.motor import SerialPanMotor
     from .hardware.robot import UrRobot
     from .planning import load_cell
-    from .vision_io import read_rig
 
     c = load_cell(cell)
     rig = read_rig(Path(calibration))
@@ -1019,7 +958,7 @@ def ur_station(
         for f in reversed(closers):
             f()
         raise
-    from .hardware.world import reference_board, reference_target
+    from .hardware.target import reference_board, reference_target
 
     return Station(
         robot=robot,

@@ -1,8 +1,11 @@
 """Command groups of the ``quickhealth`` command line, one module each.
 
 Each module defines ``register(subparsers) -> None``: it adds its sub-commands and sets
-``func=callable(args) -> int`` on each parser.  ``register`` must stay cheap: import heavy
-modules inside the command functions, so ``quickhealth --help`` stays fast.
+``func=callable(args) -> int`` on each parser.  A command function is a thin adapter: it
+checks and converts its arguments (mm, degrees → SI), calls the application layer
+(:mod:`quickhealth.station.services`) and prints the result.  ``register`` must stay cheap:
+a command function imports its heavy modules (the fit's scipy, matplotlib, SQLAlchemy)
+when it runs, each import saying why, so ``quickhealth --help`` stays fast.
 """
 
 #: Which module registers each top-level command.  ``quickhealth CMD …`` imports only that
@@ -13,18 +16,18 @@ COMMAND_MODULES: dict[str, str] = {
     "demo": "demo",
     "diagnose": "diagnose",
     "twin": "diagnose",
-    "compare": "diagnose",
+    "compare": "compare",
     "identify": "identify",
     "import": "importing",
     "plan": "plan",
     "run": "run",
     "sim-controller": "run",
-    "archive": "trend",
+    "archive": "archive",
     "trend": "trend",
-    "export": "trend",
-    "compensate": "trend",
-    "report": "trend",
-    "reprocess": "trend",
+    "export": "export",
+    "compensate": "compensate",
+    "report": "report",
+    "reprocess": "reprocess",
     "tui": "tui",
     "vision": "vision",
 }

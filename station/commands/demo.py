@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
 from quickhealth.station import options
 
+from ...identify.errors import InputError
 
-def register(subparsers: Any) -> None:
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``demo``."""
     p = subparsers.add_parser(
         "demo",
@@ -48,12 +49,11 @@ def register(subparsers: Any) -> None:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+    from rich.console import Console  # the demo's screen: only when it runs
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TimeRemainingColumn
 
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.demo import run_demo
-    from quickhealth.station.hardware.world import parse_degradation
+    from ..demo import run_demo  # the whole station and the simulated cell
+    from ..sim.world import parse_degradation  # the simulated world: OpenCV, the twin
 
     if args.n < 1:
         raise InputError(f"--n must be at least 1, got {args.n}")
@@ -71,7 +71,7 @@ def _demo(args: argparse.Namespace) -> int:
         console=console,
         transient=True,
     )
-    tasks: dict[str, Any] = {}
+    tasks: dict[str, TaskID] = {}
 
     def pose_progress(run_id: str, done: int, total: int) -> None:
         if run_id not in tasks:

@@ -1,4 +1,4 @@
-"""``quickhealth diagnose``, ``quickhealth twin`` and ``quickhealth compare``.
+"""``quickhealth diagnose`` and ``quickhealth twin``.
 
 quickhealth diagnose DIR/model.json MEAS.csv --json OUT.json [--plots DIR] [--fail-on-missing]
     Which physical effect does the model miss?  OUT.json (CONTRACTS.md):
@@ -9,19 +9,38 @@ quickhealth diagnose DIR/model.json MEAS.csv --json OUT.json [--plots DIR] [--fa
 quickhealth twin --out MEAS.csv [--effects NAME=SIZE,...] [--n N] [--seed S] [--heldout N2]
     Measurements of the digital twin (a UR5 with random errors and hidden effects, seen by
     a camera 2 m away) as CSV v1, and its truth as JSON beside it.
-
-quickhealth compare DIR/model.json MEAS.csv --effects LIST [--heldout HELD.csv]
-    The comparison of :mod:`quickhealth.station.compare` (also for ``identify compare``).
 """
 
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import sys
 from pathlib import Path
 
-from quickhealth.station import options
+import numpy as np
+from numpy.typing import NDArray
+
+from ...identify.diagnose import Verdict, plot_candidate, plot_spectrum
+from ...identify.effects import parse_effect
+from ...identify.errors import InputError
+from ...identify.robot import RobotModel, ur5
+from ...identify.twin import make_twin, random_joints, schedules
+from .. import options
+from ..formats import (
+    MAX_FIT_ROWS,
+    check_joint_limits,
+    read_measurements,
+    read_model,
+    write_measurements,
+    write_text_atomic,
+)
+from ..fsio import refuse_overwriting_inputs, write_figure
+from ..progress import Progress
+from ..services.diagnosis import diagnose_model, write_diagnosis
+
+F = NDArray[np.float64]
 
 #: Units of effect sizes on the command line (the twin's --effects NAME=SIZE).
 SIZE_UNITS = {
@@ -119,24 +138,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     t.add_argument("--position-only", action="store_true", help="no orientation columns")
     t.set_defaults(func=run_twin)
 
-    from quickhealth.station import compare  # light: heavy imports are in its run()
-
-    compare.register(sub)
-
 
 def run_diagnose(args: argparse.Namespace) -> int:
-    """``quickhealth diagnose``."""
-    from quickhealth.identify.diagnose import Verdict, diagnose, state_from_fitted
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.formats import read_measurements, read_model, write_text_atomic
-
+    """``quickhealth diagnose`` (:func:`~quickhealth.station.services.diagnosis.diagnose_model`)."""
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be between 0 and 1, got {args.alpha}")
     if args.max_harmonic < 1:
         raise InputError(f"--max-harmonic must be at least 1, got {args.max_harmonic}")
-    from quickhealth.station.formats import MAX_FIT_ROWS, check_joint_limits
-    from quickhealth.station.fsio import refuse_overwriting_inputs, write_figure
-
     inputs = [args.model, args.meas]
     refuse_overwriting_inputs([("--json", args.json)], inputs)
     if args.plots is not None:
@@ -149,41 +157,27 @@ def run_diagnose(args: argparse.Namespace) -> int:
     cands = None
     if args.candidates:
         cands = [c.strip() for c in args.candidates.split(",") if c.strip()]
-        from quickhealth.identify.effects import parse_effect
-
-        for c in cands:
-            if c != "uniformscale":
-                parse_effect(c, fitted.robot)  # InputError for unknown names
-    from quickhealth.identify.sanity import check_describes
-
-    check_describes(fitted, meas, str(args.meas))
-    state = state_from_fitted(fitted)
-    from quickhealth.station.progress import Progress
-
-    with Progress(quiet=args.quiet) as say:
-        diag = diagnose(
-            state,
+    with Progress(quiet=args.quiet) as say:  # a bar on a terminal, stage lines in a log
+        d = diagnose_model(
+            fitted,
             meas,
             candidates=cands,
             alpha=args.alpha,
             max_harmonic=args.max_harmonic,
+            name=str(args.meas),
             progress=say,
             advance=say.advance,
         )
-    write_text_atomic(args.json, json.dumps(diag.to_dict(), indent=1) + "\n")
+    diag = d.diagnosis
+    write_diagnosis(args.json, diag)
     print("\n".join(diag.summary(top=args.top)))
     for s in diag.not_identifiable:
         if s.startswith("uniformscale"):
             print(s)
     if args.plots:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        from quickhealth.identify.diagnose import plot_candidate, plot_spectrum
-
         for i, c in enumerate(diag.candidates[:3], 1):
             out = args.plots / f"candidate_{i}_{c.effect.replace(':', '_')}.png"
-            write_figure(plot_candidate(state, meas, c.effect), out, dpi=110)
+            write_figure(plot_candidate(d.state, meas, c.effect), out, dpi=110)
             print(f"plot: {out}")
         if diag.spectra:
             out = args.plots / "spectrum.png"
@@ -197,11 +191,6 @@ def run_diagnose(args: argparse.Namespace) -> int:
 def _refuse_plots_over_inputs(folder: Path, inputs: list[Path]) -> None:
     """--plots DIR writes candidate_*.png and spectrum.png: refuse a DIR where one of those
     names is an input (the names depend on the diagnosis, so by pattern, before any work)."""
-    import fnmatch
-
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.fsio import refuse_overwriting_inputs
-
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder}: --plots must be a folder")
     for i in inputs:
@@ -209,13 +198,8 @@ def _refuse_plots_over_inputs(folder: Path, inputs: list[Path]) -> None:
             refuse_overwriting_inputs([("--plots", folder / i.name)], [i])
 
 
-def parse_twin_effects(text: str, robot: object) -> dict[str, float]:
+def parse_twin_effects(text: str, robot: RobotModel) -> dict[str, float]:
     """``NAME=SIZE,...`` (command-line units, see :data:`SIZE_UNITS`) → SI sizes."""
-    import numpy as np
-
-    from quickhealth.identify.effects import parse_effect
-    from quickhealth.identify.errors import InputError
-
     out: dict[str, float] = {}
     for item in (s.strip() for s in text.split(",")):
         if not item:
@@ -229,7 +213,7 @@ def parse_twin_effects(text: str, robot: object) -> dict[str, float]:
             raise InputError(f"--effects: size of {name!r} is not a number: {val!r}") from None
         if not np.isfinite(size):
             raise InputError(f"--effects: size of {name!r} must be finite")
-        e = parse_effect(name.strip(), robot)  # type: ignore[arg-type]
+        e = parse_effect(name.strip(), robot)
         if getattr(e, "form", None) == "lumped":
             raise InputError(
                 f"--effects: {e.name} has {e.n_params} parameters, not one size; hide "
@@ -241,12 +225,8 @@ def parse_twin_effects(text: str, robot: object) -> dict[str, float]:
     return out
 
 
-def _plan_joints(path: Path) -> object:
+def _plan_joints(path: Path) -> F:
     """Joint sets (rad) of a plan.json, in execution order."""
-    import numpy as np
-
-    from quickhealth.identify.errors import InputError
-
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -264,18 +244,10 @@ def _plan_joints(path: Path) -> object:
 
 def run_twin(args: argparse.Namespace) -> int:
     """``quickhealth twin``."""
-    import numpy as np
-
-    from quickhealth.identify.errors import InputError
-    from quickhealth.identify.twin import make_twin, random_joints, schedules
-    from quickhealth.station.formats import write_measurements, write_text_atomic
-
     if args.n < 1 or args.heldout < 0:
         raise InputError("--n must be at least 1 and --heldout not negative")
     if args.sigma_pos_mm < 0 or args.sigma_rot_mrad < 0 or args.sigma_q_deg < 0:
         raise InputError("noise levels must not be negative")
-    from quickhealth.identify.robot import ur5
-
     effects = parse_twin_effects(args.effects, ur5())
     twin = make_twin(
         seed=args.seed,
@@ -305,8 +277,6 @@ def run_twin(args: argparse.Namespace) -> int:
     files = [(args.out, q[: args.n], args.seed + 2)]
     if args.heldout:
         files.append((args.out.with_suffix(".heldout.csv"), q[args.n :], args.seed + 3))
-    from quickhealth.station.fsio import refuse_overwriting_inputs
-
     refuse_overwriting_inputs(
         [("--out", f[0]) for f in files]
         + [("--truth", args.truth or args.out.with_suffix(".truth.json"))],

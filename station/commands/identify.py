@@ -11,29 +11,40 @@ quickhealth identify import-wam WAM.csv --out MEAS.csv [--sign auto|+1|-1] [--ro
     Converts the Barrett WAM laser-tracker files to CSV v1.
 quickhealth identify compare DIR/model.json MEAS.csv --effects LIST [--heldout HELD.csv]
     [--folds K] [--json OUT.json] [--plots DIR]
-    Held-out error without and with the effects (:mod:`quickhealth.station.compare`; the
-    same command as the top-level ``quickhealth compare``).
+    Held-out error without and with the effects (:mod:`.compare`; the same command as the
+    top-level ``quickhealth compare``).
+
+``identify fit`` is :func:`quickhealth.station.services.fitting.fit_folder` with the options
+of the command line (the TUI's Results screen and ``reprocess`` fit the same way).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
-import os
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
-from quickhealth.station import lock, options, workers
+import numpy as np
 
-# the library's InstrumentNoise defaults (0.03 mm, 0.1 mrad): every door assesses alike
-DEFAULT_SIGMA_POS_MM = 0.03
-DEFAULT_SIGMA_ROT_DEG = math.degrees(1e-4)  # 0.1 mrad
+from ...identify.errors import InputError
+from ...identify.linearize import InstrumentNoise
+from .. import formats, lock, options, workers
+from ..fsio import claim_output_folder, refuse_overwriting_inputs
+from ..services.fitting import FigureRenderer, claim_fit_folder, fit_folder
+from ..services.options import FitOptions
+from ..services.wam import wam_sign
+from . import compare
+
+# every door's instrument defaults (0.03 mm, 0.1 mrad), in the command line's units (help);
+# an option left out keeps the default itself, not its round trip through mm and degrees
+DEFAULT_SIGMA_POS_MM = FitOptions().noise.sigma_pos * 1e3
+DEFAULT_SIGMA_ROT_DEG = math.degrees(FitOptions().noise.sigma_rot)
 
 
-def register(subparsers: Any) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``identify fit``, ``identify predict``, ``identify import-wam`` and ``identify compare``."""
     p = subparsers.add_parser("identify", help="fit the error model; predict new commands")
     sub = p.add_subparsers(dest="identify_command", metavar="SUBCOMMAND")
@@ -56,18 +67,21 @@ def register(subparsers: Any) -> None:
     f.add_argument("--out", required=True, help="output directory")
     f.add_argument("--effects", default=None, help="comma-separated effect names")
     f.add_argument(
-        "--max-order", type=options.ORDER, default=6, help="cap of every series' order (6)"
+        "--max-order",
+        type=options.ORDER,
+        default=FitOptions.max_order,
+        help=f"cap of every series' order ({FitOptions.max_order})",
     )
     f.add_argument(
         "--sigma-pos-mm",
         type=options.SIGMA_POS_MM,
-        default=DEFAULT_SIGMA_POS_MM,
-        help=f"instrument position uncertainty per axis where the file has no sx..sz ({DEFAULT_SIGMA_POS_MM})",
+        default=None,
+        help=f"instrument position uncertainty per axis where the file has no sx..sz ({DEFAULT_SIGMA_POS_MM:.4g})",
     )
     f.add_argument(
         "--sigma-rot-deg",
         type=options.SIGMA_ROT_DEG,
-        default=DEFAULT_SIGMA_ROT_DEG,
+        default=None,
         help=f"instrument orientation noise per rotation axis where the file has no spitch.. ({DEFAULT_SIGMA_ROT_DEG:.4g})",
     )
     f.add_argument(
@@ -110,8 +124,6 @@ def register(subparsers: Any) -> None:
     w.add_argument("--robot", default=None, help="robot file for --sign auto (WAM DH table)")
     w.set_defaults(func=_import_wam)
 
-    from quickhealth.station import compare  # light: heavy imports are in its run()
-
     compare.register(sub)
 
 
@@ -119,8 +131,6 @@ def register(subparsers: Any) -> None:
 
 
 def _positive(name: str, v: float) -> None:
-    from quickhealth.identify.errors import InputError
-
     if not v > 0:
         raise InputError(f"{name} must be > 0, got {v}")
 
@@ -128,16 +138,9 @@ def _positive(name: str, v: float) -> None:
 @workers.owns_workers
 @lock.holds_outputs("identify fit", lambda a: [a.out])
 def _fit(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from quickhealth.identify.assess import assess
-    from quickhealth.identify.errors import InputError
-    from quickhealth.identify.fit import InstrumentNoise
-    from quickhealth.station import formats
-    from quickhealth.station.report_json import write_report_json
-
-    _positive("--sigma-pos-mm", args.sigma_pos_mm)
-    _positive("--sigma-rot-deg", args.sigma_rot_deg)
+    for name in ("sigma_pos_mm", "sigma_rot_deg"):
+        if getattr(args, name) is not None:
+            _positive(f"--{name.replace('_', '-')}", getattr(args, name))
     if args.sigma_q_deg < 0:
         raise InputError(f"--sigma-q-deg must be >= 0, got {args.sigma_q_deg}")
     if not 0 <= args.max_order <= 40:
@@ -145,160 +148,58 @@ def _fit(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a directory")
-    from quickhealth.station.fsio import (
-        claim_output_folder,
-        make_dirs,
-        refuse_overwriting_inputs,
-        replacing_line,
-        write_error,
-    )
-
     robot = formats.load_robot(args.robot, args.calibration)
     outputs = ["model.json", "report.json", "residuals.csv"]
     if args.plots:
-        outputs += ["workspace_histogram.png", "residuals.png"]
-        outputs += [f"joint{j}_curves.png" for j in range(1, robot.n_joints + 1)]
+        outputs += FigureRenderer.names(robot.n_joints)
     refuse_overwriting_inputs(
         [("--out", out / n) for n in outputs],
         [args.meas, args.robot if Path(args.robot).is_file() else None, args.calibration],
     )
-    _, other = fit_folder_owner(out, Path(args.meas))
+    _, other = claim_fit_folder(out, Path(args.meas))
     forced = claim_output_folder(out, other, force=args.force)
     meas = formats.read_measurements(args.meas, robot.n_joints)
     formats.check_poses_for_fit(meas, robot, args.meas)
-    noise = InstrumentNoise(
-        sigma_pos=args.sigma_pos_mm * 1e-3,
-        sigma_rot=float(np.radians(args.sigma_rot_deg)),
-        sigma_q=float(np.radians(args.sigma_q_deg)),
+    default = FitOptions().noise
+    options = FitOptions(
+        effects=() if args.effects is None else tuple(args.effects.split(",")),
+        max_order=args.max_order,
+        noise=InstrumentNoise(
+            sigma_pos=default.sigma_pos if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
+            sigma_rot=default.sigma_rot
+            if args.sigma_rot_deg is None
+            else float(np.radians(args.sigma_rot_deg)),
+            sigma_q=float(np.radians(args.sigma_q_deg)),
+        ),
+        margin=args.margin,
+        auto_rescale=args.auto_rescale,
     )
     from quickhealth.station.progress import Progress
 
     say = Progress(quiet=args.quiet)  # a bar on a terminal, stage lines in a log
     say(
-        f"{meas.n_poses} poses, {'full pose' if meas.has_orientation else 'position only'}; searching orders up to {args.max_order}"
+        f"{meas.n_poses} poses, {'full pose' if meas.has_orientation else 'position only'}; "
+        f"searching orders up to {args.max_order}"
     )
-    render = _FigureRenderer() if args.plots else None  # workers import matplotlib meanwhile
     try:
-        a = assess(
+        res = fit_folder(
             meas,
             robot,
-            [] if args.effects is None else args.effects.split(","),
-            noise=noise,
-            max_order=args.max_order,
-            margin=args.margin,
-            auto_rescale=args.auto_rescale,
+            out,
+            options,
+            source=args.meas,
+            plots=args.plots,
+            forced=forced,
             progress=say,
         )
-    except InputError as exc:
-        say.close()
-        if render is not None:
-            render.close()
-        if "too few" not in str(exc):
-            raise InputError(f"{args.meas}: {exc}") from None
-        n_lines = len(Path(args.meas).read_text(encoding="utf-8").splitlines())
-        raise InputError(f"{args.meas}:{n_lines}:1: {exc}") from None
-    say("writing the model, report and residuals")
-    # write everything into a temporary directory first: nothing half-written on failure
-    make_dirs(out.parent)
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=".identify-", dir=out.parent))
-    except OSError as exc:
-        raise write_error(out, exc) from None
-    try:
-        if render is not None:
-            render.run(a, tmp)
-        formats.write_model(tmp / "model.json", a.fitted)
-        write_report_json(tmp / "report.json", a, source=str(args.meas))
-        formats.write_text_atomic(tmp / "residuals.csv", residual_table(a.fitted, meas))
-        make_dirs(out)
-        replaced = sorted(f.name for f in tmp.iterdir() if (out / f.name).exists())
-        line = replacing_line(out, replaced, "the earlier fit of this data", forced)
-        if line:
-            print(line, file=sys.stderr)
-        for f in tmp.iterdir():
-            (tmp / f.name).replace(out / f.name)
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-        say.close()
-    for line in a.summary():
+        say.close()  # the bar is cleared before the summary
+    if res.replacing:
+        print(res.replacing, file=sys.stderr)
+    for line in res.assessment.summary():
         print(line)
     print(f"wrote {out / 'model.json'}, {out / 'report.json'}, {out / 'residuals.csv'}")
     return 0
-
-
-def fit_folder_owner(out: Path, meas: Path) -> tuple[bool, list[str]]:
-    """Whose is the output folder of ``identify fit MEAS --out DIR``?
-
-    Returns whether ``DIR`` holds the input ``MEAS`` itself (the run folder of this data: its
-    plan, journal, images and measurements are this run's), and what in ``DIR`` belongs to
-    another kind or run (for :func:`~quickhealth.station.fsio.claim_output_folder`): outside
-    the data's own folder a plan or a run's files, anywhere a fit whose report.json names
-    another input file (or, outside the own folder, a fit that names none).
-    """
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station import formats
-    from quickhealth.station.fsio import foreign_results, result_files
-
-    if not out.is_dir():
-        return False, []
-    try:
-        own = meas.is_file() and os.path.samefile(meas.parent, out)
-    except OSError:
-        own = False
-    other = [] if own else foreign_results(out, "fit")
-    fit = [n for n in result_files(out)["fit"] if n in ("model.json", "report.json")]
-    if fit:
-        src = None
-        if (out / "report.json").is_file():
-            try:
-                doc = formats.read_report(out / "report.json")
-                src = doc.get("input") if isinstance(doc.get("input"), str) else None
-            except InputError:
-                src = None
-        if src is None:
-            if not own:
-                other.append(f"a fit of unknown data ({', '.join(fit)})")
-        elif not _same_input(Path(src), meas, own):
-            other.append(f"the fit of another measurement file, {src} ({', '.join(fit)})")
-    return own, other
-
-
-def _same_input(recorded: Path, meas: Path, own_folder: bool) -> bool:
-    """Is the input a report.json records (as typed then) the file ``meas``?"""
-    try:
-        if recorded.is_file() and os.path.samefile(recorded, meas):
-            return True
-    except OSError:
-        pass
-    # typed from another working directory: in the data's own folder the name tells
-    return own_folder and recorded.name == meas.name
-
-
-def residual_table(fm: Any, meas: Any) -> str:
-    """Per-pose measured-minus-model table (CSV: mm, deg; cells quoted by the csv module, so
-    a pose_id holding a comma or a quote stays one cell)."""
-    import csv
-    import io
-
-    import numpy as np
-
-    cols = ["row", "pose_id"] + [f"q{i + 1}" for i in range(meas.n_joints)]
-    cols += ["rx_mm", "ry_mm", "rz_mm", "r_mm"]
-    if fm.residual_rot is not None:
-        cols += ["rrx_deg", "rry_deg", "rrz_deg"]
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(cols)
-    qd = np.degrees(meas.q)
-    for i in range(fm.n_poses):
-        rp = fm.residual_pos[i] * 1e3
-        v = [str(i + 1), "" if meas.pose_id is None else meas.pose_id[i]]
-        v += [f"{x:.6f}" for x in qd[i]]
-        v += [f"{x:.6f}" for x in rp] + [f"{np.linalg.norm(rp):.6f}"]
-        if fm.residual_rot is not None:
-            v += [f"{x:.7f}" for x in np.degrees(fm.residual_rot[i])]
-        w.writerow(v)
-    return buf.getvalue()
 
 
 def csv_cells(values: Any) -> list[str]:
@@ -322,59 +223,15 @@ def csv_cells(values: Any) -> list[str]:
     return out
 
 
-def _render_figures(job: tuple[str, Any, Any, str]) -> str:
-    """One PNG of ``identify fit --plots`` (runs in a worker process)."""
-    from quickhealth.identify import report
-
-    kind, data, extra, path = job
-    if kind == "workspace":
-        fig = report.workspace_histogram(data)
-    elif kind == "residuals":
-        fig = report.residual_plot(data, extra)
-    else:
-        fig = report.joint_curve_figure(data)
-    from quickhealth.station.fsio import write_figure
-
-    return write_figure(fig, path, dpi=100)
-
-
-def _warm() -> None:
-    import quickhealth.identify.report  # noqa: F401  (matplotlib, while the parent fits)
-
-
-class _FigureRenderer:
-    """The PNGs of ``--plots`` drawn by two worker processes: they import matplotlib while
-    the fit runs, then draw one figure each at a time (8 figures, ~0.3 s each)."""
-
-    def __init__(self) -> None:
-        import multiprocessing
-
-        ctx = multiprocessing.get_context("fork")
-        self.pool = workers.Pool(max_workers=2, mp_context=ctx)
-        self.warm = [self.pool.submit(_warm) for _ in range(2)]
-
-    def run(self, a: Any, out: Path) -> None:
-        jobs = [("workspace", a.workspace, None, str(out / "workspace_histogram.png"))]
-        jobs += [("curves", c, None, str(out / f"joint{c.joint}_curves.png")) for c in a.curves]
-        jobs.insert(1, ("residuals", a.fitted, a.measurements, str(out / "residuals.png")))
-        try:
-            list(self.pool.map(_render_figures, jobs))
-        finally:
-            self.close()
-
-    def close(self) -> None:
-        self.pool.shutdown(wait=True, cancel_futures=True)
-
-
 # --------------------------------------------------------------------------- predict
 
 
 def _predict(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from quickhealth.identify.transforms import R_to_rpy
-    from quickhealth.station import formats
-    from quickhealth.station.fsio import refuse_overwriting_inputs
+    from ...identify.transforms import R_to_rpy
+    from .. import formats
+    from ..fsio import refuse_overwriting_inputs
 
     if args.threshold_mm is not None:
         _positive("--threshold-mm", args.threshold_mm)
@@ -492,7 +349,7 @@ def _predict_chunked(fm: Any, q: Any, thr: Any, time: Any, temp: Any) -> Any:
     """:func:`predict_commands` in blocks of ``PREDICT_CHUNK`` commands (bounded memory)."""
     import numpy as np
 
-    from quickhealth.identify.workspace import CommandPrediction, predict_commands
+    from ...identify.workspace import CommandPrediction, predict_commands
 
     parts = []
     for a in range(0, len(q), PREDICT_CHUNK):
@@ -524,25 +381,7 @@ def _missing(c: Any) -> list[str]:
 # --------------------------------------------------------------------------- WAM import
 
 
-def wam_sign(robot: Any, path: str | Path) -> tuple[float, dict[float, float]]:
-    """The sign of the ``dif`` columns: the one whose geometric-model fit has the lower χ²."""
-    from quickhealth.identify.fit import InstrumentNoise, fit_model
-    from quickhealth.identify.select import data_spec
-    from quickhealth.station import formats
-
-    chi = {}
-    for s in (1.0, -1.0):
-        m = formats.read_wam_csv(path, s)
-        fm = fit_model(robot, m, data_spec(robot, m), noise=InstrumentNoise(sigma_pos=1e-3))
-        chi[s] = fm.chi2_data
-    return (1.0 if chi[1.0] <= chi[-1.0] else -1.0), chi
-
-
 def _import_wam(args: argparse.Namespace) -> int:
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station import formats
-    from quickhealth.station.fsio import refuse_overwriting_inputs
-
     robot_file = args.robot if args.robot and Path(args.robot).is_file() else None
     refuse_overwriting_inputs([("--out", args.out)], [args.wam, robot_file])
     if args.sign == "auto":
@@ -561,9 +400,7 @@ def _import_wam(args: argparse.Namespace) -> int:
         if sign not in (1.0, -1.0):
             raise InputError(f"--sign must be auto, +1 or -1, got {args.sign!r}")
     m = formats.read_wam_csv(args.wam, sign)
-    from dataclasses import replace
-
-    m = replace(m, meta={**m.meta, "position": f"x_t + ({sign:+.0f}) * dif"})
+    m = dataclasses.replace(m, meta={**m.meta, "position": f"x_t + ({sign:+.0f}) * dif"})
     formats.write_measurements(args.out, m)
     print(f"wrote {args.out}: {m.n_poses} poses, position only")
     return 0

@@ -15,7 +15,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from quickhealth.station import lock, options
+from ...identify.errors import InputError
+from .. import lock, options
+from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs
+from ..planning.cell import load_cell
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -43,37 +46,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.set_defaults(func=run)
 
 
-def _write(path: Path, data: bytes) -> None:
-    from quickhealth.station.fsio import write_atomic
-
-    write_atomic(path, data, durable=True)
-
-
 @lock.holds_outputs("plan", lambda a: [a.out])
 def run(args: argparse.Namespace) -> int:
-    """Plan, validate the plan document, then write plan.json, loop.script and plots."""
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.fsio import (
-        claim_output_folder,
-        foreign_results,
-        make_dirs,
-        refuse_overwriting_inputs,
-        replacing_line,
-    )
-    from quickhealth.station.planning.cell import load_cell
-    from quickhealth.station.planning.figures import write_figures
-    from quickhealth.station.planning.planfile import dumps, plan_from_dict, plan_to_dict
-    from quickhealth.station.planning.planner import plan_loop
-    from quickhealth.station.planning.urscript import render_urscript
+    """Plan, validate the plan document, then write plan.json, loop.script and plots
+    (:func:`~quickhealth.station.services.planning.plan_folder`)."""
+    from ..services.planning import PLAN_FILES, plan_folder  # the planner: the collision library
 
     out: Path = args.out
     if out.exists() and not out.is_dir():
         raise InputError(f"--out: {out} exists and is not a folder")
-    files = ("plan.json", "loop.script", "fig6_joints.png", "fig6_targets.png")
     cell_file = Path(args.cell) if Path(args.cell).is_file() else None
-    refuse_overwriting_inputs([("--out", out / n) for n in files], [cell_file])
-    foreign = foreign_results(out, "plan")
-    claim_output_folder(out, foreign, force=args.force)  # before the planning work
+    refuse_overwriting_inputs([("--out", out / n) for n in PLAN_FILES], [cell_file])
+    claim_output_folder(out, foreign_results(out, "plan"), force=args.force)  # before the work
     cell = load_cell(args.cell)
 
     tty = sys.stderr.isatty()
@@ -85,39 +69,11 @@ def run(args: argparse.Namespace) -> int:
             sys.stderr.write(f"{stage}: {done}/{total}{end}")
             sys.stderr.flush()
 
-    res = plan_loop(cell, args.n, args.seed, progress)
-    doc = plan_to_dict(res)
-    plan = plan_from_dict(doc, "plan.json")  # the program is made from the validated document
-    script = render_urscript(plan)
-    other = _other_plan(out / "plan.json", doc["hash"])
-    forced = claim_output_folder(out, foreign + other, force=args.force)
-    replaced = [n for n in files if (out / n).exists()]
-    why = "the same plan" if "plan.json" in replaced else ""
-    said = replacing_line(out, replaced, why, forced)
-    make_dirs(out)
-    _write(out / "plan.json", dumps(doc).encode("utf-8"))
-    _write(out / "loop.script", script.encode("utf-8"))
-    figs = write_figures(res, out)
-    if said:
-        print(said, file=sys.stderr)
-    for line in res.summary():
+    res = plan_folder(cell, args.n, args.seed, out, force=args.force, progress=progress)
+    if res.replacing:
+        print(res.replacing, file=sys.stderr)
+    for line in res.result.summary():
         print(line)
-    print(f"plan {doc['hash']}")
-    print(f"wrote {out / 'plan.json'}, {out / 'loop.script'}, " + ", ".join(str(f) for f in figs))
+    print(f"plan {res.plan.hash}")
+    print("wrote " + ", ".join(str(f) for f in res.paths))
     return 0
-
-
-def _other_plan(path: Path, new_hash: str) -> list[str]:
-    """Why ``path`` (an existing plan.json) is another plan than the one of ``new_hash``
-    (runs and the trend compare plans by hash: replacing a different plan is not silent)."""
-    import json
-
-    if not path.exists():
-        return []
-    try:
-        old = json.loads(path.read_text(encoding="utf-8")).get("hash")
-    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
-        return [f"a plan.json that cannot be read ({path.name})"]
-    if old == new_hash:
-        return []
-    return [f"another plan ({path.name} {str(old)[:19]}..., this one {new_hash[:19]}...)"]

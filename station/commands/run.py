@@ -23,10 +23,29 @@ script 30003, JSON control port 30090) until interrupted.  See docs/station.md.
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from quickhealth.station import lock, options
+from ...identify.errors import HardwareError, InputError, QuickhealthError
+from .. import lock, options
+from ..formats import check_poses_for_fit, load_robot, read_measurements
+from ..fsio import (
+    claim_output_folder,
+    foreign_results,
+    make_dirs,
+    refuse_overwriting_inputs,
+    result_files,
+)
+from ..lock import RunLock
+from ..services.fitting import fit_folder
+from ..sim.process import add_arguments as add_sim_arguments
+from ..sim.process import run_from_args
+
+if TYPE_CHECKING:  # the type only: the planner loads the collision library
+    from ..planning.planfile import Plan
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -86,38 +105,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    from quickhealth.station.sim.process import add_arguments
-
-    add_arguments(s)
+    add_sim_arguments(s)
     s.set_defaults(func=sim_controller)
 
 
 def sim_controller(args: argparse.Namespace) -> int:
     """Serve the simulator in the foreground."""
-    from quickhealth.station.sim.process import run_from_args
-
     return run_from_args(args)
 
 
 @lock.holds_outputs("run", lambda a: [a.out])
 def run(args: argparse.Namespace) -> int:
     """Validate everything that can be validated without hardware, then run."""
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.archive import safe_name
-    from quickhealth.station.planning import load_cell, load_plan
+    from ..archive import safe_name  # the archive module loads the trend's scipy.stats
+    from ..planning import load_cell, load_plan  # the planner: the collision library
 
     out: Path = args.out
     if ".." in out.parts:
         raise InputError(f"--out {str(out)!r}: '..' is not allowed in a run folder path")
     if args.robot_name is not None:
         safe_name(args.robot_name, "robot name")
-    from quickhealth.station.fsio import (
-        claim_output_folder,
-        foreign_results,
-        refuse_overwriting_inputs,
-        result_files,
-    )
-
     # a run folder holds one run (and, later, its fit): never a plan, nor a fit of other data
     foreign = foreign_results(out, "run")
     if args.resume and result_files(out)["run"]:
@@ -145,8 +152,6 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--archive needs --robot-name (the robot's name in the archive)")
     if not args.sim and args.calibration is None:
         raise InputError("--robot-ip needs --calibration CAL.json (quickhealth vision calibrate)")
-    from quickhealth.station.lock import RunLock
-
     lock = RunLock.acquire(out)
     try:
         return _run_locked(args, plan, out)
@@ -168,11 +173,6 @@ def _sim_setting(
     written on a faster simulated arm.  Refused (one line) unless finite and in
     ``[lo, hi]``.
     """
-    import math
-    import os
-
-    from quickhealth.identify.errors import InputError
-
     where = option
     if value is None:
         text = os.environ.get(env)
@@ -189,16 +189,13 @@ def _sim_setting(
     return float(value)
 
 
-def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: ignore[no-untyped-def]
-    from quickhealth.identify.errors import HardwareError
-    from quickhealth.station.fsio import make_dirs
-    from quickhealth.station.run import run_plan, ur_station
-    from quickhealth.station.sim.cell import sim_station
+def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
+    from ..run import Progress, run_plan, ur_station  # the drivers: ur-rtde, OpenCV
 
     make_dirs(out)  # an unwritable --out is one line, exit 2
     log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115
 
-    def progress(p) -> None:  # type: ignore[no-untyped-def]
+    def progress(p: Progress) -> None:
         if p.kind in ("pose", "measured", "stop", "done", "resume", "preflight", "selfcheck"):
             tag = f"[{p.index:3d}/{p.n_poses}] {p.name} " if p.index else ""
             line = f"{p.kind}: {tag}{p.status} {p.message}".rstrip()
@@ -210,7 +207,8 @@ def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: igno
 
     try:
         if args.sim:
-            from quickhealth.station.hardware.world import parse_degradation
+            from ..sim.cell import sim_station  # the simulation (and the twin), only under --sim
+            from ..sim.world import parse_degradation  # (the same)
 
             station, _ = sim_station(
                 args.cell,
@@ -224,8 +222,6 @@ def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: igno
         else:
             cams = tuple(c if not c.isdigit() else int(c) for c in args.cameras.split(","))
             if len(cams) != 2:
-                from quickhealth.identify.errors import InputError
-
                 raise InputError("--cameras needs two entries: left,right")
             station = ur_station(
                 args.cell,
@@ -265,25 +261,21 @@ def _run_locked(args: argparse.Namespace, plan, out: Path) -> int:  # type: igno
             log.close()
 
 
-def _register(out: Path, args: argparse.Namespace, plan) -> str:  # type: ignore[no-untyped-def]
-    """Fit the finished run and add it to the archive (``identify fit``, ``archive add``)."""
-    import contextlib
-    import io
+def _register(out: Path, args: argparse.Namespace, plan: Plan) -> str:
+    """Fit the finished run and add it to the archive, as ``identify fit`` and ``archive add``
+    do (:func:`~quickhealth.station.services.fitting.fit_folder`, :class:`Archive`)."""
+    from ..archive import Archive  # SQLAlchemy: only when archiving
 
-    from quickhealth.identify.errors import HardwareError
-    from quickhealth.station.cli import main
-
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-        rc = main(
-            ["identify", "fit", str(out / "measurements.csv"), "--robot", "ur5", "--out", str(out)]
+    csv = out / "measurements.csv"
+    try:
+        robot = load_robot("ur5")
+        meas = read_measurements(csv, robot.n_joints)
+        check_poses_for_fit(meas, robot, csv)
+        fit_folder(meas, robot, out, source=str(csv))
+        Archive.open(args.archive).add_run(
+            args.robot_name, out, meta={"plan_hash": plan.hash, "cell": plan.cell_name}
         )
-        if rc == 0:
-            rc = main(
-                ["archive", "add", str(out), "--robot", args.robot_name, "--archive",
-                 str(args.archive), "--plan-hash", plan.hash, "--cell", plan.cell_name]
-            )  # fmt: skip
-    if rc != 0:
-        last = (buf.getvalue().strip().splitlines() or ["?"])[-1]
-        raise HardwareError(f"the run is complete but could not be archived: {last}")
+    except QuickhealthError as exc:
+        last = (str(exc).strip().splitlines() or ["?"])[-1]
+        raise HardwareError(f"the run is complete but could not be archived: {last}") from None
     return f"fitted and archived for robot {args.robot_name} in {args.archive}"

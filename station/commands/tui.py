@@ -5,8 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from quickhealth.station import options
+from ...identify.errors import InputError
+from .. import options
+from ..services.options import TUI_THRESHOLD_MM
+
+if TYPE_CHECKING:  # the type only: the App's station loads textual, the fit and the drivers
+    from ..tui.facade import Station
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -47,16 +53,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--threshold-mm",
         type=options.LENGTH_MM,
-        default=2.0,
-        help="degraded when the workspace max TCP error is above this (mm, default 2)",
+        default=TUI_THRESHOLD_MM,
+        help=f"degraded when the workspace max TCP error is above this (mm, default "
+        f"{TUI_THRESHOLD_MM:g})",
     )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from quickhealth.identify.errors import InputError
-
-    from ..tui.facade import Station
+    from ..tui.facade import Station  # textual, the fit, the drivers: --help must not wait
 
     if args.data is not None:
         station = Station.from_data(
@@ -72,25 +77,32 @@ def run(args: argparse.Namespace) -> int:
             "tui: give --sim for the simulated cell, --robot-ip IP for a real robot, "
             "or --data MEAS.csv"
         )
-    station = Station.open(
+    common = dict(
         cell=args.cell,
         plan=args.plan,
         archive=args.archive,
         robot_name=args.robot_name,
-        sim=args.sim,
-        robot_ip=args.robot_ip,
-        motor_port=args.motor_port,
-        cameras=None if not args.cameras else tuple(args.cameras.split(",", 1)),
-        calibration=args.calibration,
         n_poses=args.n,
         threshold_mm=args.threshold_mm,
         say=lambda line: print(f"quickhealth: {line}", file=sys.stderr, flush=True),
     )
+    if args.sim:
+        from ..tui.simulated import open_simulated  # the simulation, only under --sim
+
+        station = open_simulated(**common)
+    else:
+        station = Station.open(
+            robot_ip=args.robot_ip,
+            motor_port=args.motor_port,
+            cameras=None if not args.cameras else tuple(args.cameras.split(",", 1)),
+            calibration=args.calibration,
+            **common,
+        )
     return _run_app(station)
 
 
-def _run_app(station) -> int:  # type: ignore[no-untyped-def]
-    from ..tui.app import QuickhealthApp
+def _run_app(station: Station) -> int:
+    from ..tui.app import QuickhealthApp  # textual
 
     try:
         return int(QuickhealthApp(station).run() or 0)

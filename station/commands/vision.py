@@ -24,9 +24,17 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
 
-from quickhealth.station import lock, options, workers
+import numpy as np
+from numpy.typing import NDArray
+
+from ...identify.errors import InputError
+from .. import lock, options, workers
+from ..formats.measurements import write_measurements
+from ..fsio import refuse_overwriting_inputs, write_figure
+from ..journal import JOURNAL, read_journal
+
+F = NDArray[np.float64]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -63,20 +71,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run_calibrate(args: argparse.Namespace) -> int:
     """Detect the board in every image, calibrate, write CAL.json and the report plots."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station import vision_io as io
-    from quickhealth.vision.boards import parse_board_spec
-    from quickhealth.vision.calibrate import Verdict, calibrate, detect_board
-    from quickhealth.vision.plots import plot_coverage, plot_residuals, plot_uncertainty
+    from ...vision.boards import parse_board_spec  # OpenCV and matplotlib from here on
+    from ...vision.calibrate import Verdict, calibrate, detect_board
+    from ...vision.plots import plot_coverage, plot_residuals, plot_uncertainty
+    from ..formats import vision as io
 
     board = parse_board_spec(args.board)
     left = io.expand_glob(args.left, "--left")
     right = io.expand_glob(args.right, "--right") if args.right else None
-    from quickhealth.station.fsio import refuse_overwriting_inputs, write_figure
-
     out: Path = args.out
     stem = out.with_suffix("")
     figs = ("residuals", "coverage", "uncertainty")
@@ -126,150 +128,40 @@ def run_calibrate(args: argparse.Namespace) -> int:
     return 1 if args.fail_on_unreliable and res.verdict is Verdict.UNRELIABLE else 0
 
 
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(rig: Any, target: Any) -> None:
-    _WORKER["rig"], _WORKER["target"] = rig, target
-
-
-def _measure_one(job: tuple[str, str, str, float | None, float | None]) -> Any:
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station import vision_io as io
-    from quickhealth.vision.pose7d import measure_stereo
-
-    pid, lp, rp, pan, t = job
-    rig = _WORKER["rig"]
-    imgs = []
-    for p, cam in ((lp, rig.left), (rp, rig.right)):
-        img = io.read_gray(Path(p))
-        w, h = cam.image_size
-        if img.shape != (h, w):
-            raise InputError(
-                f"{p}: image is {img.shape[1]}×{img.shape[0]}, the calibration's camera {w}×{h}"
-            )
-        imgs.append(img)
-    return pid, measure_stereo(rig, _WORKER["target"], imgs[0], imgs[1], pan=pan, time=t)
-
-
-def _read_index(path: Path) -> tuple[list[str], Any, Any, Any, Any]:
-    import csv
-    import io
-
-    import numpy as np
-
-    from quickhealth.identify.errors import InputError
-
-    if not path.is_file():
-        raise InputError(
-            f"{path}: missing (the run folder's image index: pose_id, q1..qN in deg, pan, time)"
-        )
-    from quickhealth.station.formats.common import MAX_LINE_CHARS, read_text_limited
-
-    text = read_text_limited(path, "measurements")  # regular file, size, UTF-8
-    for ln, line in enumerate(text.splitlines(), start=1):
-        if len(line) > MAX_LINE_CHARS:
-            raise InputError(
-                f"{path}:{ln}:1: line of {len(line)} characters is too long (at most "
-                f"{MAX_LINE_CHARS})"
-            )
-    try:
-        rows = [r for r in csv.reader(io.StringIO(text, newline="")) if r and r[0][:1] != "#"]
-    except csv.Error as exc:
-        raise InputError(f"{path}: not a CSV file: {exc}") from None
-    if len(rows) < 2:
-        raise InputError(f"{path}: no rows")
-    head = [h.strip() for h in rows[0]]
-    qcols = [c for c in head if c.startswith("q") and c[1:].isdigit()]
-    if "pose_id" not in head or not qcols:
-        raise InputError(f"{path}:1: header needs pose_id and q1..qN")
-    qcols.sort(key=lambda c: int(c[1:]))
-    ids, q, pan, time, temp = [], [], [], [], []
-    for ln, r in enumerate(rows[1:], start=2):
-        if len(r) != len(head):
-            raise InputError(f"{path}:{ln}: {len(r)} cells, header has {len(head)}")
-        d = dict(zip(head, (c.strip() for c in r), strict=True))
-        try:
-            q.append([float(d[c]) for c in qcols])
-            pan.append(float(d["pan"]) if "pan" in d else np.nan)
-            time.append(float(d["time"]) if "time" in d else np.nan)
-            temp.append(float(d["temp"]) if "temp" in d else np.nan)
-        except ValueError:
-            bad = next(c for c in head if c != "pose_id" and not _isnum(d[c]))
-            raise InputError(
-                f"{path}:{ln}:{head.index(bad) + 1}: {bad} is not a number ({d[bad]!r})"
-            ) from None
-        bad_q = [c for c, v in zip(qcols, q[-1], strict=True) if not np.isfinite(v)]
-        if bad_q:
-            raise InputError(
-                f"{path}:{ln}:{head.index(bad_q[0]) + 1}: {bad_q[0]} is {d[bad_q[0]]!r}, not a "
-                "finite joint angle"
-            )
-        ids.append(_check_pose_id(d["pose_id"], f"{path}:{ln}:{head.index('pose_id') + 1}"))
-    return ids, np.radians(np.array(q)), np.radians(np.array(pan)), np.array(time), np.array(temp)
-
-
-def _check_pose_id(pid: str, where: str) -> str:
-    """A pose id usable in CSV v1 and as an image file name: no control characters, no path."""
-    from quickhealth.identify.errors import InputError
-
-    if (
-        not pid
-        or len(pid) > 128
-        or any(c < " " or c in "/\\\x7f" for c in pid)
-        or pid in (".", "..")
-    ):
-        raise InputError(
-            f"{where}: pose_id {pid[:40]!r} must be 1-128 characters without control "
-            "characters or path separators"
-        )
-    return pid
-
-
-def _read_journal(run: Path) -> tuple[list[str], Any, Any, Any, Any, list[tuple[Path, Path]]]:
+def _read_journal(run: Path) -> tuple[list[str], F, F, F, F, list[tuple[Path, Path]]]:
     """Captured poses of a `quickhealth run` folder (journal.jsonl), in execution order."""
-    import numpy as np
-
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.journal import JOURNAL, read_journal
+    from ..formats import vision as io  # OpenCV
 
     st = read_journal(run / JOURNAL)
     if not st.captured:
         raise InputError(f"{run / JOURNAL}: no captured poses")
     recs = [st.captured[i] for i in sorted(st.captured)]
+    ids = [r.name for r in recs]
     try:
-        ids = [str(r["name"]) for r in recs]
-        q = np.radians(np.array([r["q_deg"] for r in recs], dtype=float))
-        pan = np.radians(np.array([r.get("pan_deg", np.nan) for r in recs], dtype=float))
-        time = np.array([r.get("time_s", np.nan) for r in recs], dtype=float)
-        files = [(run / r["images"][0], run / r["images"][1]) for r in recs]
-    except (KeyError, IndexError, TypeError, ValueError) as exc:
-        raise InputError(f"{run / JOURNAL}: captured record lacks {exc}") from None
+        q = np.array([r.q for r in recs], dtype=float)
+    except ValueError as exc:
+        raise InputError(
+            f"{run / JOURNAL}: captured joint angles differ in number ({exc})"
+        ) from None
+    pan = np.array([r.pan for r in recs], dtype=float)
+    time = np.array([r.time_s for r in recs], dtype=float)
+    if any(len(r.images) != 2 for r in recs):
+        raise InputError(f"{run / JOURNAL}: a captured record does not name two images")
+    files = [(run / r.images[0], run / r.images[1]) for r in recs]
     for i, pid in enumerate(ids):
-        _check_pose_id(pid, f"{run / JOURNAL}: captured pose {i + 1}")
+        io.check_pose_id(pid, f"{run / JOURNAL}: captured pose {i + 1}")
     if q.ndim != 2 or not np.all(np.isfinite(q)):
         raise InputError(f"{run / JOURNAL}: captured joint angles are not all finite numbers")
     return ids, q, pan, time, np.full(len(ids), np.nan), files
 
 
-def _isnum(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
-
-
 @workers.owns_workers
 @lock.holds_outputs("vision measure", lambda a: [a.out or a.run_dir])
 def run_measure(args: argparse.Namespace) -> int:
-    """Measure every stored pair of a run folder and write its measurement CSV."""
-    import numpy as np
-
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station import formats
-    from quickhealth.station import vision_io as io
-    from quickhealth.vision.pose7d import PoseMeasurement, to_measurements
+    """Measure every stored pair of a run folder and write its measurement CSV
+    (:mod:`quickhealth.station.services.measuring`)."""
+    from ..formats import vision as io  # OpenCV
+    from ..services.measuring import StoredPair, measure_pairs, to_run_measurements
 
     run: Path = args.run_dir
     if not run.is_dir():
@@ -284,86 +176,52 @@ def run_measure(args: argparse.Namespace) -> int:
     )
     tpath = args.target or (run / "target.json" if (run / "target.json").exists() else None)
     target = io.read_target(tpath)
-    from_journal = (run / "journal.jsonl").is_file()
+    from_journal = (run / JOURNAL).is_file()
     if from_journal:
         ids, q, pan, time, temp, files = _read_journal(run)
     else:
-        ids, q, pan, time, temp = _read_index(run / "images" / "index.csv")
+        ids, q, pan, time, temp = io.read_image_index(run / "images" / "index.csv")
         files = [(run / "images" / f"{p}_left.png", run / "images" / f"{p}_right.png") for p in ids]
     if len(set(ids)) != len(ids):
         raise InputError(f"{run}: pose ids repeat; each pose needs its own id")
-    from quickhealth.station.fsio import refuse_overwriting_inputs
-
-    reads = [
-        cal if cal.exists() else None,
-        tpath,
-        run / "journal.jsonl",
-        run / "images" / "index.csv",
-    ]
+    reads = [cal if cal.exists() else None, tpath, run / JOURNAL, run / "images" / "index.csv"]
     refuse_overwriting_inputs(
         [("--out", args.out or run / "measurements.csv")],
         [p for p in reads if p is not None and Path(p).exists()] + [p for f in files for p in f],
     )
-    jobs = []
-    for k, pid in enumerate(ids):
-        for p in files[k]:
-            if not p.is_file():
-                raise InputError(f"{p}: missing image for pose {pid!r}")
-        jobs.append((
-            pid, str(files[k][0]), str(files[k][1]),
+    pairs = [
+        StoredPair(
+            pid, files[k][0], files[k][1],
             None if np.isnan(pan[k]) else float(pan[k]),
             None if np.isnan(time[k]) else float(time[k]),
-        ))  # fmt: skip
-    # every pair is measured before anything is written: an unreadable image stops the run
-    results: dict[str, Any] = {}
-    if args.jobs == 1:
-        _init_worker(rig, target)
-        it = map(_measure_one, jobs)
-        pool = None
-    else:
-        pool = workers.Pool(args.jobs, initializer=_init_worker, initargs=(rig, target))
-        it = pool.map(_measure_one, jobs, chunksize=4)
+        )
+        for k, pid in enumerate(ids)
+    ]  # fmt: skip
     try:
-        for k, (pid, res) in enumerate(it, start=1):
-            results[pid] = res
-            sys.stderr.write(f"\rmeasuring: {k}/{len(jobs)} pairs")
+        results = measure_pairs(
+            rig,
+            target,
+            pairs,
+            workers=args.jobs,
+            progress=lambda k, n: sys.stderr.write(f"\rmeasuring: {k}/{n} pairs"),
+        )
     finally:
         sys.stderr.write("\n")  # end the progress line (also before an error's one line)
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
-    if from_journal:
-        # as `quickhealth run` records it: the target frame at pan 0 (station/hardware/target.py)
-        from dataclasses import replace
-
-        from quickhealth.station.hardware.target import target0_from_plate
-
-        for pid, res in results.items():
-            if isinstance(res, PoseMeasurement) and res.pan is not None:
-                # right-multiplying by a rotation about the origin leaves (δt, ω) unchanged
-                results[pid] = replace(
-                    res, T_left_target=target0_from_plate(res.T_left_target, res.pan)
-                )
-    keep = [k for k, pid in enumerate(ids) if isinstance(results[pid], PoseMeasurement)]
-    rejected = [
-        f"{pid}: {results[pid].reason.value} ({results[pid].detail})"
-        for pid in ids
-        if not isinstance(results[pid], PoseMeasurement)
-    ]
-    if not keep:
-        raise InputError(
-            f"{run}: no pose measured in {len(ids)} pairs (first: {rejected[0] if rejected else '-'})"
-        )
     meta = {
         "instrument": "quickhealth 7D stereo camera",
         "calibration": str(cal if cal.exists() else "reference design"),
     }
-    if rejected:
-        meta["rejected"] = "; ".join(rejected)
-    meas = to_measurements(
-        q[keep], [results[ids[k]] for k in keep],
-        temp=None if np.all(np.isnan(temp)) else temp[keep],
-        pose_id=[ids[k] for k in keep], meta=meta,
-    )  # fmt: skip
+    try:
+        meas, rejected = to_run_measurements(
+            ids,
+            q,
+            results,
+            temp=None if np.all(np.isnan(temp)) else temp,
+            at_pan0=from_journal,  # as `quickhealth run` records it: the target frame at pan 0
+            meta=meta,
+        )
+    except InputError as exc:
+        raise InputError(f"{run}: {exc}") from None
     out = args.out or (run / "measurements.csv")
     if out.exists():  # re-measuring stored images replaces the run's measurements: say so
         fitted = (out.parent / "model.json").exists()
@@ -371,8 +229,8 @@ def run_measure(args: argparse.Namespace) -> int:
             f" ({out.parent / 'model.json'} was fitted to the old one: fit again)" if fitted else ""
         )
         print(f"replacing {out}{note}", file=sys.stderr)
-    formats.write_measurements(out, meas)
-    print(f"measured {len(keep)}/{len(ids)} poses; rejected {len(rejected)}; wrote {out}")
+    write_measurements(out, meas)
+    print(f"measured {meas.n_poses}/{len(ids)} poses; rejected {len(rejected)}; wrote {out}")
     for r in rejected:
         print(f"  rejected {r}")
     return 0

@@ -2,12 +2,16 @@
 
 - :mod:`.measurements`: measurement CSV v1 (CONTRACTS.md), and the meaning checks before a fit;
 - :mod:`.model`: model.json (``quickhealth.model/1``);
-- :mod:`.report`: report.json (``quickhealth.report/2``): schema, writer, reader, checker;
+- :mod:`.report`: report.json (``quickhealth.report/2``): content, schema, writer, reader, checker;
+- :mod:`.residuals`: residuals.csv (measured minus model per pose);
 - :mod:`.robot`: robot descriptions (``--robot``: built-in name, DH table TOML, URDF) and
   the controller calibration (``--calibration``: the UR ROS driver's kinematics YAML);
 - :mod:`.urscript`: URScript programs (joint targets for ``predict``, ``compensate``);
 - :mod:`.tracker`: laser-tracker exports of any column layout (``import tracker``, presets);
 - :mod:`.wam`: the Barrett WAM laser-tracker data set (the tracker importer's ``wam`` preset);
+- :mod:`.journal`: the run journal's records (typed in SI, stored in mm and degrees);
+- :mod:`.vision`: the 7D camera's files (images, CAL.json, target descriptions; OpenCV, so
+  imported by name, not re-exported here);
 - :mod:`.common`: what they share: the read limits and the one atomic write (``fsio``).
 
 Every unit conversion between the file boundary (mm, degrees) and the library (m, rad)
@@ -58,8 +62,13 @@ from .report import (
     WORKSPACE_KEYS,
     check_report,
     read_report,
+    report_of,
+    trend_to_json,
+    with_sections,
     write_report,
+    write_report_json,
 )
+from .residuals import residual_table
 from .robot import (
     BUILTIN_ROBOTS,
     calibrated_robot,
@@ -121,10 +130,15 @@ __all__ = [
     "read_urscript",
     "read_urscript_joints",
     "read_wam_csv",
+    "report_of",
+    "residual_table",
     "robot_from_json",
     "robot_to_json",
+    "trend_to_json",
+    "with_sections",
     "write_measurements",
     "write_model",
     "write_report",
+    "write_report_json",
     "write_text_atomic",
 ]

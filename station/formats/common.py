@@ -19,8 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from quickhealth.identify.errors import InputError
-
+from ...identify.errors import InputError
 from ..fsio import write_atomic
 
 MiB = 1 << 20

@@ -9,16 +9,19 @@ from typing import Any
 
 import numpy as np
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.sanity import check_plausible
-
+from ...identify.effects import parse_effects
+from ...identify.errormodel import ErrorModelSpec
+from ...identify.errors import InputError
+from ...identify.fit import FittedModel, InstrumentNoise, ParameterPrior
+from ...identify.sanity import check_plausible
+from ..provenance import provenance
 from .common import load_json_limited, write_text_atomic
 from .robot import check_robot, robot_from_json, robot_to_json
 
 MODEL_SCHEMA = "quickhealth.model/1"
 
 
-def model_to_json(fitted: Any) -> dict[str, Any]:
+def model_to_json(fitted: FittedModel) -> dict[str, Any]:
     """JSON document of a :class:`~quickhealth.identify.fit.FittedModel` (schema-versioned)."""
     spec = fitted.spec
     return {
@@ -77,11 +80,8 @@ def model_to_json(fitted: Any) -> dict[str, Any]:
     }
 
 
-def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
+def model_from_json(doc: dict[str, Any], name: str = "model.json") -> FittedModel:
     """A :class:`~quickhealth.identify.fit.FittedModel` from its JSON document."""
-    from quickhealth.identify.effects import parse_effects
-    from quickhealth.identify.errormodel import ErrorModelSpec
-    from quickhealth.identify.fit import FittedModel, InstrumentNoise, ParameterPrior
 
     if not isinstance(doc, dict) or doc.get("schema") != MODEL_SCHEMA:
         got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
@@ -133,7 +133,7 @@ def model_from_json(doc: dict[str, Any], name: str = "model.json") -> Any:
         raise InputError(f"{name}: model file is incomplete or damaged: {what}") from None
 
 
-def check_model(fm: Any, name: str) -> None:
+def check_model(fm: FittedModel, name: str) -> None:
     """Meaning of a model: coefficient count, finite numbers, ranges, and a TCP correction a
     real robot can have (:func:`~quickhealth.identify.sanity.check_plausible`).
 
@@ -195,15 +195,14 @@ def check_model(fm: Any, name: str) -> None:
         raise InputError(f"{exc}: refusing the model") from None
 
 
-def write_model(path: str | os.PathLike[str], fitted: Any) -> None:
+def write_model(path: str | os.PathLike[str], fitted: FittedModel) -> None:
     """Write model.json (JSON only; never pickle), with the writer's ``provenance``."""
-    from ..provenance import provenance
 
     doc = {**model_to_json(fitted), "provenance": provenance()}
     write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
 
 
-def read_model(path: str | os.PathLike[str]) -> Any:
+def read_model(path: str | os.PathLike[str]) -> FittedModel:
     """Read model.json back into a FittedModel."""
     p = Path(path)
     # binary files (e.g. a pickle) are refused as not UTF-8: never loaded as code

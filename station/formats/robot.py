@@ -40,8 +40,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import (
+from ...identify.errors import InputError
+from ...identify.robot import (
     BUILTIN_ROBOTS,
     Nominal,
     RobotModel,
@@ -49,8 +49,7 @@ from quickhealth.identify.robot import (
     from_dh,
     with_kinematics,
 )
-from quickhealth.identify.ur_calibration import KEYS, SEGMENTS, UrKinematics
-
+from ...identify.ur_calibration import KEYS, SEGMENTS, UrKinematics
 from .common import read_text_limited
 
 F = NDArray[np.float64]
@@ -314,7 +313,7 @@ def read_urdf(path: str | os.PathLike[str]) -> RobotModel:
     rotation ``R_a`` with ``R_a ẑ = a`` so the joint is ``Rz(θ)`` as the error model expects.
     The flange is the last joint's frame.
     """
-    import pinocchio as pin
+    import pinocchio as pin  # a URDF file only (seconds to load): built-in robots need none
 
     p = Path(path)
     read_text_limited(p, "robot")  # size, regular file, UTF-8 before pinocchio sees it

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-
+from ...identify.errors import InputError
+from ...identify.urscript import joint_targets
 from .common import findings, read_text_limited
 
 F = NDArray[np.float64]
@@ -29,7 +29,6 @@ def read_urscript(path: str | os.PathLike[str], n_joints: int) -> tuple[str, Any
         Missing or binary file, a program that does not tokenize, unreadable targets, no
         target at all.
     """
-    from quickhealth.identify.urscript import joint_targets
 
     p = Path(path)
     text = read_text_limited(p, "program")

@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import os
 
-from quickhealth.identify.measurements import Measurements
-
+from ...identify.measurements import Measurements
 from .tracker import PRESETS, layout_with, read_tracker
 
 

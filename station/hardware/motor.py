@@ -33,7 +33,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
-from quickhealth.identify.errors import HardwareError
+from ...identify.errors import HardwareError
 
 HEADER = b"\xaa\x55"
 CMD_PING = 0x01

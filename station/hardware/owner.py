@@ -34,7 +34,7 @@ from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
 
-from quickhealth.identify.errors import HardwareError
+from ...identify.errors import HardwareError
 
 
 class _Job:

@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import RobotModel, ur5
-from quickhealth.identify.transforms import inv_T, make_T, rpy_to_R
+from ...identify.errors import InputError
+from ...identify.robot import RobotModel, ur5
+from ...identify.transforms import inv_T, make_T, rpy_to_R
 
 F = NDArray[np.float64]
 
@@ -320,8 +320,47 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         raise top.err("schema", f"expected {SCHEMA!r}, got {schema!r}")
     name = top.text("name", pattern=r"[A-Za-z0-9_\-]{1,64}")
     top.text("description", "", pattern=r"[^\x00-\x1f\x7f]{0,500}")
+    robot, T_world_base, home = _robot(top.sub("robot"))
+    top_z, tmin, tmax, thick = _table(top.sub("table"))
+    wmin, wmax, spread = _workspace(top.sub("workspace"), top_z)
+    T_flange_target, pan, facing, bsize, T_target_body = _target(top.sub("target"))
+    cam, Tc = _camera(top.sub("camera"))
+    obstacles = _obstacles(top, label)
+    motion = _motion(top.sub("motion"))
+    planner = _planner(top.sub("planner") if top.has("planner") else _Tab({}, label, "planner."))
+    top.done()
 
-    rt = top.sub("robot")
+    return Cell(
+        name=name,
+        source=label,
+        sha256=sha,
+        robot=robot,
+        T_world_base=T_world_base,
+        table_top_z=top_z,
+        table_min_xy=tmin,
+        table_max_xy=tmax,
+        table_thickness=thick,
+        work_min=wmin,
+        work_max=wmax,
+        orientation_spread=spread,
+        T_flange_target=T_flange_target,
+        pan_min=math.radians(pan[0]),
+        pan_max=math.radians(pan[1]),
+        facing_max=facing,
+        target_body_size=bsize,
+        T_target_body=T_target_body,
+        camera=cam,
+        T_world_cam_left=Tc[0],
+        T_world_cam_right=Tc[1],
+        obstacles=tuple(obstacles),
+        motion=motion,
+        planner=planner,
+        home=home,
+    )
+
+
+def _robot(rt: _Tab) -> tuple[RobotModel, F, F | None]:
+    """The ``[robot]`` table: the model with the cell's planning limits, its base, home."""
     model = rt.text("model")
     if model not in ROBOTS:
         raise rt.err("model", f"unknown robot {model!r} (known: {', '.join(sorted(ROBOTS))})")
@@ -339,9 +378,11 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         if np.any(home < qlo - 1e-9) or np.any(home > qhi + 1e-9):
             raise rt.err("home_deg", "outside the planning limits q_min_deg..q_max_deg")
     rt.done()
-    robot = replace(robot, q_min=qlo, q_max=qhi)
+    return replace(robot, q_min=qlo, q_max=qhi), T_world_base, home
 
-    tt = top.sub("table")
+
+def _table(tt: _Tab) -> tuple[float, F, F, float]:
+    """The ``[table]`` table: top height, extent and thickness (m)."""
     top_z = tt.num("top_z_mm") / 1000.0
     tmin = tt.vec("min_xy_mm", 2) / 1000.0
     tmax = tt.vec("max_xy_mm", 2) / 1000.0
@@ -349,8 +390,11 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
     if np.any(tmax <= tmin):
         raise tt.err("max_xy_mm", "must exceed min_xy_mm on both axes")
     tt.done()
+    return top_z, tmin, tmax, thick
 
-    wt = top.sub("workspace")
+
+def _workspace(wt: _Tab, top_z: float) -> tuple[F, F, float]:
+    """The ``[workspace]`` table: the box of target positions (m) and the orientation spread."""
     wmin = wt.vec("min_mm", 3) / 1000.0
     wmax = wt.vec("max_mm", 3) / 1000.0
     spread = math.radians(wt.num("orientation_spread_deg", 30.0, lo=0.0, hi=180.0))
@@ -361,8 +405,11 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
             "min_mm", f"z = {wmin[2] * 1000:g} mm is not above the table top ({top_z * 1000:g} mm)"
         )
     wt.done()
+    return wmin, wmax, spread
 
-    gt = top.sub("target")
+
+def _target(gt: _Tab) -> tuple[F, F, float, F, F]:
+    """The ``[target]`` table: its mount, pan range (deg), facing limit, body and its frame."""
     T_flange_target = _pose(gt, "xyz_mm", "rpy_deg")
     pan = gt.vec("pan_range_deg", 2, [-90.0, 90.0])
     if not -180.0 <= pan[0] <= pan[1] <= 180.0:
@@ -373,8 +420,11 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         raise gt.err("body_size_mm", "every edge must be > 0")
     T_target_body = make_T(np.eye(3), gt.vec("body_center_mm", 3, [0.0, 0.0, 0.0]) / 1000.0)
     gt.done()
+    return T_flange_target, pan, facing, bsize, T_target_body
 
-    ct = top.sub("camera")
+
+def _camera(ct: _Tab) -> tuple[Camera, list[F]]:
+    """The ``[camera]`` table: the pinhole model and where the left and right cameras are."""
     w = ct.integer("width_px", lo=16, hi=100000)
     h = ct.integer("height_px", lo=16, hi=100000)
     cam = Camera(
@@ -405,7 +455,11 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
     ct.done()
     if np.linalg.norm(Tc[0][:3, 3] - Tc[1][:3, 3]) < 1e-3:
         raise ct.err("right.position_mm", "both cameras at the same place (zero baseline)")
+    return cam, Tc
 
+
+def _obstacles(top: _Tab, label: str) -> list[Obstacle]:
+    """The ``[[obstacle]]`` tables: boxes and cylinders, each with a unique name."""
     obstacles = []
     raw_obs = top.get("obstacle", [])
     if not isinstance(raw_obs, list):
@@ -431,8 +485,11 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         else:
             raise ot.err("shape", f"expected 'box' or 'cylinder', got {shape!r}")
         ot.done()
+    return obstacles
 
-    mt = top.sub("motion")
+
+def _motion(mt: _Tab) -> Motion:
+    """The ``[motion]`` table: speeds, accelerations, settle time, the RTDE handshake."""
     motion = Motion(
         linear_speed=mt.num("linear_speed_mm_s", lo=1.0, hi=1000.0) / 1000.0,
         linear_accel=mt.num("linear_accel_mm_s2", lo=1.0, hi=5000.0) / 1000.0,
@@ -449,8 +506,11 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
             "RTDE leaves registers 24-47 to external clients; use 24-47 or 0 (none)",
         )
     mt.done()
+    return motion
 
-    pt = top.sub("planner") if top.has("planner") else _Tab({}, label, "planner.")
+
+def _planner(pt: _Tab) -> PlannerSettings:
+    """The optional ``[planner]`` table: clearances, leg steps, bins, lines of sight."""
     planner = PlannerSettings(
         clearance=pt.num("clearance_mm", 10.0, lo=0.0, hi=500.0) / 1000.0,
         leg_step=pt.num("leg_step_mm", 10.0, lo=0.5, hi=100.0) / 1000.0,
@@ -463,32 +523,4 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         linear_preference=pt.num("linear_preference", 3.0, lo=0.0, hi=1000.0),
     )
     pt.done()
-    top.done()
-
-    return Cell(
-        name=name,
-        source=label,
-        sha256=sha,
-        robot=robot,
-        T_world_base=T_world_base,
-        table_top_z=top_z,
-        table_min_xy=tmin,
-        table_max_xy=tmax,
-        table_thickness=thick,
-        work_min=wmin,
-        work_max=wmax,
-        orientation_spread=spread,
-        T_flange_target=T_flange_target,
-        pan_min=math.radians(pan[0]),
-        pan_max=math.radians(pan[1]),
-        facing_max=facing,
-        target_body_size=bsize,
-        T_target_body=T_target_body,
-        camera=cam,
-        T_world_cam_left=Tc[0],
-        T_world_cam_right=Tc[1],
-        obstacles=tuple(obstacles),
-        motion=motion,
-        planner=planner,
-        home=home,
-    )
+    return planner

@@ -30,9 +30,9 @@ import fcl
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.transforms import make_T, rot_z, rpy_to_R
-
+from ...identify.errors import InputError
+from ...identify.robot import ur5
+from ...identify.transforms import make_T, rot_z, rpy_to_R
 from .cell import Cell, Obstacle
 
 F = NDArray[np.float64]
@@ -413,8 +413,6 @@ def _beam(a: F, b: F, radius: float) -> fcl.CollisionObject | None:
 @lru_cache(maxsize=1)
 def _T_tool0_flange_cached() -> bytes:
     """Constant transform from URDF tool0 to the DH flange (computed from both models)."""
-    from quickhealth.identify.robot import ur5
-
     q = np.array([[0.3, -1.1, 1.4, -0.7, 0.9, 0.5]])
     T_flange = ur5().fk(q)[0]
     T_tool0 = tool0_frames(q)[0]

@@ -19,7 +19,7 @@ from .planner import DropReason, PlanResult
 
 def write_figures(res: PlanResult, out_dir: Path) -> list[Path]:
     """Write the Fig. 6 plots into ``out_dir``; returns their paths."""
-    import matplotlib
+    import matplotlib  # only when a plan is written: the planner itself draws nothing
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

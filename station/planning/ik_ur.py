@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import RobotModel
+from ...identify.errors import InputError
+from ...identify.robot import RobotModel
 
 F = NDArray[np.float64]
 B = NDArray[np.bool_]

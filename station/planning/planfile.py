@@ -12,17 +12,16 @@ import hashlib
 import json
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import RobotModel
-from quickhealth.identify.transforms import R_to_rpy, exp_so3, log_so3, make_T
-
+from ...identify.errors import InputError
+from ...identify.robot import RobotModel
+from ...identify.transforms import R_to_rpy, exp_so3, log_so3, make_T
 from ..hardware.legs import Leg
 from .cell import ROBOTS, Motion
 from .planner import DropReason, PlanResult
@@ -207,6 +206,22 @@ def dumps(doc: dict[str, Any]) -> str:
     return json.dumps(doc, indent=1, ensure_ascii=False, allow_nan=False) + "\n"
 
 
+def plan_joints(path: str | Path) -> F | None:
+    """The commanded joints of a plan.json (rad, plan order), None when the file is missing or
+    holds no poses; for reading a run's plan without validating it whole (the report)."""
+    p = Path(path)
+    if not p.is_file():
+        return None
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
+    poses = doc.get("poses") if isinstance(doc, dict) else None
+    if not isinstance(poses, list) or not poses:
+        return None
+    return np.radians(np.array([q["q_deg"] for q in poses], dtype=float))
+
+
 def load_plan(path: str | Path) -> Plan:
     """Load and validate a plan file.
 
@@ -240,7 +255,7 @@ def _err(label: str, key: str, what: str) -> InputError:
     return InputError(f"{label}: {key}: {what}")
 
 
-def _num(label: str, key: str, v: Any, lo: float = -math.inf, hi: float = math.inf) -> float:
+def _num(label: str, key: str, v: object, lo: float = -math.inf, hi: float = math.inf) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
         raise _err(label, key, f"expected a finite number, got {v!r:.40}")
     if not lo <= v <= hi:
@@ -248,19 +263,19 @@ def _num(label: str, key: str, v: Any, lo: float = -math.inf, hi: float = math.i
     return float(v)
 
 
-def _int(label: str, key: str, v: Any, lo: int, hi: int) -> int:
+def _int(label: str, key: str, v: object, lo: int, hi: int) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
         raise _err(label, key, f"expected an integer in [{lo}, {hi}], got {v!r:.40}")
     return int(v)
 
 
-def _vec(label: str, key: str, v: Any, n: int) -> F:
+def _vec(label: str, key: str, v: object, n: int) -> F:
     if not isinstance(v, list) or len(v) != n:
         raise _err(label, key, f"expected a list of {n} numbers")
     return np.array([_num(label, f"{key}[{i}]", x) for i, x in enumerate(v)])
 
 
-def _mat(label: str, key: str, v: Any) -> F:
+def _mat(label: str, key: str, v: object) -> F:
     if not isinstance(v, list) or len(v) != 4:
         raise _err(label, key, "expected a 4×4 matrix")
     M = np.array([_vec(label, f"{key}[{i}]", r, 4) for i, r in enumerate(v)])
@@ -271,13 +286,13 @@ def _mat(label: str, key: str, v: Any) -> F:
     return M
 
 
-def _obj(label: str, key: str, v: Any) -> dict[str, Any]:
+def _obj(label: str, key: str, v: object) -> dict[str, Any]:
     if not isinstance(v, dict):
         raise _err(label, key, "expected an object")
     return v
 
 
-def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
+def plan_from_dict(doc: object, label: str = "plan") -> Plan:
     """Validate a plan document (as parsed from JSON) into a :class:`Plan`; see :func:`load_plan`."""
     doc = _obj(label, "(top)", doc)
     if doc.get("schema") != SCHEMA:
@@ -292,7 +307,41 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
     csha = cell.get("sha256")
     if not isinstance(csha, str) or not re.fullmatch(r"[0-9a-f]{64}", csha):
         raise _err(label, "cell.sha256", "missing or not 64 hex digits")
-    rob = _obj(label, "robot", doc.get("robot"))
+    robot, home = _robot(label, _obj(label, "robot", doc.get("robot")))
+    fr = _obj(label, "frames", doc.get("frames"))
+    T_ft = _mat(label, "frames.T_flange_target_mm", fr.get("T_flange_target_mm"))
+    T_wb = _mat(label, "frames.T_world_base_mm", fr.get("T_world_base_mm"))
+    motion = _motion(label, _obj(label, "motion", doc.get("motion")))
+    poses = _poses(label, doc.get("poses"), robot, T_ft)
+    ret = doc.get("return_leg")
+    if ret not in ("linear", "joint"):
+        raise _err(label, "return_leg", f"expected 'linear' or 'joint', got {str(ret)[:40]!r}")
+    dropped = _dropped(label, doc.get("dropped", []))
+    summary = _obj(label, "summary", doc.get("summary", {}))
+    if content_hash(doc) != h:
+        raise _err(
+            label, "hash", "content does not match its hash (the plan was edited after planning)"
+        )
+    return Plan(
+        hash=h,
+        source=label,
+        cell_name=cname,
+        cell_sha256=csha,
+        robot=robot,
+        poses=tuple(poses),
+        return_leg=Leg(ret),
+        motion=motion,
+        T_flange_target=T_ft,
+        T_world_base=T_wb,
+        dropped=tuple(dropped),
+        summary=summary,
+        document=doc,
+        home=home,
+    )
+
+
+def _robot(label: str, rob: dict[str, Any]) -> tuple[RobotModel, F | None]:
+    """The plan's robot with its planning limits, and its home (rad)."""
     model = rob.get("model")
     if model not in ROBOTS:
         raise _err(
@@ -303,46 +352,42 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
     qhi = np.radians(_vec(label, "robot.q_max_deg", rob.get("q_max_deg"), robot.n_joints))
     if np.any(qlo < robot.q_min - 1e-9) or np.any(qhi > robot.q_max + 1e-9) or np.any(qhi <= qlo):
         raise _err(label, "robot.q_min_deg", f"limits outside the {model}'s own or empty")
-    from dataclasses import replace
-
     robot = replace(robot, q_min=qlo, q_max=qhi)
     home = None
     if rob.get("home_deg") is not None:
         home = np.radians(_vec(label, "robot.home_deg", rob.get("home_deg"), robot.n_joints))
         if np.any(home < qlo - 1e-9) or np.any(home > qhi + 1e-9):
             raise _err(label, "robot.home_deg", "outside the joint limits")
-    fr = _obj(label, "frames", doc.get("frames"))
-    T_ft = _mat(label, "frames.T_flange_target_mm", fr.get("T_flange_target_mm"))
-    T_wb = _mat(label, "frames.T_world_base_mm", fr.get("T_world_base_mm"))
-    mo = _obj(label, "motion", doc.get("motion"))
+    return robot, home
+
+
+def _motion(label: str, mo: dict[str, Any]) -> Motion:
+    """The plan's motion settings (SI)."""
     reg = _int(label, "motion.handshake_register", mo.get("handshake_register"), 0, 47)
     if 0 < reg < 24:
         raise _err(label, "motion.handshake_register", "must be 0 or 24-47")
-    motion = Motion(
-        linear_speed=_num(
-            label, "motion.linear_speed_mm_s", mo.get("linear_speed_mm_s"), 1.0, 1000.0
-        )
-        / 1000.0,
-        linear_accel=_num(
-            label, "motion.linear_accel_mm_s2", mo.get("linear_accel_mm_s2"), 1.0, 5000.0
-        )
-        / 1000.0,
-        joint_speed=math.radians(
-            _num(label, "motion.joint_speed_deg_s", mo.get("joint_speed_deg_s"), 1.0, 180.0)
-        ),
-        joint_accel=math.radians(
-            _num(label, "motion.joint_accel_deg_s2", mo.get("joint_accel_deg_s2"), 1.0, 800.0)
-        ),
-        settle_s=_num(label, "motion.settle_s", mo.get("settle_s"), 0.0, 60.0),
+
+    def num(key: str, lo: float, hi: float) -> float:
+        return _num(label, f"motion.{key}", mo.get(key), lo, hi)
+
+    return Motion(
+        linear_speed=num("linear_speed_mm_s", 1.0, 1000.0) / 1000.0,
+        linear_accel=num("linear_accel_mm_s2", 1.0, 5000.0) / 1000.0,
+        joint_speed=math.radians(num("joint_speed_deg_s", 1.0, 180.0)),
+        joint_accel=math.radians(num("joint_accel_deg_s2", 1.0, 800.0)),
+        settle_s=num("settle_s", 0.0, 60.0),
         handshake_register=reg,
-        measure_timeout_s=_num(
-            label, "motion.measure_timeout_s", mo.get("measure_timeout_s"), 0.1, 3600.0
-        ),
+        measure_timeout_s=num("measure_timeout_s", 0.1, 3600.0),
         passes=_int(label, "motion.passes", mo.get("passes"), 1, 100),
     )
-    raw_poses = doc.get("poses")
+
+
+def _poses(label: str, raw_poses: object, robot: RobotModel, T_ft: F) -> list[PlanPose]:
+    """The plan's poses, each checked: a unique name, joints inside the limits, a leg, a pan
+    angle, and a target the joints reach."""
     if not isinstance(raw_poses, list) or not raw_poses:
         raise _err(label, "poses", "expected a non-empty list")
+    qlo, qhi = robot.q_min, robot.q_max
     poses = []
     names: set[str] = set()
     for j, rp in enumerate(raw_poses):
@@ -386,10 +431,11 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
             )
         cand = _int(label, f"{key}.candidate", rp.get("candidate", -1), -1, 10**7)
         poses.append(PlanPose(name, j + 1, q, Leg(leg), pan, T_bt, cand))
-    ret = doc.get("return_leg")
-    if ret not in ("linear", "joint"):
-        raise _err(label, "return_leg", f"expected 'linear' or 'joint', got {str(ret)[:40]!r}")
-    dropped = doc.get("dropped", [])
+    return poses
+
+
+def _dropped(label: str, dropped: object) -> list[object]:
+    """The plan's dropped candidates, each with a known reason."""
     if not isinstance(dropped, list):
         raise _err(label, "dropped", "expected a list")
     reasons = {r.value for r in DropReason}
@@ -399,24 +445,4 @@ def plan_from_dict(doc: Any, label: str = "plan") -> Plan:
             raise _err(
                 label, f"dropped[{j}].reason", f"unknown reason {str(d.get('reason'))[:40]!r}"
             )
-    summary = _obj(label, "summary", doc.get("summary", {}))
-    if content_hash(doc) != h:
-        raise _err(
-            label, "hash", "content does not match its hash (the plan was edited after planning)"
-        )
-    return Plan(
-        hash=h,
-        source=label,
-        cell_name=cname,
-        cell_sha256=csha,
-        robot=robot,
-        poses=tuple(poses),
-        return_leg=Leg(ret),
-        motion=motion,
-        T_flange_target=T_ft,
-        T_world_base=T_wb,
-        dropped=tuple(dropped),
-        summary=summary,
-        document=doc,
-        home=home,
-    )
+    return dropped

@@ -37,14 +37,13 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.transforms import exp_so3, inv_T, log_so3, make_T
-
+from ...identify.errors import InputError
+from ...identify.transforms import exp_so3, inv_T, log_so3, make_T
 from ..hardware.legs import Leg
 from .cell import Cell
 from .collision import CollisionWorld
 from .ik_ur import ik_ur, within_limits
-from .sight import pose_sight, robot_blockers, static_blockers
+from .sight import PoseSight, pose_sight, robot_blockers, static_blockers
 
 F = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
@@ -272,54 +271,7 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
     sight = pose_sight(cell, T_wt)
     p_world = T_wt[:, :3, 3]
 
-    reason: list[tuple[DropReason, str] | None] = [None] * n
-    for i in range(n):
-        if not valid[i].any():
-            reason[i] = (DropReason.UNREACHABLE, "no inverse-kinematics solution")
-        elif not inlim[i].any():
-            reason[i] = (
-                DropReason.JOINT_LIMITS,
-                f"all {int(valid[i].sum())} IK solutions outside the planning limits",
-            )
-        elif not sight.in_fov[i].all():
-            sides = [s for s, ok in zip(("left", "right"), sight.in_fov[i], strict=True) if not ok]
-            reason[i] = (
-                DropReason.OUTSIDE_FOV,
-                f"outside the {' and '.join(sides)} camera's image",
-            )
-        elif not sight.facing_ok[i]:
-            f = np.degrees(sight.facing[i])
-            reason[i] = (
-                DropReason.NOT_FACING,
-                f"marker turned {f.max():.0f}° from a camera (max {math.degrees(cell.facing_max):.0f}°)",
-            )
-    todo = [i for i in range(n) if reason[i] is None]
-    blk = static_blockers(world, p_world[todo]) if todo else []
-    for i, b in zip(todo, blk, strict=True):
-        if b is not None:
-            reason[i] = (DropReason.OCCLUDED, f"line of sight blocked by {b}")
-    # per-configuration checks: collisions and self-occlusion
-    feasible = np.zeros((n, 8), dtype=bool)
-    todo = [i for i in range(n) if reason[i] is None]
-    for c, i in enumerate(todo):
-        progress("checking targets", c, len(todo))
-        ks = np.flatnonzero(inlim[i])
-        hits = world.contacts(Q[i, ks])
-        free = [k for k, h in zip(ks, hits, strict=True) if not h]
-        if not free:
-            reason[i] = (
-                DropReason.COLLISION,
-                f"every in-limit IK solution collides ({hits[0][0]})",
-            )
-            continue
-        bl = robot_blockers(world, Q[i, free], np.repeat(p_world[i][None], len(free), 0))
-        seen = [k for k, b in zip(free, bl, strict=True) if b is None]
-        if not seen:
-            reason[i] = (DropReason.OCCLUDED, f"the robot hides the target ({bl[0]})")
-            continue
-        feasible[i, seen] = True
-    progress("checking targets", len(todo), len(todo))
-
+    reason, feasible = _feasible(cell, world, Q, valid, inlim, sight, p_world, progress)
     alive = np.flatnonzero(feasible.any(1))
     dropped = [
         DroppedTarget(i, r[0], r[1], T_wt[i]) for i in range(n) if (r := reason[i]) is not None
@@ -342,47 +294,9 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
     if cell.home is not None:
         tour, first_k, first_t = _start_from_home(cell, world, Q, feasible, tour)
 
-    # steps 4-5: legs and configurations
+    # steps 4-5: legs and configurations; the return leg closes the loop
     walker = _Walker(cell, world, Q, feasible, T_bt, usable_min, usable_max)
-    kept: list[tuple[int, int, Leg, float]] = []
-    for step, i in enumerate(tour):
-        progress("checking legs", step, len(tour))
-        if step == 0 and first_k is not None:
-            choice: tuple[int, int, Leg, float] | None = (i, first_k, Leg.JOINT, first_t)
-        else:
-            choice = walker.choose(i, kept[-1] if kept else None)
-        if choice is None:
-            dropped.append(
-                DroppedTarget(
-                    i,
-                    DropReason.NO_FEASIBLE_LEG,
-                    "neither a linear nor a joint-space leg is collision-free",
-                    T_wt[i],
-                )
-            )
-            continue
-        kept.append(choice)
-        walker.add(choice)
-    progress("checking legs", len(tour), len(tour))
-    # the return leg closes the loop; drop trailing poses until it is feasible
-    ret: tuple[Leg, float] | None = None
-    while len(kept) > 1:
-        ret = walker.leg(kept[-1], kept[0][0], kept[0][1])
-        if ret is not None:
-            break
-        i_last = kept.pop()[0]
-        walker.remove(i_last)
-        dropped.append(
-            DroppedTarget(
-                i_last,
-                DropReason.NO_FEASIBLE_LEG,
-                "no collision-free return leg to the first pose",
-                T_wt[i_last],
-            )
-        )
-    if ret is None:
-        ret = (Leg.JOINT, 0.0)
-
+    kept, ret = _legs(walker, tour, (first_k, first_t), T_wt, dropped, progress)
     poses = []
     for j, (i, k, leg, t) in enumerate(kept):
         poses.append(
@@ -706,3 +620,121 @@ def _sweep(qs: F, clearance: float) -> F:
         s = np.arange(1, k + 1)[:, None] / k
         parts.append(a + s * (b - a))
     return np.concatenate(parts)
+
+
+def _feasible(
+    cell: Cell,
+    world: CollisionWorld,
+    Q: F,
+    valid: NDArray[np.bool_],
+    inlim: NDArray[np.bool_],
+    sight: PoseSight,
+    p_world: F,
+    progress: Progress,
+) -> tuple[list[tuple[DropReason, str] | None], NDArray[np.bool_]]:
+    """Step 2: why each target is dropped (None: kept), and which of its IK configurations
+    (n, 8) are collision-free and see the target."""
+    n = len(Q)
+    reason: list[tuple[DropReason, str] | None] = [None] * n
+    for i in range(n):
+        if not valid[i].any():
+            reason[i] = (DropReason.UNREACHABLE, "no inverse-kinematics solution")
+        elif not inlim[i].any():
+            reason[i] = (
+                DropReason.JOINT_LIMITS,
+                f"all {int(valid[i].sum())} IK solutions outside the planning limits",
+            )
+        elif not sight.in_fov[i].all():
+            sides = [s for s, ok in zip(("left", "right"), sight.in_fov[i], strict=True) if not ok]
+            reason[i] = (
+                DropReason.OUTSIDE_FOV,
+                f"outside the {' and '.join(sides)} camera's image",
+            )
+        elif not sight.facing_ok[i]:
+            f = np.degrees(sight.facing[i])
+            reason[i] = (
+                DropReason.NOT_FACING,
+                f"marker turned {f.max():.0f}° from a camera (max {math.degrees(cell.facing_max):.0f}°)",
+            )
+    todo = [i for i in range(n) if reason[i] is None]
+    blk = static_blockers(world, p_world[todo]) if todo else []
+    for i, b in zip(todo, blk, strict=True):
+        if b is not None:
+            reason[i] = (DropReason.OCCLUDED, f"line of sight blocked by {b}")
+    # per-configuration checks: collisions and self-occlusion
+    feasible = np.zeros((n, 8), dtype=bool)
+    todo = [i for i in range(n) if reason[i] is None]
+    for c, i in enumerate(todo):
+        progress("checking targets", c, len(todo))
+        ks = np.flatnonzero(inlim[i])
+        hits = world.contacts(Q[i, ks])
+        free = [k for k, h in zip(ks, hits, strict=True) if not h]
+        if not free:
+            reason[i] = (
+                DropReason.COLLISION,
+                f"every in-limit IK solution collides ({hits[0][0]})",
+            )
+            continue
+        bl = robot_blockers(world, Q[i, free], np.repeat(p_world[i][None], len(free), 0))
+        seen = [k for k, b in zip(free, bl, strict=True) if b is None]
+        if not seen:
+            reason[i] = (DropReason.OCCLUDED, f"the robot hides the target ({bl[0]})")
+            continue
+        feasible[i, seen] = True
+    progress("checking targets", len(todo), len(todo))
+
+    return reason, feasible
+
+
+def _legs(
+    walker: _Walker,
+    tour: list[int],
+    first: tuple[int | None, float],
+    T_wt: F,
+    dropped: list[DroppedTarget],
+    progress: Progress,
+) -> tuple[list[tuple[int, int, Leg, float]], tuple[Leg, float]]:
+    """Steps 4-5: a leg and configuration for each target of the tour (``first``: the first
+    pose's configuration and time from home, if fixed), then the return leg, dropping
+    trailing poses until it is feasible; the dropped targets are added to ``dropped``."""
+    first_k, first_t = first
+    kept: list[tuple[int, int, Leg, float]] = []
+    for step, i in enumerate(tour):
+        progress("checking legs", step, len(tour))
+        if step == 0 and first_k is not None:
+            choice: tuple[int, int, Leg, float] | None = (i, first_k, Leg.JOINT, first_t)
+        else:
+            choice = walker.choose(i, kept[-1] if kept else None)
+        if choice is None:
+            dropped.append(
+                DroppedTarget(
+                    i,
+                    DropReason.NO_FEASIBLE_LEG,
+                    "neither a linear nor a joint-space leg is collision-free",
+                    T_wt[i],
+                )
+            )
+            continue
+        kept.append(choice)
+        walker.add(choice)
+    progress("checking legs", len(tour), len(tour))
+    # the return leg closes the loop; drop trailing poses until it is feasible
+    ret: tuple[Leg, float] | None = None
+    while len(kept) > 1:
+        ret = walker.leg(kept[-1], kept[0][0], kept[0][1])
+        if ret is not None:
+            break
+        i_last = kept.pop()[0]
+        walker.remove(i_last)
+        dropped.append(
+            DroppedTarget(
+                i_last,
+                DropReason.NO_FEASIBLE_LEG,
+                "no collision-free return leg to the first pose",
+                T_wt[i_last],
+            )
+        )
+    if ret is None:
+        ret = (Leg.JOINT, 0.0)
+
+    return kept, ret

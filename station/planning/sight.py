@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.transforms import inv_T
-
+from ...identify.transforms import inv_T
 from .cell import Camera, Cell
 from .collision import CollisionWorld
 

@@ -30,9 +30,8 @@ import re
 
 import numpy as np
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.transforms import log_so3
-
+from ...identify.errors import InputError
+from ...identify.transforms import log_so3
 from ..hardware.legs import Leg
 from .planfile import HASH_RE, NAME_RE, Plan
 

@@ -7,7 +7,9 @@ emulator on a pseudo-terminal, and connects the *real* drivers to them:
 stereo camera renders what is really there: it asks the controller simulator for the arm's
 true target pose (the digital twin at the actual joints) and the motor emulator for the
 true pan angle.  :func:`sim_station` wraps it all in a run's
-:class:`~quickhealth.station.run.Station`.
+:class:`~quickhealth.station.run.Station`.  :func:`inprocess_sim_station` is the same cell in
+this process (the pure-Python :class:`~.fake_robot.FakeRobot` for the controller simulator):
+fast, for the TUI's tests and demos.
 
 The simulator uses the drivers, never the reverse: nothing in
 :mod:`quickhealth.station.hardware` or :mod:`quickhealth.station.run` imports this package.
@@ -21,20 +23,26 @@ SYNOPSIS
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
-from quickhealth.station.hardware.motor import SerialPanMotor
-from quickhealth.station.hardware.motor_emulator import MotorEmulator
-from quickhealth.station.hardware.robot import UrRobot
-from quickhealth.station.hardware.target import T_target_plate
-from quickhealth.station.hardware.world import SimWorld, build_world
-
+from ...identify.transforms import inv_T
+from ..hardware.cameras import StereoCamera
+from ..hardware.motor import PanMotor, SerialPanMotor
+from ..hardware.robot import Robot, UrRobot
+from ..hardware.target import T_target_plate
+from ..planning import load_cell
+from ..planning.cell import Cell
+from ..run import Station
+from .cameras import SimStereoCamera, scaled_rig
+from .fake_robot import FakeRobot
+from .motor_emulator import MotorEmulator
 from .process import SimControllerHandle, start_sim_controller
 from .wire import CONTROL_PORT
+from .world import SimWorld, build_world
 
 
 @dataclass
@@ -150,16 +158,13 @@ def sim_station(
     speed_factor: float = 1.0,
     degrade: dict[str, float] | None = None,
     camera_seed: int = 0,
-) -> tuple[Any, SimCell]:
+) -> tuple[Station, SimCell]:
     """A run's :class:`~quickhealth.station.run.Station` on the built-in simulated cell, and
     the :class:`SimCell` behind it.
 
     ``station.close()`` stops the simulators too.  ``degrade`` changes the twin's true
     error coefficients (``{"j2.ex.c0": 5e-4}``, m or rad): a worn robot for demos and tests.
     """
-    from quickhealth.station.planning import load_cell
-    from quickhealth.station.run import Station
-
     c = load_cell(cell)
     if q0_deg is None and getattr(c, "home", None) is not None:
         q0_deg = [float(v) for v in np.degrees(c.home)]
@@ -173,7 +178,7 @@ def sim_station(
         camera_seed=camera_seed,
     )
     w = sc.world
-    st = Station.on_simulated_world(
+    st = station_in_world(
         c,
         w,
         sc.robot,
@@ -183,3 +188,82 @@ def sim_station(
         closers=[sc.stop_simulators],
     )
     return st, sc
+
+
+def station_in_world(
+    cell: Cell,
+    world: SimWorld,
+    robot: Robot,
+    motor: PanMotor,
+    camera: StereoCamera,
+    *,
+    instrument: str = "simulated stereo camera",
+    robot_name: str = "sim-ur5",
+    closers: list[Callable[[], None]] | None = None,
+) -> Station:
+    """A run's :class:`~quickhealth.station.run.Station` in the simulated ``world`` of ``cell``.
+
+    The nominal geometry comes from the cell file; the target and the self-check board from
+    the world.  Used by ``--sim``, the TUI's in-process cell and the tests.
+    """
+    return Station(
+        robot=robot,
+        motor=motor,
+        camera=camera,
+        target=world.target,
+        T_instr_base=inv_T(cell.T_world_cam_left) @ cell.T_world_base,
+        T_flange_target=cell.T_flange_target,
+        board=world.board,
+        T_instr_board=world.T_instr_board,
+        cell_name=cell.name,
+        cell_sha256=cell.sha256,
+        instrument=instrument,
+        robot_name=robot_name,
+        closers=list(closers or []),
+    )
+
+
+def inprocess_sim_station(
+    cell_name: str = "reference",
+    *,
+    twin_seed: int = 1,
+    image_scale: float = 0.3,
+    time_scale: float = 20.0,
+) -> tuple[Station, Cell]:
+    """A run's :class:`~quickhealth.station.run.Station` on the simulated cell without the
+    controller subprocess.
+
+    FakeRobot (same motion model and faults as the controller simulator), the pan-motor
+    emulator behind the real serial driver, and simulated cameras that render the twin's
+    true plate pose at the robot's actual joints and the motor's true angle.
+    Returns ``(station, cell)``.
+    """
+    cell = load_cell(cell_name)
+    world = build_world(cell_name, twin_seed=twin_seed)
+    robot = FakeRobot(time_scale=time_scale, model=cell.robot)
+    emu = MotorEmulator().start()
+    try:
+        # The emulator answers from a thread of this process, which shares the interpreter with
+        # the UI and the renderer: give it the time a busy GIL can take.
+        motor = SerialPanMotor(emu.port, timeout=1.0)
+    except BaseException:
+        emu.stop()
+        raise
+
+    def scene() -> list[tuple[np.ndarray, Any]]:
+        pan = math.radians(emu.position_deg())
+        return [(world.T_instr_plate(robot.joints(), pan), world.target)]
+
+    camera = SimStereoCamera(
+        scaled_rig(world.rig, image_scale), scene, static=[(world.T_instr_board, world.board)]
+    )
+    hw = station_in_world(
+        cell,
+        world,
+        robot,
+        motor,
+        camera,
+        instrument=f"simulated stereo camera ({image_scale:g} × reference sensor)",
+        closers=[emu.stop, motor.close, camera.close, robot.close],
+    )
+    return hw, cell

@@ -284,7 +284,7 @@ def build_controller(
     The arm's kinematics are the twin's nominal robot (``world.twin.robot``: the cell's
     UR5 with its planning limits), which is what the controller reports and plans with.
     """
-    from quickhealth.station.hardware.world import build_world
+    from quickhealth.station.sim.world import build_world
 
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
     q0 = np.radians(q0_deg if q0_deg is not None else HOME_Q_DEG)
@@ -392,7 +392,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         sys.stderr.write(f"quickhealth: error: --host: {exc}\n")
         return 2
     from quickhealth.identify.errors import InputError
-    from quickhealth.station.hardware.world import parse_degradation
+    from quickhealth.station.sim.world import parse_degradation
 
     try:
         degrade = parse_degradation(getattr(args, "degrade", None))

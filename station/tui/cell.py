@@ -15,14 +15,20 @@ table the Run screen shows, and adds what a person at the station needs:
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
-from quickhealth.identify.errors import HardwareError, QuickhealthError
+import numpy as np
 
+from ...identify.errors import HardwareError, QuickhealthError
+from ..hardware.robot import Robot
+from ..journal import JOURNAL, JournalState, read_journal
+from ..planning.planfile import Plan
+from ..run import Progress, ProgressKind, RunSettings, preflight, run_plan
+from ..run import Station as Hardware
 from .views import CellState, Check, Connection, Fault, PoseStatus, Preflight, RunProgress
 
 WHAT_TO_DO = {
@@ -40,7 +46,7 @@ WHAT_TO_DO = {
 PREFLIGHT_ORDER = ("robot", "plan", "home", "cameras", "pan motor", "disk")
 
 
-def classify(robot: Any, message: str) -> Fault:
+def classify(robot: Robot, message: str) -> Fault:
     """What stopped the run, from the robot's own status (the message is kept as said)."""
     kind = "error"
     try:
@@ -76,15 +82,13 @@ class CellControl:
 
     def __init__(
         self,
-        station: Any,
-        plan: Any,
+        station: Hardware,
+        plan: Plan,
         run_dir: Path,
         *,
-        settings: Any = None,
+        settings: RunSettings | None = None,
         on_finished: Callable[[Path], None] | None = None,
     ) -> None:
-        from quickhealth.station.run import RunSettings
-
         self.station = station
         self.plan = plan
         self.run_dir = Path(run_dir)
@@ -132,8 +136,6 @@ class CellControl:
             out.append(Connection("stereo camera", "down", str(exc)))
         try:
             s.motor.ping()
-            import math
-
             out.append(
                 Connection(
                     "pan motor", "ok", f"answers, at {math.degrees(s.motor.position()):.1f}°"
@@ -145,9 +147,6 @@ class CellControl:
 
     def preflight(self) -> Preflight:
         """``station.run.preflight`` (it captures one frame, pings the motor; nothing moves)."""
-        from quickhealth.station.journal import JOURNAL
-        from quickhealth.station.run import preflight
-
         self.run_dir.mkdir(parents=True, exist_ok=True)
         resume = (self.run_dir / JOURNAL).is_file()
         remaining = sum(1 for p in self.plan.poses if p.index not in self._done_indices())
@@ -183,8 +182,6 @@ class CellControl:
 
     def _load_journal(self) -> None:
         """Statuses from an existing journal (a run continued after a restart of the TUI)."""
-        from quickhealth.station.journal import JOURNAL, read_journal
-
         for p in self.plan.poses:
             self._status[p.index] = PoseStatus(p.index - 1, p.name, "pending")
         path = self.run_dir / JOURNAL
@@ -195,24 +192,22 @@ class CellControl:
             for i in st.failed:
                 self._status[i] = self._from_journal(st, i)
 
-    def _from_journal(self, st: Any, index: int) -> PoseStatus:
+    def _from_journal(self, st: JournalState, index: int) -> PoseStatus:
         name = self._status[index].pose_id
         cap = st.captured.get(index)
         mea = st.measured.get(index)
         fail = st.failed.get(index)
-        q = tuple(float(v) for v in (cap or fail or {}).get("q_deg", ()))
-        markers = sum(cap.get("markers", ())) if cap else None
+        q_rad = cap.q if cap is not None else (fail.q if fail is not None else None)
+        q = () if q_rad is None else tuple(float(v) for v in np.degrees(q_rad))
+        markers = sum(cap.markers) if cap is not None else None
         if fail is not None:
-            return PoseStatus(index - 1, name, "failed", q, reason=str(fail.get("reason", "")))
+            return PoseStatus(index - 1, name, "failed", q, reason=fail.reason)
         if mea is None:
             return PoseStatus(index - 1, name, "measuring", q, markers)
-        if not mea.get("ok"):
-            return PoseStatus(
-                index - 1, name, "failed", q, markers, reason=str(mea.get("reason", ""))
-            )
-        return PoseStatus(
-            index - 1, name, "done", q, markers, float(mea.get("rms_px", float("nan")))
-        )
+        if not mea.ok:
+            return PoseStatus(index - 1, name, "failed", q, markers, reason=mea.reason)
+        rms = float("nan") if mea.rms_px is None else float(mea.rms_px)
+        return PoseStatus(index - 1, name, "done", q, markers, rms)
 
     def pose_table(self) -> tuple[PoseStatus, ...]:
         with self._lock:
@@ -232,10 +227,7 @@ class CellControl:
                 self.state, done, n, eta, self._current, self._last, str(self.run_dir), self.fault
             )
 
-    def _on_event(self, ev: Any, emit: Callable[[RunProgress], None]) -> None:
-        from quickhealth.station.journal import JOURNAL, read_journal
-        from quickhealth.station.run import ProgressKind
-
+    def _on_event(self, ev: Progress, emit: Callable[[RunProgress], None]) -> None:
         if ev.index <= 0 or ev.index not in self._status:
             return
         if ev.kind == ProgressKind.MOVE:
@@ -270,9 +262,6 @@ class CellControl:
 
         Blocks (call it from a worker); pauses wait inside.  Returns the final progress.
         """
-        from quickhealth.station.journal import JOURNAL
-        from quickhealth.station.run import run_plan
-
         with self._lock:
             if self.running:
                 raise HardwareError("the run is already going")

@@ -21,17 +21,32 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from quickhealth.identify.errormodel import MOTION_WORDS
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.measurements import Measurements
-from quickhealth.identify.robot import RobotModel
-
+from ...identify.assess import Assessment
+from ...identify.diagnose import Diagnosis as Diagnosed
+from ...identify.errormodel import MOTION_WORDS, MOTIONS
+from ...identify.errors import InputError
+from ...identify.fit import FittedModel
+from ...identify.measurements import Measurements
+from ...identify.robot import RobotModel
+from ...identify.trend import assess_trend
+from ..archive import Archive
+from ..formats import format_measurements, load_robot, read_measurements
+from ..hardware.legs import Leg
+from ..planning import load_cell, load_plan
+from ..planning.cell import Cell
+from ..planning.planfile import Plan, plan_from_dict, plan_to_dict
+from ..planning.planner import plan_loop
+from ..run import RunSettings, ur_station
+from ..run import Station as Hardware
+from ..services.fitting import write_fit
+from ..services.options import TUI_THRESHOLD_MM, FitOptions
+from ..verdict import HealthVerdict, Judgement, Threshold, ThresholdFigure
 from . import jobs
 from .cell import CellControl
 from .offload import offload, warm_up
@@ -54,7 +69,6 @@ from .views import (
     RunProgress,
 )
 
-MOTIONS = ("dx", "dy", "dz", "ex", "ey", "ez")
 MOTION_UNITS = {"dx": "mm", "dy": "mm", "dz": "mm", "ex": "mrad", "ey": "mrad", "ez": "mrad"}
 
 
@@ -62,7 +76,7 @@ MOTION_UNITS = {"dx": "mm", "dy": "mm", "dz": "mm", "ex": "mrad", "ey": "mrad", 
 class _Model:
     """The current assessment of the current data (mutable session state, not a result)."""
 
-    assessment: Any
+    assessment: Assessment
     effects: tuple[str, ...]
     n_poses: int
 
@@ -76,7 +90,9 @@ class Analysis:
 
     ``heldout`` is data of the same robot and set-up the fit never sees (e.g. a second
     measurement file); without it the before/after comparison cross-validates the run.
-    ``out_dir``, when set, receives the PNG figures.
+    ``out_dir``, when set, receives the PNG figures.  ``source`` is the measurement file (the
+    report's ``input``).  The fit's options are every door's (:class:`FitOptions`) but for
+    ``max_order`` and the effects added here.
     """
 
     def __init__(
@@ -85,27 +101,35 @@ class Analysis:
         meas: Measurements,
         heldout: Measurements | None = None,
         *,
-        max_order: int = 4,
+        max_order: int = FitOptions.max_order,
         effects: tuple[str, ...] = (),
+        source: str | Path | None = None,
     ) -> None:
         self.robot = robot
         self.meas = meas
         self.heldout = heldout
         self.max_order = max_order
         self.effects = tuple(effects)
+        self.source = None if source is None else str(source)
         self._lock = threading.Lock()
         self._model: _Model | None = None
-        self._diag = None
+        self._diag: tuple[tuple[int, int], Diagnosed] | None = None
         self.out_dir: Path | None = None
 
-    # ----- fitting ---------------------------------------------------------------------------
-    def assess(self, effects: tuple[str, ...] | None = None) -> Any:
-        """The assessment (BIC order selection, ML fit, workspace, curves) with ``effects``
-        (default: the current ones): ``identify.assess.assess``, as ``identify fit`` runs it."""
-        eff = self.effects if effects is None else effects
-        return offload(jobs.assess_job, self.robot, self.meas, eff, self.max_order)
+    @property
+    def options(self) -> FitOptions:
+        """The options of the current fit."""
+        return FitOptions(effects=self.effects, max_order=self.max_order)
 
-    def assessment(self) -> Any:
+    # ----- fitting ---------------------------------------------------------------------------
+    def assess(self, effects: tuple[str, ...] | None = None) -> Assessment:
+        """The assessment (BIC order selection, ML fit, workspace, curves) with ``effects``
+        (default: the current ones), as ``identify fit`` runs it
+        (:func:`~quickhealth.station.services.fitting.assess`)."""
+        opts = self.options if effects is None else replace(self.options, effects=effects)
+        return offload(jobs.assess_job, self.robot, self.meas, opts)
+
+    def assessment(self) -> Assessment:
         """The current assessment of all the data (once, again when effects or data change)."""
         with self._lock:
             m = self._model
@@ -114,30 +138,20 @@ class Analysis:
                 self._model = m
             return m.assessment
 
-    def model(self):  # type: ignore[no-untyped-def]
+    def model(self) -> FittedModel:
         """The current model of all the data (the assessment's fitted model)."""
         return self.assessment().fitted
 
     # ----- screens ---------------------------------------------------------------------------
     def health(
-        self,
-        *,
-        run_id: str,
-        robot_name: str,
-        threshold_mm: float,
-        threshold_figure: str = "max",
-        baseline_mean_mm: float | None = None,
-    ) -> tuple[Health, dict]:
-        """The health summary of the current model, and report.json's content (the one writer's,
-        :func:`quickhealth.station.report_json.report_of`, with a ``run`` object)."""
-        from quickhealth.station.report_json import report_of
-
+        self, *, run_id: str, robot_name: str, judgement: Judgement, threshold: Threshold
+    ) -> Health:
+        """The health summary of the current model, with the verdict of its report."""
         a = self.assessment()
-        fitted = a.fitted
-        ws, jcs = a.workspace, a.curves
+        fitted, ws = a.fitted, a.workspace
         worst = offload(jobs.regions_job, fitted)
         curves = []
-        for jc in jcs:
+        for jc in a.curves:
             for m, motion in enumerate(MOTIONS):
                 if not np.any(jc.values[m]) and not np.any(jc.half_width[m]):
                     continue  # not in the model
@@ -152,18 +166,18 @@ class Analysis:
                         band=jc.half_width[m] * 1e3,
                     )
                 )
-        figures = {"mean": ws.mean * 1e3, "std": ws.std * 1e3, "max": ws.max * 1e3}
-        verdict = "healthy" if figures[threshold_figure] <= threshold_mm else "degraded"
-        h = Health(
+        base = judgement.baseline
+        return Health(
             run_id=run_id,
             robot=robot_name,
-            mean_mm=figures["mean"],
-            std_mm=figures["std"],
-            max_mm=figures["max"],
-            threshold_mm=threshold_mm,
-            threshold_figure=threshold_figure,
-            verdict=verdict,
-            baseline_mean_mm=baseline_mean_mm,
+            mean_mm=ws.mean * 1e3,
+            std_mm=ws.std * 1e3,
+            max_mm=ws.max * 1e3,
+            threshold_mm=threshold.mm,
+            threshold_figure=threshold.figure,
+            verdict=judgement.verdict,
+            reason=judgement.reason,
+            baseline_mean_mm=None if base is None or judgement.this_is_baseline else base.mean_mm,
             hist_counts=tuple(int(c) for c in ws.hist_counts),
             hist_edges_mm=tuple(float(e) * 1e3 for e in ws.hist_edges),
             curves=tuple(curves),
@@ -172,18 +186,6 @@ class Analysis:
             n_poses=self.meas.n_poses,
             effects=tuple(e.name for e in fitted.effects),
         )
-        report = report_of(
-            a,
-            run={
-                "run_id": run_id,
-                "robot_name": robot_name,
-                "verdict": verdict,
-                "healthy": verdict == "healthy",
-                "threshold_mm": threshold_mm,
-                "threshold_figure": threshold_figure,
-            },
-        )
-        return h, report
 
     def diagnose(self) -> Diagnosis:
         """Residuals per pose and the ranked candidate effects of the current model."""
@@ -265,8 +267,9 @@ class Analysis:
 class Station:
     """Everything the technician's App can ask of the station (see the module docstring).
 
-    Build it with :meth:`open` (the command line), :meth:`simulated` (the built-in simulated
-    cell) or :meth:`from_data` (an existing measurement file, e.g. to diagnose it).
+    Build it with :meth:`open` (the real cell), :func:`.simulated.open_simulated` /
+    :func:`.simulated.in_process` (the built-in simulated cell) or :meth:`from_data` (an
+    existing measurement file, e.g. to diagnose it).
     """
 
     def __init__(
@@ -277,18 +280,16 @@ class Station:
         archive_root: Path,
         run_id: str,
         cell_name: str = "reference",
-        threshold_mm: float = 2.0,
-        threshold_figure: str = "max",
+        threshold_mm: float = TUI_THRESHOLD_MM,
+        threshold_figure: ThresholdFigure = ThresholdFigure.MAX,
         analysis: Analysis | None = None,
         sim: bool = True,
-        hardware: Any = None,
-        plan: Any = None,
+        hardware: Hardware | None = None,
+        plan: Plan | None = None,
         plan_path: Path | None = None,
-        run_settings: Any = None,
-        max_order: int = 4,
+        run_settings: RunSettings | None = None,
+        max_order: int = FitOptions.max_order,
     ) -> None:
-        from quickhealth.station.archive import Archive
-
         self.robot = robot
         self.robot_name = robot_name
         self.archive = Archive.open(archive_root)
@@ -296,7 +297,7 @@ class Station:
         self.run_dir = self.archive.run_path(robot_name, run_id)
         self.cell_name = cell_name
         self.threshold_mm = float(threshold_mm)
-        self.threshold_figure = threshold_figure
+        self.threshold_figure = ThresholdFigure(threshold_figure)
         self.sim = sim
         self.analysis = analysis
         if analysis is not None:
@@ -306,7 +307,9 @@ class Station:
         self.plan = plan
         self.plan_path = plan_path
         self.cell: CellControl | None = None
-        self.simcell: Any = None  # the simulated cell (controller simulator handle…) under --sim
+        # the simulated cell's handles (controller simulator, emulator) under --sim: set by
+        # .simulated, which the real path never imports
+        self.simcell: object | None = None
         if hardware is not None and plan is not None:
             self.cell = CellControl(
                 hardware, plan, self.run_dir, settings=run_settings, on_finished=self._measured
@@ -324,107 +327,40 @@ class Station:
         plan: Path | None = None,
         archive: Path = Path("archive"),
         robot_name: str = "ur5-sim",
-        sim: bool = True,
         robot_ip: str | None = None,
         motor_port: str | None = None,
         cameras: tuple[str, str] | None = None,
         calibration: str | None = None,
         n_poses: int = 40,
-        threshold_mm: float = 2.0,
+        threshold_mm: float = TUI_THRESHOLD_MM,
         run_id: str | None = None,
         say: Callable[[str], None] | None = None,
-        speed_factor: float = 1.0,
-        image_scale: float = 0.3,
     ) -> Station:
-        """The station for ``quickhealth tui``: the simulated cell (controller simulator
-        subprocess, emulated pan motor, rendered cameras) or the real one.
+        """The station for ``quickhealth tui`` on the real cell: UR robot, serial pan motor,
+        two cameras (``quickhealth tui --sim``: :func:`~.simulated.open_simulated`).
 
-        ``say`` receives a line before each slow step (planning, starting the cell)."""
-        from datetime import UTC, datetime
-
-        from quickhealth.station import run as station_run
-        from quickhealth.station.planning import load_cell, load_plan
-
+        ``say`` receives a line before each slow step (planning, connecting)."""
         tell = say or (lambda line: None)
-        c = load_cell(cell)
-        if plan is None:
-            tell(f"planning cell {c.name}: {n_poses} candidate targets…")
-        the_plan = load_plan(plan) if plan is not None else make_plan(c, n_poses, 0)
-        if sim:
-            tell("starting the simulated cell (UR controller simulator, pan motor, cameras)…")
-            from quickhealth.station.sim.cell import sim_station
-
-            hw, simcell = sim_station(cell, image_scale=image_scale, speed_factor=speed_factor)
-        else:
-            tell(f"connecting to the robot at {robot_ip}…")
-            if not (robot_ip and motor_port and cameras and calibration):
-                raise InputError(
-                    "tui: a real station needs --robot-ip, --motor-port, --cameras and --calibration"
-                )
-            hw = station_run.ur_station(
-                cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
+        c, the_plan = cell_and_plan(cell, plan, n_poses, tell)
+        tell(f"connecting to the robot at {robot_ip}…")
+        if not (robot_ip and motor_port and cameras and calibration):
+            raise InputError(
+                "tui: a real station needs --robot-ip, --motor-port, --cameras and --calibration"
             )
-            simcell = None
-        rid = run_id or datetime.now(UTC).strftime("%Y-%m-%d-%H%M%S")
-        station = cls(
+        hw = ur_station(
+            cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
+        )
+        return cls(
             robot=c.robot,
             robot_name=robot_name,
             archive_root=Path(archive),
-            run_id=rid,
+            run_id=run_id or new_run_id(),
             cell_name=c.name,
             threshold_mm=threshold_mm,
-            sim=sim,
+            sim=False,
             hardware=hw,
             plan=the_plan,
             plan_path=plan,
-        )
-        station.simcell = simcell  # the simulated cell's handles (controller, emulator) or None
-        return station
-
-    @classmethod
-    def simulated(
-        cls,
-        archive_root: str | Path,
-        *,
-        n_candidates: int = 40,
-        plan_seed: int = 0,
-        plan: Any = None,
-        twin_seed: int = 1,
-        image_scale: float = 0.3,
-        time_scale: float = 20.0,
-        run_id: str = "sim-run-1",
-        robot_name: str = "sim-ur5",
-        threshold_mm: float = 2.0,
-        max_order: int = 4,
-    ) -> Station:
-        """The built-in simulated cell, in this process (fast; for tests and demos).
-
-        The arm is the pure-Python :class:`~quickhealth.station.sim.fake_robot.FakeRobot`
-        (``time_scale`` times faster than real), the pan motor the serial emulator on a
-        pseudo-terminal behind the real serial driver, and the cameras render the digital
-        twin's true target pose (:func:`~quickhealth.station.hardware.world.build_world`) at
-        ``image_scale`` of the reference sensor.  The plan is made now from
-        ``n_candidates`` random targets unless ``plan`` is given.
-        """
-        from quickhealth.station.run import RunSettings
-
-        hw, cell = inprocess_sim_station(
-            twin_seed=twin_seed, image_scale=image_scale, time_scale=time_scale
-        )
-        if plan is None:
-            plan = make_plan(cell, n_candidates, plan_seed)
-        return cls(
-            robot=cell.robot,
-            robot_name=robot_name,
-            archive_root=Path(archive_root),
-            run_id=run_id,
-            cell_name=cell.name,
-            threshold_mm=threshold_mm,
-            sim=True,
-            hardware=hw,
-            plan=plan,
-            run_settings=RunSettings(settle_window_s=0.03 * time_scale),
-            max_order=max_order,
         )
 
     @classmethod
@@ -437,12 +373,10 @@ class Station:
         robot_name: str = "ur5",
         archive_root: str | Path = "archive",
         run_id: str | None = None,
-        threshold_mm: float = 2.0,
-        max_order: int = 4,
+        threshold_mm: float = TUI_THRESHOLD_MM,
+        max_order: int = FitOptions.max_order,
     ) -> Station:
         """A station on an existing measurement file (CSV v1): results, diagnose, history."""
-        from quickhealth.station.formats import load_robot, read_measurements
-
         model = load_robot(robot)
         meas = read_measurements(measurements, model.n_joints)
         held = None if heldout is None else read_measurements(heldout, model.n_joints)
@@ -454,7 +388,7 @@ class Station:
             run_id=rid,
             cell_name=meas.meta.get("cell", "–"),
             threshold_mm=threshold_mm,
-            analysis=Analysis(model, meas, held, max_order=max_order),
+            analysis=Analysis(model, meas, held, max_order=max_order, source=measurements),
             sim=False,
         )
 
@@ -548,8 +482,7 @@ class Station:
         Runs on a pure-Python simulated controller at 50× speed from the first pose, so the
         reported loop time is the simulated arm's, scaled back to real time.
         """
-        from quickhealth.station.hardware.robot import Leg
-        from quickhealth.station.sim.fake_robot import FakeRobot
+        from ..sim.fake_robot import FakeRobot  # the simulator's arm model (not the twin)
 
         plan = self.plan
         if plan is None:
@@ -587,32 +520,48 @@ class Station:
             h is None or h.n_poses != a.meas.n_poses or h.effects != a.effects
         )
 
-    def _baseline_mean(self) -> float | None:
-        try:
-            base = self.archive.baseline(self.robot_name)
-        except InputError:  # no runs yet
-            return None
-        if base is None or base.run_id == self.run_id:
-            return None
-        return float(base.mean_mm)
+    def threshold(self) -> Threshold:
+        """The threshold the Results screen judges against."""
+        return Threshold(self.threshold_mm, self.threshold_figure)
 
     def results(self) -> Health:
-        """Fit the run, write model.json, report.json and the PNGs, archive it, summarise."""
-        from quickhealth.station.formats import write_model, write_report
+        """Fit the run and write it as ``identify fit`` does (model.json, report.json,
+        residuals.csv), archive it, report it as ``quickhealth report`` does (the report's
+        sections and verdict in report.json) and summarise it with that verdict."""
+        with self._lock:  # one fit, archive and report at a time: a second call waits, then
+            return self._results()  # finds this one's summary
 
+    def _results(self) -> Health:
         if self.analysis is None:
             raise InputError("no measurements yet: run the plan first")
         if self._health is not None and not self.results_stale():
             return self._health
-        h, report = self.analysis.health(
+        a = self.analysis.assessment()
+        d = self.run_dir
+        data = {} if (d / "measurements.csv").exists() else {"measurements.csv": a.measurements}
+        write_fit(
+            d,
+            a,
+            source=self.analysis.source,
+            extra={k: format_measurements(m) for k, m in data.items()},
+        )
+        self.archive.add_run(self.robot_name, d, run_id=self.run_id)
+        judgement = offload(
+            jobs.report_job,
+            str(d),
+            str(self.archive.root),
+            self.archive.url,
+            self.robot_name,
+            self.run_id,
+            self.threshold(),
+        )
+        self.archive.set_healthy(self.robot_name, self.run_id, judgement.healthy)
+        h = self.analysis.health(
             run_id=self.run_id,
             robot_name=self.robot_name,
-            threshold_mm=self.threshold_mm,
-            threshold_figure=self.threshold_figure,
-            baseline_mean_mm=self._baseline_mean(),
+            judgement=judgement,
+            threshold=self.threshold(),
         )
-        d = self.run_dir
-        d.mkdir(parents=True, exist_ok=True)
         pngs = offload(
             jobs.results_pngs_job,
             h.hist_counts,
@@ -621,15 +570,6 @@ class Station:
             h.curves,
             str(d),
         )
-        write_model(d / "model.json", self.analysis.model())
-        write_report(d / "report.json", report)
-        if not (d / "measurements.csv").exists():
-            from quickhealth.station.formats import write_measurements
-
-            write_measurements(d / "measurements.csv", self.analysis.meas)
-        self.archive.add_run(self.robot_name, d, run_id=self.run_id, healthy=h.verdict == "healthy")
-        from dataclasses import replace
-
         h = replace(h, pngs=pngs)
         self._health = h
         return h
@@ -651,8 +591,6 @@ class Station:
     # ----- history ---------------------------------------------------------------------------
     def history(self) -> History:
         """This robot's archived runs, oldest first, and the trend of the main figures."""
-        from quickhealth.identify.trend import assess_trend
-
         try:
             recs = self.archive.runs(self.robot_name)
         except InputError:
@@ -664,7 +602,7 @@ class Station:
                 mean_mm=r.mean_mm,
                 std_mm=r.std_mm,
                 max_mm=r.max_mm,
-                verdict="healthy" if r.healthy is not False else "degraded",
+                verdict=HealthVerdict.HEALTHY if r.healthy is not False else HealthVerdict.DEGRADED,
                 baseline=r.baseline,
             )
             for r in recs
@@ -744,11 +682,9 @@ class Station:
 
     def _measured(self, path: Path) -> None:
         """A run wrote measurements.csv: it becomes the data the results and diagnosis use."""
-        from quickhealth.station.formats import read_measurements
-
         meas = read_measurements(path, self.robot.n_joints)
         if self.analysis is None or self.analysis.meas.n_poses != meas.n_poses:
-            self.analysis = Analysis(self.robot, meas, max_order=self.max_order)
+            self.analysis = Analysis(self.robot, meas, max_order=self.max_order, source=path)
             self.analysis.out_dir = self.run_dir
 
     def n_remaining(self) -> int:
@@ -766,67 +702,24 @@ class Station:
 # ------------------------------------------------------------------------------------------
 
 
-def make_plan(cell: Any, n_candidates: int, seed: int = 0) -> Any:
+def make_plan(cell: Cell, n_candidates: int, seed: int = 0) -> Plan:
     """Plan the cell now (the planner's steps 1–5) and validate it as a frozen plan file would be."""
-    from quickhealth.station.planning.planfile import plan_from_dict, plan_to_dict
-    from quickhealth.station.planning.planner import plan_loop
-
     res = plan_loop(cell, n_candidates, seed)
     if not res.poses:
         raise InputError(f"planning {cell.name} with {n_candidates} candidates kept no pose")
     return plan_from_dict(plan_to_dict(res), f"plan of {cell.name} (n={n_candidates}, seed={seed})")
 
 
-def inprocess_sim_station(
-    cell_name: str = "reference",
-    *,
-    twin_seed: int = 1,
-    image_scale: float = 0.3,
-    time_scale: float = 20.0,
-) -> tuple[Any, Any]:
-    """A ``station.run.Station`` on the simulated cell without the controller subprocess.
+def cell_and_plan(
+    cell: str, plan: Path | None, n_poses: int, tell: Callable[[str], None]
+) -> tuple[Cell, Plan]:
+    """The cell (file or built-in name) and its plan: ``plan`` if given, else planned now."""
+    c = load_cell(cell)
+    if plan is None:
+        tell(f"planning cell {c.name}: {n_poses} candidate targets…")
+    return c, (load_plan(plan) if plan is not None else make_plan(c, n_poses, 0))
 
-    FakeRobot (same motion model and faults as the controller simulator), the pan-motor
-    emulator behind the real serial driver, and simulated cameras that render the twin's
-    true plate pose at the robot's actual joints and the motor's true angle.
-    Returns ``(station, cell)``.
-    """
-    import math
 
-    from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
-    from quickhealth.station.hardware.motor import SerialPanMotor
-    from quickhealth.station.hardware.motor_emulator import MotorEmulator
-    from quickhealth.station.hardware.world import build_world
-    from quickhealth.station.planning import load_cell
-    from quickhealth.station.run import Station as RunStation
-    from quickhealth.station.sim.fake_robot import FakeRobot
-
-    cell = load_cell(cell_name)
-    world = build_world(cell_name, twin_seed=twin_seed)
-    robot = FakeRobot(time_scale=time_scale, model=cell.robot)
-    emu = MotorEmulator().start()
-    try:
-        # The emulator answers from a thread of this process, which shares the interpreter with
-        # the UI and the renderer: give it the time a busy GIL can take.
-        motor = SerialPanMotor(emu.port, timeout=1.0)
-    except BaseException:
-        emu.stop()
-        raise
-
-    def scene() -> list[tuple[Any, Any]]:
-        pan = math.radians(emu.position_deg())
-        return [(world.T_instr_plate(robot.joints(), pan), world.target)]
-
-    camera = SimStereoCamera(
-        scaled_rig(world.rig, image_scale), scene, static=[(world.T_instr_board, world.board)]
-    )
-    hw = RunStation.on_simulated_world(
-        cell,
-        world,
-        robot,
-        motor,
-        camera,
-        instrument=f"simulated stereo camera ({image_scale:g} × reference sensor)",
-        closers=[emu.stop, motor.close, camera.close, robot.close],
-    )
-    return hw, cell
+def new_run_id() -> str:
+    """A run id from the time now (UTC): ``2026-11-01-020000``."""
+    return datetime.now(UTC).strftime("%Y-%m-%d-%H%M%S")

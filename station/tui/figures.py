@@ -12,10 +12,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from ...identify.errormodel import MOTIONS
 from ..fsio import write_figure
 from .views import HistoryRow, JointCurve
-
-MOTION_ORDER = ("dx", "dy", "dz", "ex", "ey", "ez")
 
 
 def _write(fig: Figure, path: Path) -> str:
@@ -44,7 +43,7 @@ def curves_png(curves: Sequence[JointCurve], path: Path) -> str:
     axes = fig.subplots(max(len(joints), 1), 6, squeeze=False, sharex="row")
     by_key = {(c.joint, c.motion): c for c in curves}
     for r, j in enumerate(joints):
-        for m, motion in enumerate(MOTION_ORDER):
+        for m, motion in enumerate(MOTIONS):
             ax = axes[r, m]
             c = by_key.get((j, motion))
             if c is None:

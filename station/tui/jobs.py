@@ -1,21 +1,34 @@
-"""The heavy computations behind the screens, as pure module-level functions.
+"""The heavy computations behind the screens, as module-level functions.
 
-Each takes plain data (robot, measurements, fitted model, names) and a ``progress`` callback,
-and returns picklable results, so :func:`~quickhealth.station.tui.offload.offload` can run
-it in a child process.  Nothing here reads files; figures are written where asked (PNG).
+Each takes plain data (robot, measurements, fitted model, names, paths) and a ``progress``
+callback, and returns picklable results, so :func:`~quickhealth.station.tui.offload.offload`
+can run it in a child process (forked from a server that has loaded this module and what it
+imports).  The application layer does the work (:mod:`quickhealth.station.services`), as for
+every other door; figures and reports are written where asked.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from pathlib import Path
 
 import numpy as np
 
-from quickhealth.identify.measurements import Measurements
-from quickhealth.identify.robot import RobotModel
-
-from .views import Region
+from ...identify.assess import Assessment, evaluate
+from ...identify.compare import Comparison, compare_effect, plot_comparison
+from ...identify.diagnose import Diagnosis, diagnose, state_from_fitted
+from ...identify.fit import FittedModel
+from ...identify.measurements import Measurements
+from ...identify.robot import RobotModel
+from ...identify.workspace import reference_conditions
+from ..archive import Archive
+from ..fsio import write_figure
+from ..services import fitting
+from ..services.options import FitOptions, ReportOptions
+from ..services.report import report_run
+from ..verdict import Judgement, Threshold
+from . import figures
+from .views import HistoryRow, JointCurve, Region
 
 Progress = Callable[[str], None]
 
@@ -23,64 +36,77 @@ Progress = Callable[[str], None]
 def assess_job(
     robot: RobotModel,
     meas: Measurements,
-    effects: Sequence[str],
-    max_order: int,
+    options: FitOptions,
     progress: Progress | None = None,
-) -> Any:
-    """The assessment (``identify.assess.Assessment``) with ``effects``: the same function and
-    defaults as ``identify fit``, so the TUI's report.json equals the command line's."""
-    from quickhealth.identify.assess import assess
+) -> Assessment:
+    """The assessment with ``options``: the same function and defaults as ``identify fit``
+    (:func:`~quickhealth.station.services.fitting.assess`), so the TUI's report.json equals
+    the command line's."""
+    return fitting.assess(meas, robot, options, progress=progress)
 
-    return assess(meas, robot, list(effects), max_order=max_order, progress=progress)
 
-
-def evaluate_job(fitted: Any, meas: Measurements, progress: Progress | None = None) -> Any:
+def evaluate_job(
+    fitted: FittedModel, meas: Measurements, progress: Progress | None = None
+) -> Assessment:
     """``identify.assess.evaluate``: the assessment of an already fitted model."""
-    from quickhealth.identify.assess import evaluate
-
     return evaluate(meas, fitted)
 
 
-def diagnose_job(fitted: Any, meas: Measurements, progress: Progress | None = None) -> Any:
+def diagnose_job(
+    fitted: FittedModel, meas: Measurements, progress: Progress | None = None
+) -> Diagnosis:
     """The diagnosis (``identify.diagnose.Diagnosis``) of ``fitted`` on ``meas``."""
-    from quickhealth.identify.diagnose import diagnose, state_from_fitted
-
     return diagnose(state_from_fitted(fitted), meas)
 
 
 def compare_job(
-    fitted: Any,
+    fitted: FittedModel,
     meas: Measurements,
     effect: str,
     heldout: Measurements | None,
     folds: int,
     png: str | None = None,
     progress: Progress | None = None,
-) -> Any:
+) -> Comparison:
     """``identify.compare.compare_effect``; its before/after figure written to ``png`` if given."""
-    from quickhealth.identify.compare import compare_effect, plot_comparison
-
     cmp = compare_effect(fitted, meas, effect, heldout=heldout, folds=folds, progress=progress)
     if png is not None:
-        from ..fsio import write_figure
-
         write_figure(plot_comparison(cmp), png, dpi=90)
     return cmp
+
+
+def report_job(
+    run_dir: str,
+    archive_root: str,
+    archive_url: str,
+    robot: str,
+    run_id: str,
+    threshold: Threshold,
+    progress: Progress | None = None,
+) -> Judgement:
+    """The run's report as ``quickhealth report`` makes it against the robot's archive (the
+    sections, the verdict and the run object in report.json; no report.html: the screens
+    show the figures, ``quickhealth report`` writes the page); its verdict."""
+    res = report_run(
+        Path(run_dir),
+        archive=Archive.open(archive_root, archive_url),
+        robot=robot,
+        run_id=run_id,
+        options=ReportOptions(threshold=threshold),
+        write_html=False,
+    )
+    return res.report.judgement
 
 
 def results_pngs_job(
     counts: Sequence[int],
     edges_mm: Sequence[float],
     threshold_mm: float,
-    curves: Sequence[Any],
+    curves: Sequence[JointCurve],
     out_dir: str,
     progress: Progress | None = None,
 ) -> tuple[str, str]:
     """The Results screen's PNGs: workspace error histogram and joint curves."""
-    from pathlib import Path
-
-    from . import figures
-
     d = Path(out_dir)
     return (
         figures.histogram_png(counts, edges_mm, threshold_mm, d / "workspace_error.png"),
@@ -89,23 +115,19 @@ def results_pngs_job(
 
 
 def trend_png_job(
-    rows: Sequence[Any], threshold_mm: float, png: str, progress: Progress | None = None
+    rows: Sequence[HistoryRow], threshold_mm: float, png: str, progress: Progress | None = None
 ) -> str:
     """The History screen's PNG: the main figures over the runs."""
-    from pathlib import Path
-
-    from . import figures
-
     return figures.trend_png(rows, threshold_mm, Path(png))
 
 
-def regions_job(fitted: Any, progress: Progress | None = None) -> tuple[Region, ...]:
+def regions_job(fitted: FittedModel, progress: Progress | None = None) -> tuple[Region, ...]:
     """Where in the workspace the model's TCP error is largest (:func:`worst_regions`)."""
     return worst_regions(fitted)
 
 
 def worst_regions(
-    fitted: Any, n_samples: int = 4000, seed: int = 1, top: int = 5
+    fitted: FittedModel, n_samples: int = 4000, seed: int = 1, top: int = 5
 ) -> tuple[Region, ...]:
     """Where in the workspace the model's TCP error is largest, in words a technician can use.
 
@@ -118,8 +140,6 @@ def worst_regions(
     rng = np.random.default_rng(seed)
     spec = fitted.spec
     q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
-    from quickhealth.identify.workspace import reference_conditions
-
     cond = reference_conditions(fitted).arrays(n_samples)  # thermal/drift at stated conditions
     err = fitted.tcp_error(q, approach=np.ones_like(q), **cond) * 1e3
     p = (fitted.robot.fk(q) @ fitted.T_flange_target0)[:, :3, 3]

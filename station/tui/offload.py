@@ -14,11 +14,15 @@ The function must be importable (module level) and accept a ``progress`` keyword
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import threading
 from collections.abc import Callable
-from typing import Any
+from multiprocessing import forkserver
+from multiprocessing.connection import Connection
+from multiprocessing.context import ForkServerContext
+from typing import Any, TypeVar
 
-from quickhealth.identify.errors import HardwareError
+from ...identify.errors import HardwareError
 
 PRELOAD = [
     "numpy",
@@ -28,16 +32,17 @@ PRELOAD = [
     "quickhealth.identify.diagnose",
     "quickhealth.identify.compare",
     "quickhealth.identify.workspace",
-    "quickhealth.station.tui.jobs",
+    "quickhealth.station.tui.jobs",  # and the application layer it calls (fit, report, archive)
     "quickhealth.station.tui.figures",
 ]
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 _ctx_lock = threading.Lock()
-_ctx: Any = None
+_ctx: ForkServerContext | None = None
+T = TypeVar("T")
 
 
-def _context() -> Any:
+def _context() -> ForkServerContext:
     global _ctx
     with _ctx_lock:
         if _ctx is None:
@@ -54,9 +59,6 @@ def warm_up() -> None:
     server they start, and a terminal UI (or its test driver) replaces stderr with an object
     that has no file descriptor.
     """
-    import os
-    from multiprocessing import forkserver
-
     _context()
     # The server (and every fit forked from it) loads OpenBLAS with one thread: the UI and
     # the fit share the machine, and threaded BLAS on small matrices only adds contention.
@@ -72,7 +74,7 @@ def warm_up() -> None:
                 os.environ[k] = v
 
 
-def _child(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+def _child(conn: Connection, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
     def progress(line: str) -> None:
         conn.send(("progress", line))
 
@@ -89,9 +91,7 @@ def _child(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
         conn.close()
 
 
-def offload(
-    fn: Callable[..., Any], *args: Any, progress: Callable[[str], None] | None = None
-) -> Any:
+def offload(fn: Callable[..., T], *args: Any, progress: Callable[[str], None] | None = None) -> T:
     """``fn(*args, progress=…)`` in a child process; its result, or its exception re-raised."""
     ctx = _context()
     recv, send = ctx.Pipe(duplex=False)

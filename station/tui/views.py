@@ -13,6 +13,8 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
+from ..verdict import HealthVerdict, ThresholdFigure
+
 F = NDArray[np.float64]
 
 
@@ -175,8 +177,9 @@ class Health:
     std_mm: float
     max_mm: float
     threshold_mm: float
-    threshold_figure: str  # which figure the threshold applies to: "mean", "std" or "max"
-    verdict: str  # "healthy" or "degraded"
+    threshold_figure: ThresholdFigure  # which figure the threshold applies to
+    verdict: HealthVerdict  # the run's report's (healthy, degraded, flagged)
+    reason: str  # the verdict's one-line reason
     baseline_mean_mm: float | None
     hist_counts: tuple[int, ...]
     hist_edges_mm: tuple[float, ...]
@@ -252,7 +255,7 @@ class HistoryRow:
     mean_mm: float
     std_mm: float
     max_mm: float
-    verdict: str
+    verdict: HealthVerdict  # healthy, or not (the archive's healthy flag)
     baseline: bool = False
 
 

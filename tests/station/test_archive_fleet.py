@@ -57,7 +57,7 @@ def _fleet(tmp_path, url, sources):
     }
     # children fork from a clean single-threaded server that imported the code once
     ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["qh_fleet", "quickhealth.station.commands.trend"])
+    ctx.set_forkserver_preload(["qh_fleet", "quickhealth.station.commands.archive"])
     procs = {}
     for k in range(N_STATIONS):
         args = (url, str(root), f"ur5-{k % 4}", k, sources, figures, N_RUNS,

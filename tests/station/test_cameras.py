@@ -9,8 +9,9 @@ import pytest
 
 from quickhealth.identify.errors import HardwareError
 from quickhealth.identify.transforms import make_T
-from quickhealth.station.hardware.cameras import OpenCvStereoCamera, SimStereoCamera, scaled_rig
-from quickhealth.station.hardware.world import reference_board, reference_target
+from quickhealth.station.hardware.cameras import OpenCvStereoCamera
+from quickhealth.station.hardware.target import reference_board, reference_target
+from quickhealth.station.sim.cameras import SimStereoCamera, scaled_rig
 from quickhealth.vision.reference import reference_rig
 
 

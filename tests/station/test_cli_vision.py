@@ -7,7 +7,7 @@ import pytest
 
 from quickhealth.identify.transforms import inv_T, make_T, rot_x, rot_y
 from quickhealth.station.cli import main
-from quickhealth.station.vision_io import rig_to_json
+from quickhealth.station.formats.vision import rig_to_json
 from quickhealth.vision.boards import parse_board_spec, reference_target
 from quickhealth.vision.camera import CameraModel, StereoRig
 from quickhealth.vision.reference import T_left_rig, reference_rig

@@ -1,15 +1,19 @@
-"""The drivers never import the simulator: a static walk of every import they can reach.
+"""Only the simulation imports the twin: a static walk of every import a module can reach.
 
-The simulator (:mod:`quickhealth.station.sim`) uses the drivers to build the simulated cell;
-a driver importing it back would let simulator code (and its assumptions) into a run on real
-hardware.  The walk reads the source with :mod:`ast` (nothing is imported), follows every
-``import`` and ``from … import`` anywhere in a module (also those inside functions) into the
-project's own modules, and fails naming the chain that reaches the simulator.
+The simulator (:mod:`quickhealth.station.sim`: the controller simulator, the simulated world,
+the pan-motor emulator and the simulated cameras) uses the drivers to build the simulated
+cell; a driver importing it back would let simulator code (and its assumptions) into a run on
+real hardware.  The digital twin (:mod:`quickhealth.identify.twin`, the simulated robot's
+truth) is reached from the simulation only: not from a driver, the run, or the technician's
+App on the real station.  The walk reads the source with :mod:`ast` (nothing is imported),
+follows every ``import`` and ``from … import`` anywhere in a module (also those inside
+functions) into the project's own modules, and fails naming the chain that reaches them.
 """
 
 from __future__ import annotations
 
 import ast
+from functools import cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -19,6 +23,7 @@ PACKAGES = {
     "quickhealth.station": "station",
 }
 SIM = "quickhealth.station.sim"
+TWIN = "quickhealth.identify.twin"
 DRIVERS = [
     "quickhealth.station.hardware.robot",
     "quickhealth.station.hardware.ur_client",
@@ -27,11 +32,15 @@ DRIVERS = [
     "quickhealth.station.hardware.cameras",
     "quickhealth.station.hardware.urtypes",
     "quickhealth.station.hardware.target",
-    "quickhealth.station.hardware.world",
+    "quickhealth.station.hardware.legs",
     "quickhealth.station.run",
 ]
+# The App on the real cell (``quickhealth tui --robot-ip``): its dry run drives the plan on the
+# simulator's arm model (sim.fake_robot), so it may reach the simulator but never the twin.
+TUI_REAL = ["quickhealth.station.tui.app", "quickhealth.station.tui.facade"]
 
 
+@cache
 def source_of(module: str) -> Path | None:
     """The file of a project module (``X.py`` or ``X/__init__.py``), None when not ours."""
     for pkg, folder in PACKAGES.items():
@@ -48,6 +57,7 @@ def source_of(module: str) -> Path | None:
     return None
 
 
+@cache
 def imports_of(module: str, path: Path) -> set[str]:
     """Every module ``path`` imports, absolute names (``from . import x`` gives both)."""
     is_pkg = path.name == "__init__.py"
@@ -112,6 +122,26 @@ def test_no_driver_and_not_the_run_imports_the_simulator() -> None:
         seen = reach(start)
         bad += [chain(seen, m) for m in seen if m == SIM or m.startswith(SIM + ".")]
     assert not bad, "the drivers must not import the simulator:\n" + "\n".join(bad)
+
+
+def test_only_the_simulation_reaches_the_twin() -> None:
+    """No driver, not the run, not the App on the real cell; the simulated cell does."""
+    assert TWIN in reach("quickhealth.station.sim.cell")  # the walk sees it where it is
+    assert TWIN in reach("quickhealth.station.tui.simulated")
+    bad = []
+    for start in DRIVERS + TUI_REAL:
+        assert source_of(start) is not None, start
+        seen = reach(start)
+        bad += [chain(seen, m) for m in seen if m == TWIN]
+    assert not bad, "only the simulation may import the digital twin:\n" + "\n".join(bad)
+
+
+def test_world_emulator_and_simulated_cameras_live_in_the_simulation() -> None:
+    for name in ("world", "motor_emulator", "cameras"):
+        assert (ROOT / "station" / "sim" / f"{name}.py").is_file(), name
+    for name in ("world", "motor_emulator"):
+        assert not (ROOT / "station" / "hardware" / f"{name}.py").exists(), name
+    assert "class SimStereoCamera" not in (ROOT / "station/hardware/cameras.py").read_text()
 
 
 def test_the_old_simulator_modules_are_gone_from_the_drivers() -> None:

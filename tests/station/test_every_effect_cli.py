@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from quickhealth.station.cli import main
-from quickhealth.station.report_json import check_report
+from quickhealth.station.formats import check_report
 
 FLOOR_MM = math.sqrt(3) * 0.03  # 3D RMS of the twin's 0.03 mm per-axis instrument noise
 

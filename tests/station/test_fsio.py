@@ -245,7 +245,7 @@ def test_claim_output_folder_refuses_a_file(tmp_path):
 
 
 def test_residuals_and_predictions_quote_a_nasty_pose_id(data, tmp_path):
-    from quickhealth.station.commands.identify import residual_table
+    from quickhealth.station.formats import residual_table
 
     meas = data["meas"]
     twin = data["twin"]

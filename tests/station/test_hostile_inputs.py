@@ -2194,7 +2194,7 @@ def _(b, t):
 
 
 def _bad_calibration(b, t, edit: Callable[[dict], None]) -> Case:
-    from quickhealth.station.vision_io import rig_to_json
+    from quickhealth.station.formats.vision import rig_to_json
     from quickhealth.vision.reference import reference_rig
 
     run = t / "vrun"

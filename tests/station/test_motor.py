@@ -16,7 +16,7 @@ from quickhealth.station.hardware.motor import (
     crc16,
     encode_frame,
 )
-from quickhealth.station.hardware.motor_emulator import MotorEmulator
+from quickhealth.station.sim.motor_emulator import MotorEmulator
 
 
 def test_crc16_is_ccitt_false():

@@ -209,15 +209,16 @@ def imaged_run(tmp_path_factory):
 
     import qh_station_plan as station_plan
 
-    from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
+    from quickhealth.station.formats.vision import rig_to_json, write_json
     from quickhealth.station.hardware.motor import SerialPanMotor
-    from quickhealth.station.hardware.motor_emulator import MotorEmulator
     from quickhealth.station.hardware.target import T_target_plate
-    from quickhealth.station.hardware.world import build_world
     from quickhealth.station.planning import load_cell, load_plan
-    from quickhealth.station.run import RunSettings, Station, run_plan
+    from quickhealth.station.run import RunSettings, run_plan
+    from quickhealth.station.sim.cameras import SimStereoCamera, scaled_rig
+    from quickhealth.station.sim.cell import station_in_world
     from quickhealth.station.sim.fake_robot import FakeRobot
-    from quickhealth.station.vision_io import rig_to_json, write_json
+    from quickhealth.station.sim.motor_emulator import MotorEmulator
+    from quickhealth.station.sim.world import build_world
 
     base = tmp_path_factory.getbasetemp()
     plan = load_plan(station_plan.plan_file(base))
@@ -237,9 +238,7 @@ def imaged_run(tmp_path_factory):
         return [(T, world.target)]
 
     camera = SimStereoCamera(rig, scene, static=[(world.T_instr_board, world.board)])
-    station = Station.on_simulated_world(
-        cell, world, robot, motor, camera, closers=[emu.stop, motor.close]
-    )
+    station = station_in_world(cell, world, robot, motor, camera, closers=[emu.stop, motor.close])
     run_dir = base / "imaged"
     try:
         run_plan(station, plan, run_dir, settings=RunSettings(capture_attempts=2))

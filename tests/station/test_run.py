@@ -15,15 +15,16 @@ import numpy as np
 import pytest
 import qh_station_plan as _station_plan
 
-from quickhealth.station.hardware.cameras import SimStereoCamera, scaled_rig
 from quickhealth.station.hardware.motor import SerialPanMotor
-from quickhealth.station.hardware.motor_emulator import MotorEmulator
 from quickhealth.station.hardware.target import T_target_plate
-from quickhealth.station.hardware.world import build_world
 from quickhealth.station.journal import JOURNAL, read_journal
 from quickhealth.station.planning import load_cell, load_plan
-from quickhealth.station.run import RunSettings, Station, is_settled, run_plan
+from quickhealth.station.run import RunSettings, is_settled, run_plan
+from quickhealth.station.sim.cameras import SimStereoCamera, scaled_rig
+from quickhealth.station.sim.cell import station_in_world
 from quickhealth.station.sim.fake_robot import FakeRobot
+from quickhealth.station.sim.motor_emulator import MotorEmulator
+from quickhealth.station.sim.world import build_world
 
 SETTINGS = RunSettings(capture_attempts=2)
 
@@ -64,7 +65,7 @@ class FakeCell:
         cam = SimStereoCamera(
             scaled_rig(world.rig, 0.25), scene, static=[(world.T_instr_board, world.board)]
         )
-        self.station = Station.on_simulated_world(
+        self.station = station_in_world(
             cell, world, self.robot, self.motor, cam, closers=[self.emu.stop, self.motor.close]
         )
 
@@ -94,7 +95,7 @@ def test_complete_run_writes_csv_journal_images(world, plan, tmp_path):
     st = read_journal(tmp_path / "r" / JOURNAL)
     assert st.ended and sorted(st.measured) == [1, 2, 3]
     for rec in st.captured.values():
-        for img in rec["images"]:
+        for img in rec.images:
             assert (tmp_path / "r" / img).stat().st_size > 10_000
     csv = (tmp_path / "r" / "measurements.csv").read_text().splitlines()
     header = next(ln for ln in csv if not ln.startswith("#"))

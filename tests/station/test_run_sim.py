@@ -23,11 +23,11 @@ import qh_station_plan as _station_plan
 
 from quickhealth.station.cli import main
 from quickhealth.station.formats import read_measurements
-from quickhealth.station.hardware.world import build_world
 from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_plan
 from quickhealth.station.run import RunSettings, run_plan
 from quickhealth.station.sim.cell import sim_station
+from quickhealth.station.sim.world import build_world
 
 pytestmark = [pytest.mark.slow]
 

@@ -122,7 +122,7 @@ def test_truth_is_the_digital_twin_not_the_nominal_arm(sim):
 
     truth = TwinTruth.from_dict(sim.twin_truth())
     q, T0 = sim.truth()
-    from quickhealth.station.hardware.world import build_world
+    from quickhealth.station.sim.world import build_world
 
     w = build_world("reference", twin_seed=1)
     assert np.allclose(truth.coeffs, w.twin.truth.coeffs)

@@ -95,9 +95,12 @@ async def test_results_history_and_ui_live_while_the_fit_runs(tmp_path: Path) ->
         await settle(app, pilot)
         h = app.screen.health
         assert h is not None and h.n_poses == 60
-        assert h.verdict == "healthy" and 0 < h.mean_mm < h.max_mm < 5.0
+        # below the threshold, but the report's verdict (the one every door gives) counts
+        # the effect the model misses: degraded, and why
+        assert 0 < h.mean_mm < h.max_mm < 5.0
+        assert h.verdict == "degraded" and "backlash:j2" in h.reason, h.reason
         summary = text(app, "#summary")
-        assert "HEALTHY" in summary and f"{h.max_mm:7.3f}" in summary
+        assert "DEGRADED" in summary and f"{h.max_mm:7.3f}" in summary
         assert len(h.worst) >= 3 and h.worst[0].err_mm >= h.worst[-1].err_mm
         for name in ("model.json", "report.json", "workspace_error.png", "joint_curves.png"):
             assert (station.run_dir / name).is_file(), name
@@ -108,6 +111,7 @@ async def test_results_history_and_ui_live_while_the_fit_runs(tmp_path: Path) ->
         await settle(app, pilot)
         hist = app.screen.history
         assert [r.run_id for r in hist.rows] == ["hidden"]
-        assert hist.rows[0].baseline
+        # judged degraded, the run is not the robot's first healthy run: no baseline yet
+        assert hist.rows[0].verdict == "degraded" and not hist.rows[0].baseline
         assert app.screen.query_one("#runs").row_count == 1
         assert (station.run_dir / "trend.png").is_file()

@@ -16,6 +16,7 @@ from quickhealth.station.planning import load_cell
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.facade import Station, make_plan
 from quickhealth.station.tui.screens.confirm import ConfirmScreen
+from quickhealth.station.tui.simulated import in_process
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +28,7 @@ def plan():  # type: ignore[no-untyped-def]
 
 
 def sim_station(tmp: Path, plan) -> Station:  # type: ignore[no-untyped-def]
-    return Station.simulated(tmp / "archive", plan=plan, max_order=1, threshold_mm=5.0)
+    return in_process(tmp / "archive", plan=plan, max_order=1, threshold_mm=5.0)
 
 
 @pytest.mark.slow

@@ -13,7 +13,7 @@ from qh_tui import ended, journal_indices, settle, start_run, text, wait_for
 
 from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.tui.app import QuickhealthApp
-from quickhealth.station.tui.facade import Station
+from quickhealth.station.tui.simulated import open_simulated
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(280)]
 
@@ -33,10 +33,9 @@ async def reconnect(app: QuickhealthApp, pilot, timeout: float = 30.0) -> int:  
 
 
 async def test_whole_loop_with_abort_restart_reconnect_and_continue(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    station = Station.open(
+    station = open_simulated(
         cell="reference",
         archive=tmp_path / "archive",
-        sim=True,
         n_poses=20,
         run_id="pilot",
         speed_factor=4.0,

@@ -28,7 +28,7 @@ from quickhealth.identify.transforms import make_T, rot_y
 from quickhealth.identify.twin import make_twin, random_joints
 from quickhealth.station import formats
 from quickhealth.station.archive import Archive
-from quickhealth.station.vision_io import rig_to_json
+from quickhealth.station.formats.vision import rig_to_json
 from quickhealth.vision.boards import reference_target
 from quickhealth.vision.camera import StereoRig
 from quickhealth.vision.reference import T_left_rig, reference_rig

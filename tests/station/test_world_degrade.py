@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from quickhealth.identify.errors import InputError
-from quickhealth.station.hardware.world import build_world, degrade_truth, parse_degradation
+from quickhealth.station.sim.world import build_world, degrade_truth, parse_degradation
 
 
 def test_degradation_changes_exactly_the_named_coefficient() -> None:

@@ -16,11 +16,11 @@ from textual.screen import Screen
 from textual.widgets import Footer, Static
 from textual_plotext import PlotextPlot
 
+from ....identify.errormodel import MOTIONS
+from ...verdict import HealthVerdict
 from ..views import Health
 from ..widgets.nav import NavBar
 from ..widgets.textplot import spark
-
-MOTIONS = ("dx", "dy", "dz", "ex", "ey", "ez")
 
 
 def _ticks(lo: np.ndarray, hi: np.ndarray, n: int = 5) -> tuple[list[float], list[str]]:
@@ -96,14 +96,14 @@ class ResultsScreen(Screen[None]):
     def watch_health(self, h: Health | None) -> None:
         if h is None:
             return
-        ok = h.verdict == "healthy"
-        verdict = "[b green]HEALTHY[/]" if ok else "[b red]DEGRADED[/]"
+        colour = {HealthVerdict.HEALTHY: "green", HealthVerdict.DEGRADED: "yellow"}
+        verdict = f"[b {colour.get(h.verdict, 'red')}]{h.verdict.value.upper()}[/]"
         if h.change_mm is None:
             change = "no baseline yet (this run can become it)"
         else:
             change = f"{h.change_mm:+.3f} mm vs baseline {h.baseline_mean_mm:.3f}"
         lines = [
-            f"{verdict}  {h.threshold_figure} ≤ {h.threshold_mm:.3f} mm is healthy",
+            f"{verdict}  (threshold: {h.threshold_figure} ≤ {h.threshold_mm:.3f} mm)",
             f"run {h.run_id} · {h.robot} · {h.n_poses} poses",
             "",
             "[b]Workspace TCP error[/b] (model, whole range)",
@@ -114,6 +114,7 @@ class ResultsScreen(Screen[None]):
             f"  fit residual {h.rms_pos_mm:.3f} mm rms",
             f"  {spark(h.hist_counts, 24)}",
             f"  {h.hist_edges_mm[0]:<.2f}{'':>14}{h.hist_edges_mm[-1]:>.2f} mm",
+            f"[dim]why: {h.reason}[/]",
         ]
         self.query_one("#summary", Static).update("\n".join(lines))
         worst = ["[b]Worst regions[/b] (mean error there)"] + [

@@ -1,6 +1,6 @@
-"""``quickhealth identify compare``: add an effect and watch the held-out error fall.
+"""``quickhealth compare`` (also ``identify compare``): add an effect, watch the held-out error fall.
 
-    quickhealth identify compare DIR/model.json MEAS.csv --effects LIST
+    quickhealth compare DIR/model.json MEAS.csv --effects LIST
         [--heldout HELD.csv] [--folds K] [--json OUT.json] [--plots DIR]
 
 Fits the model of DIR/model.json (fitted to MEAS.csv, e.g. by ``identify fit``) again without
@@ -15,12 +15,16 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
 
 from quickhealth.station import options
 
+from ...identify.compare import compare_effect, plot_comparison
+from ...identify.errors import InputError
+from ..formats import read_measurements, read_model, write_text_atomic
+from ..fsio import refuse_overwriting_inputs, write_figure
 
-def register(subparsers: Any) -> None:
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add the ``compare`` sub-command to ``subparsers`` (the top level and ``identify``'s:
     one definition, two doors)."""
     c = subparsers.add_parser(
@@ -55,14 +59,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; prints the table, writes --json and --plots."""
-    from quickhealth.identify.compare import compare_effect, plot_comparison
-    from quickhealth.station.formats import read_measurements, read_model, write_text_atomic
-    from quickhealth.station.fsio import refuse_overwriting_inputs, write_figure
-
     png = None if args.plots is None else args.plots / "compare.png"
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
-        from quickhealth.identify.errors import InputError
-
         raise InputError(f"{args.plots}: --plots must be a folder")
     refuse_overwriting_inputs(
         [("--json", args.json), ("--plots", png)], [args.model, args.meas, args.heldout]
@@ -81,9 +79,6 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_text_atomic(args.json, json.dumps(cmp.to_dict(), indent=1) + "\n")
     if png is not None:
-        import matplotlib
-
-        matplotlib.use("Agg")
         write_figure(plot_comparison(cmp), png, dpi=110)
         print(f"plot: {png}")
     return 0

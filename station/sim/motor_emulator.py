@@ -1,7 +1,9 @@
-"""Pan-motor emulator on a pseudo-terminal: the device side of the protocol in :mod:`motor`.
+"""Pan-motor emulator on a pseudo-terminal: the device side of the protocol in
+:mod:`quickhealth.station.hardware.motor`.
 
 ``MotorEmulator().start()`` opens a pseudo-terminal (``os.openpty``) and serves the protocol
-from a thread; give :attr:`MotorEmulator.port` to :class:`~.motor.SerialPanMotor`.  The motor
+from a thread; give :attr:`MotorEmulator.port` to
+:class:`~quickhealth.station.hardware.motor.SerialPanMotor`.  The motor
 turns at ``speed_deg_s`` with 0.01° resolution within ±``limit_deg``.
 
 Faults for tests (:meth:`MotorEmulator.inject`): ``garbage`` (noise bytes before each reply),
@@ -18,7 +20,7 @@ import threading
 import time
 import tty
 
-from .motor import (
+from ..hardware.motor import (
     CMD_MOVE_TO,
     CMD_PING,
     CMD_READ,

@@ -6,9 +6,12 @@ naming the file.  Formats: docs/vision.md.
 
 from __future__ import annotations
 
+import csv
 import glob as _glob
+import io
 import json
 import os
+import stat
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -17,14 +20,16 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.vision.boards import TargetDescription, reference_target
-from quickhealth.vision.calibrate import CalibrationResult
-from quickhealth.vision.camera import CameraModel, StereoRig
-
-from .fsio import write_atomic
+from ... import vision as vision_package
+from ...identify.errors import InputError
+from ...vision.boards import TargetDescription, reference_target
+from ...vision.calibrate import CalibrationResult
+from ...vision.camera import CameraModel, StereoRig
+from ..fsio import write_atomic
+from .common import MAX_LINE_CHARS, read_text_limited
 
 U8 = NDArray[np.uint8]
+F = NDArray[np.float64]
 
 
 def expand_glob(pattern: str, what: str) -> list[Path]:
@@ -45,7 +50,7 @@ MAX_IMAGE_BYTES = 200 << 20
 def _header_pixels(path: Path) -> int | None:
     """Width x height from the file's header without decoding it (None: format unknown)."""
     try:
-        from PIL import Image
+        from PIL import Image  # Pillow reads a header without decoding; optional
 
         Image.MAX_IMAGE_PIXELS = None  # we judge the size ourselves, below
         with Image.open(path) as im:
@@ -61,8 +66,6 @@ def read_gray(path: Path) -> U8:
     Limits (docs/vision.md): a regular file of at most 200 MiB whose header claims at most
     ``MAX_IMAGE_PIXELS`` pixels; the header is read before anything is decoded.
     """
-    import stat
-
     try:
         st = path.stat()
     except OSError as exc:
@@ -242,6 +245,78 @@ def read_target(path: Path | None) -> TargetDescription:
 
 def data_path(name: str) -> Path:
     """A file shipped in quickhealth/vision/data."""
-    import quickhealth.vision as v
+    return Path(vision_package.__file__).parent / "data" / name
 
-    return Path(v.__file__).parent / "data" / name
+
+def read_image_index(path: Path) -> tuple[list[str], F, F, F, F]:
+    """A run folder's image index (``images/index.csv``: ``pose_id``, ``q1`` … ``qN`` in deg,
+    optional ``pan`` deg, ``time`` s, ``temp`` °C): pose ids, joints (rad), pan (rad), time,
+    temperature (NaN where a column is missing), in file order."""
+    if not path.is_file():
+        raise InputError(
+            f"{path}: missing (the run folder's image index: pose_id, q1..qN in deg, pan, time)"
+        )
+    text = read_text_limited(path, "measurements")  # regular file, size, UTF-8
+    for ln, line in enumerate(text.splitlines(), start=1):
+        if len(line) > MAX_LINE_CHARS:
+            raise InputError(
+                f"{path}:{ln}:1: line of {len(line)} characters is too long (at most "
+                f"{MAX_LINE_CHARS})"
+            )
+    try:
+        rows = [r for r in csv.reader(io.StringIO(text, newline="")) if r and r[0][:1] != "#"]
+    except csv.Error as exc:
+        raise InputError(f"{path}: not a CSV file: {exc}") from None
+    if len(rows) < 2:
+        raise InputError(f"{path}: no rows")
+    head = [h.strip() for h in rows[0]]
+    qcols = [c for c in head if c.startswith("q") and c[1:].isdigit()]
+    if "pose_id" not in head or not qcols:
+        raise InputError(f"{path}:1: header needs pose_id and q1..qN")
+    qcols.sort(key=lambda c: int(c[1:]))
+    ids, q, pan, time, temp = [], [], [], [], []
+    for ln, r in enumerate(rows[1:], start=2):
+        if len(r) != len(head):
+            raise InputError(f"{path}:{ln}: {len(r)} cells, header has {len(head)}")
+        d = dict(zip(head, (c.strip() for c in r), strict=True))
+        try:
+            q.append([float(d[c]) for c in qcols])
+            pan.append(float(d["pan"]) if "pan" in d else np.nan)
+            time.append(float(d["time"]) if "time" in d else np.nan)
+            temp.append(float(d["temp"]) if "temp" in d else np.nan)
+        except ValueError:
+            bad = next(c for c in head if c != "pose_id" and not _isnum(d[c]))
+            raise InputError(
+                f"{path}:{ln}:{head.index(bad) + 1}: {bad} is not a number ({d[bad]!r})"
+            ) from None
+        bad_q = [c for c, v in zip(qcols, q[-1], strict=True) if not np.isfinite(v)]
+        if bad_q:
+            raise InputError(
+                f"{path}:{ln}:{head.index(bad_q[0]) + 1}: {bad_q[0]} is {d[bad_q[0]]!r}, not a "
+                "finite joint angle"
+            )
+        ids.append(check_pose_id(d["pose_id"], f"{path}:{ln}:{head.index('pose_id') + 1}"))
+    return ids, np.radians(np.array(q)), np.radians(np.array(pan)), np.array(time), np.array(temp)
+
+
+def check_pose_id(pid: str, where: str) -> str:
+    """A pose id usable in CSV v1 and as an image file name: no control characters, no path."""
+    if (
+        not pid
+        or len(pid) > 128
+        or any(c < " " or c in "/\\\x7f" for c in pid)
+        or pid in (".", "..")
+    ):
+        raise InputError(
+            f"{where}: pose_id {pid[:40]!r} must be 1-128 characters without control "
+            "characters or path separators"
+        )
+    return pid
+
+
+def _isnum(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False

@@ -22,34 +22,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.transforms import inv_T, make_T
-from quickhealth.identify.twin import Twin, TwinTruth, make_twin, twin_from_truth
-from quickhealth.vision.boards import TargetDescription, grid_markers
-from quickhealth.vision.boards import reference_target as _reference_target
-from quickhealth.vision.camera import StereoRig
-from quickhealth.vision.reference import reference_rig
-
-from .target import T_target_plate
+from ...identify.errors import InputError
+from ...identify.transforms import inv_T, make_T
+from ...identify.twin import Twin, TwinTruth, make_twin, twin_from_truth
+from ...vision.boards import TargetDescription
+from ...vision.camera import StereoRig
+from ...vision.reference import reference_rig
+from ..hardware.target import T_target_plate, reference_board, reference_target
+from ..planning import load_cell
 
 F = NDArray[np.float64]
-
-
-def reference_board() -> TargetDescription:
-    """The fixed self-check board: 6×6 DICT_5X5_50 markers, 36 mm on a 48 mm pitch.
-
-    A different dictionary from the smart target's, so the two are never confused.
-    """
-    ids, corners = grid_markers(6, 6, 0.036, 0.048, 0)
-    plate = np.array([[-0.15, -0.16], [0.15, 0.16]])
-    return TargetDescription(
-        "selfcheck-6x6-5x5", "DICT_5X5_50", ids, corners, plate, np.array([0.0, 1.0, 0.0])
-    )
-
-
-def reference_target() -> TargetDescription:
-    """The smart target on the pan motor (vision's reference design)."""
-    return _reference_target()
 
 
 # Board frame in world axes: x = +y_world, y = −z_world (down), z = −x_world (into the
@@ -133,8 +115,6 @@ def build_world(
 
     ``degrade`` changes the twin's true error coefficients (see :func:`degrade_truth`).
     """
-    from quickhealth.station.planning import load_cell
-
     c = load_cell(cell)
     rig = reference_rig()
     T_world_instr = c.T_world_cam_left

@@ -1,0 +1,228 @@
+"""``quickhealth compensate``: rewrite a program's joint targets so the modelled TCP hits them.
+
+quickhealth compensate MODEL.json PROGRAM --out NEW_PROGRAM [--errors ERR.csv] [--tcp-mm X,Y,Z]
+    [--temp-c C] [--time-s S] [--leave-out EFFECTS] [--max-correction-deg D]
+    PROGRAM: URScript (.script) or a CSV of joint columns q1..qN (deg).  The compensation and
+    every refusal are :func:`quickhealth.station.services.compensation.compensate`'s; this
+    command reads and writes the files and says, one line per target, what was refused
+    (exit 2, nothing written).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ...identify.effects.backlash import Backlash
+from ...identify.errors import InputError
+from ...identify.fit import FittedModel
+from ...identify.urscript import replace_targets
+from .. import formats
+from ..fsio import refuse_overwriting_inputs
+
+if TYPE_CHECKING:  # types only: the compensation loads scipy.optimize, --help must not wait
+    from ...identify.compensate import Compensation
+    from ..services.compensation import Refused
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``compensate``."""
+    c = subparsers.add_parser(
+        "compensate", help="rewrite a program's joint targets so the modelled TCP hits them"
+    )
+    c.add_argument("model", help="model.json")
+    c.add_argument("program", help="URScript (.script) or CSV of joint columns q1..qN (deg)")
+    c.add_argument("--out", required=True, help="the compensated program")
+    c.add_argument("--errors", default=None, help="CSV of predicted error per target")
+    c.add_argument("--tcp-mm", default="0,0,0", help="tool centre point on the flange, mm")
+    c.add_argument(
+        "--max-correction-deg",
+        type=float,
+        default=1.0,
+        help="largest change of any joint of any target (1.0); a larger one is refused",
+    )
+    c.add_argument(
+        "--temp-c",
+        type=float,
+        default=None,
+        help="temperature the program runs at (needed by a model with 'thermal')",
+    )
+    c.add_argument(
+        "--time-s",
+        type=float,
+        default=None,
+        help="time the program runs at, s on the fitted run's clock (needed by 'drift')",
+    )
+    c.add_argument(
+        "--leave-out",
+        default=None,
+        help="comma-separated effects of the model not to compensate (e.g. drift)",
+    )
+    c.set_defaults(func=_compensate)
+
+
+def _compensate(args: argparse.Namespace) -> int:
+    """Compensate a program; refuse (exit 2, nothing written) anything that could make it worse."""
+    from ..services.compensation import compensate, needed_conditions  # scipy.optimize
+
+    cap = args.max_correction_deg
+    if not 0 < cap <= 10:
+        raise InputError(f"--max-correction-deg must be in (0, 10], got {cap}")
+    if args.temp_c is not None and not -40.0 <= args.temp_c <= 100.0:
+        raise InputError(f"--temp-c must be a temperature in [-40, 100] degC, got {args.temp_c}")
+    if args.time_s is not None and not 0.0 <= args.time_s <= 1e7:
+        raise InputError(f"--time-s must be in [0, 1e7] s, got {args.time_s}")
+    refuse_overwriting_inputs(
+        [("--out", args.out), ("--errors", args.errors)], [args.model, args.program]
+    )
+    fm = formats.read_model(args.model)
+    nj = fm.robot.n_joints
+    leave_out = [x.strip() for x in (args.leave_out or "").split(",") if x.strip()]
+    needs = needed_conditions(fm, leave_out)
+    if needs["temp"] and args.temp_c is None:
+        raise InputError(
+            f"{args.model}: the model has {needs['temp'][0]!r}: give the temperature the "
+            "program runs at with --temp-c (its link lengths refer to 20 degC), or leave it "
+            f"out with --leave-out {needs['temp'][0]}; nothing written"
+        )
+    if needs["time"] and args.time_s is None:
+        end = fm.reference_time
+        ran = f"; the fitted run ended at {end:g} s" if end is not None else ""
+        raise InputError(
+            f"{args.model}: the model has {needs['time'][0]!r} (the robot base moving against "
+            "the instrument): give the time the program runs at, on the fitted run's clock, "
+            f"with --time-s{ran}; or --leave-out {needs['time'][0]} if the instrument moved, "
+            "not the robot; nothing written"
+        )
+    try:
+        tcp = np.array([float(v) for v in args.tcp_mm.split(",")]) * 1e-3
+    except ValueError:
+        raise InputError(f"--tcp-mm must be X,Y,Z in mm, got {args.tcp_mm!r}") from None
+    if tcp.shape != (3,) or not np.all(np.isfinite(tcp)) or np.abs(tcp).max() > 2.0:
+        raise InputError(f"--tcp-mm must be X,Y,Z in mm (finite, within 2000), got {args.tcp_mm!r}")
+    T_tcp = np.eye(4)
+    T_tcp[:3, 3] = tcp
+    prog = Path(args.program)
+    is_script = prog.suffix.lower() in (".script", ".urscript", ".urp")
+    if is_script:
+        text, targets = formats.read_urscript(prog, nj)
+        q = targets.q
+        where = [f"{prog}:{ln}: target {k + 1}" for k, ln in enumerate(targets.lines)]
+    else:
+        q = formats.read_measurements(prog, nj, joints_only=True).q
+        where = [f"{prog}: target {k + 1}" for k in range(len(q))]
+    c = compensate(
+        fm,
+        q,
+        T_flange_tcp=T_tcp,
+        temp_c=args.temp_c,
+        time_s=args.time_s,
+        leave_out=leave_out,
+        max_correction=np.radians(cap),
+        describe=lambda refused: _refusals(refused, where, cap),
+    )
+    comp = c.result
+    dq = np.degrees(c.dq)
+    if is_script:
+        new_text = replace_targets(text, targets.spans, c.q)
+    else:
+        lines = [",".join(f"q{j + 1}" for j in range(nj))]
+        lines += [",".join(f"{v:.9f}" for v in np.degrees(row)) for row in c.q]
+        new_text = "\n".join(lines) + "\n"
+    rows = None
+    if args.errors:
+        rows = ["target,err_before_mm,err_after_mm,rot_after_mrad,max_dq_deg,converged"]
+        adq = np.abs(dq).max(axis=1)
+        for i in range(len(q)):
+            rows.append(
+                f"{i + 1},{comp.error_before_pos[i] * 1e3:.6f},{comp.residual_pos[i] * 1e3:.6f},"
+                f"{comp.residual_rot[i] * 1e3:.6f},{adq[i]:.6f},{int(comp.converged[i])}"
+            )
+    formats.write_text_atomic(args.out, new_text)
+    if rows is not None:
+        formats.write_text_atomic(args.errors, "\n".join(rows) + "\n")
+    print(
+        f"{len(q)} targets: predicted TCP error {comp.error_before_pos.mean() * 1e3:.4f} mm mean "
+        f"({comp.error_before_pos.max() * 1e3:.4f} max) before, "
+        f"{comp.residual_pos.max() * 1e3:.6f} mm max after compensation; largest correction "
+        f"{np.abs(dq).max():.4f} deg (cap {cap:g})"
+    )
+    for line in _compensation_notes(fm, comp, args, Backlash):
+        print(line)
+    print(f"wrote {args.out}" + (f", {args.errors}" if args.errors else ""))
+    return 0
+
+
+def _refusals(refused: Sequence[Refused], where: Sequence[str], cap: float) -> list[str]:
+    """One line per refused target (deg), each ending "nothing written"."""
+    from ..services.compensation import Refusal  # scipy.optimize (loaded by now)
+
+    lines = []
+    for r in refused:
+        at, j = where[r.target], None if r.joint is None else r.joint + 1
+        v, lo, hi = np.degrees([r.value, r.lo, r.hi])
+        if r.why is Refusal.OUTSIDE_LIMITS:
+            x = f"joint {j} at {v:.6g} deg is outside the robot's limits [{lo:.6g}, {hi:.6g}] deg"
+        elif r.why is Refusal.OUTSIDE_MODEL:
+            x = (
+                f"joint {j} at {v:.6g} deg is outside the range the model was identified on "
+                f"[{lo:.6g}, {hi:.6g}] deg: the model would extrapolate"
+            )
+        elif r.why is Refusal.NOT_CONVERGED:
+            x = "compensation did not converge (near a singularity?)"
+        elif r.why is Refusal.BACKLASH_REVERSED:
+            x = (
+                "the correction reverses the direction the program moves a backlash joint "
+                "into this target (the move is smaller than the correction): the side the "
+                "gear rests on is undefined"
+            )
+        elif r.why is Refusal.TOO_LARGE:
+            x = f"joint {j} correction {v:+.4g} deg exceeds --max-correction-deg {cap:g}"
+        else:
+            x = f"compensated joint {j} at {v:.6g} deg is outside the robot's limits"
+        lines.append(f"{at}: {x}; nothing written")
+    return lines
+
+
+def _compensation_notes(
+    fm: FittedModel, comp: Compensation, args: argparse.Namespace, backlash: type
+) -> list[str]:
+    """The lines that say what the compensation used and what it left out (never silently)."""
+    out = []
+    if comp.described:
+        out.append("compensated effects: " + "; ".join(comp.described))
+    for name, why in comp.left_out:
+        out.append(f"left out: {name} ({why})")
+    uses = {col for e in fm.effects if e.name in comp.effects for col in e.requires()}
+    if args.temp_c is not None and "temp" not in uses:
+        out.append(f"--temp-c {args.temp_c:g} not used: no compensated effect depends on it")
+    if args.time_s is not None and "time" not in uses:
+        out.append(f"--time-s {args.time_s:g} not used: no compensated effect depends on it")
+    end = fm.reference_time
+    if "time" in uses and end is not None and args.time_s > end:
+        out.append(
+            f"drift extrapolated linearly to {args.time_s:g} s; the fitted run ended at {end:g} s"
+        )
+    # a move smaller than the play leaves a real gear between its two sides
+    for e, p in zip(fm.effects, fm.effect_params, strict=True):
+        if not isinstance(e, backlash) or e.name not in comp.effects:
+            continue
+        out.append(
+            f"note: {e.name}: the first target counts as reached with joint {e.joint + 1} "
+            "moving in the positive direction (the fit's rule for a first pose); make the "
+            "move into it do so"
+        )
+        step = np.abs(np.diff(comp.q[:, e.joint], prepend=comp.q[0, e.joint]))[1:]
+        small = np.flatnonzero(step < abs(float(p[0])))
+        if small.size:
+            shown = ", ".join(str(int(k) + 2) for k in small[:8]) + (" …" if small.size > 8 else "")
+            out.append(
+                f"note: joint {e.joint + 1} moves less than its play "
+                f"({np.degrees(abs(float(p[0]))):.4g} deg) into target(s) {shown}: the side "
+                f"its gear rests on there is uncertain; {e.name} assumes the direction of the move"
+            )
+    return out

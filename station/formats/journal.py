@@ -1,0 +1,255 @@
+"""The run journal's records (schema ``quickhealth.journal/1``): typed in SI, stored in mm and deg.
+
+Each line of ``RUN_DIR/journal.jsonl`` is one record (``type``: a :class:`RecordKind`).  The
+run writes typed records and every reader gets them back typed, through the one encoder
+(:func:`encode`) and the one decoder (:func:`decode`) here; the durable storage (checksums,
+``fsync``, the torn last line) is :mod:`quickhealth.station.journal`.
+
+- ``start``, ``resume``, ``stop``, ``end``: plain objects (ids, times, reasons; no units);
+- ``selfcheck`` (:class:`SelfCheck`): the instrument self-check on the reference board;
+- ``captured`` (:class:`Captured`): a pose reached and imaged;
+- ``measured`` (:class:`Measured`): the 7D measurement of a captured pose;
+- ``failed`` (:class:`Failed`): a pose that could not be captured.
+
+In the file: joints ``q_deg``, ``q_cmd_deg``, pan ``pan_deg``, the measured target frame at
+pan 0 ``x_mm``, ``rpy_deg`` with ``sigma_mm``, ``sigma_deg``, the board ``T_instr_board_mm``
+(a 4×4 with its translation in mm) — as the journals of earlier versions hold them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+F = NDArray[np.float64]
+
+
+class RecordKind(StrEnum):
+    """What a journal line records (its ``type``)."""
+
+    START = "start"
+    SELFCHECK = "selfcheck"
+    CAPTURED = "captured"
+    MEASURED = "measured"
+    FAILED = "failed"
+    STOP = "stop"
+    RESUME = "resume"
+    END = "end"
+
+
+@dataclass(frozen=True, eq=False)
+class SelfCheck:
+    """The reference board measured at a phase of the run (``start``, ``resume``, ``end``).
+
+    ``T_instr_board`` (4, 4), m, and ``sigma_pos`` (3,), m, when ``ok``; ``reason`` when not.
+    ``time_s``: s since the run's epoch (None when not measured).
+    """
+
+    phase: str
+    ok: bool
+    reason: str = ""
+    T_instr_board: F | None = None
+    sigma_pos: F | None = None
+    rms_px: float | None = None
+    time_s: float | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Captured:
+    """A pose reached and imaged: the settled joint reading ``q`` and the command ``q_cmd``
+    (rad), the pan angle (rad), the capture time (s since the run's epoch), the two image files
+    (relative to the run folder), the captures it took and the markers seen (left, right)."""
+
+    index: int
+    name: str
+    q: F
+    pan: float
+    time_s: float
+    images: tuple[str, ...]
+    q_cmd: F | None = None
+    attempts: int = 1
+    markers: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class Measured:
+    """The 7D measurement of a captured pose: the target frame at pan 0 (``position`` m,
+    ``rpy`` rad) with its standard uncertainties, or why the vision library rejected it."""
+
+    index: int
+    name: str
+    ok: bool
+    reason: str = ""
+    position: F | None = None
+    rpy: F | None = None
+    sigma_pos: F | None = None
+    sigma_rpy: F | None = None
+    rms_px: float | None = None
+    n_corners: tuple[int, ...] = ()
+    n_outliers: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class Failed:
+    """A pose that could not be captured (joints ``q`` and ``pan`` rad, at ``time_s``)."""
+
+    index: int
+    name: str
+    reason: str
+    q: F | None = None
+    pan: float | None = None
+    time_s: float | None = None
+
+
+Record = SelfCheck | Captured | Measured | Failed | dict[str, Any]
+
+
+def _mm(v: F | None) -> list[float] | None:
+    return None if v is None else (np.asarray(v, float) * 1e3).tolist()
+
+
+def _deg(v: F | None) -> list[float] | None:
+    return None if v is None else np.degrees(np.asarray(v, float)).tolist()
+
+
+def _T_mm(T: F) -> list[list[float]]:
+    M = np.array(T, dtype=float)
+    M[:3, 3] *= 1e3
+    return M.tolist()
+
+
+def encode(rec: Record) -> dict[str, Any]:
+    """The JSON object of a record (file units; ``type`` first)."""
+    if isinstance(rec, Mapping):
+        return dict(rec)
+    if isinstance(rec, SelfCheck):
+        out: dict[str, Any] = {"type": RecordKind.SELFCHECK.value, "phase": rec.phase, "ok": rec.ok}
+        if not rec.ok:
+            return {**out, "reason": rec.reason}
+        assert rec.T_instr_board is not None
+        return {
+            **out,
+            "T_instr_board_mm": _T_mm(rec.T_instr_board),
+            "sigma_mm": _mm(rec.sigma_pos),
+            "rms_px": rec.rms_px,
+            "time_s": rec.time_s,
+        }
+    if isinstance(rec, Captured):
+        return {
+            "type": RecordKind.CAPTURED.value,
+            "index": rec.index,
+            "name": rec.name,
+            "q_deg": _deg(rec.q),
+            "q_cmd_deg": _deg(rec.q_cmd),
+            "pan_deg": float(np.degrees(rec.pan)),
+            "time_s": rec.time_s,
+            "images": list(rec.images),
+            "attempts": rec.attempts,
+            "markers": list(rec.markers),
+        }
+    if isinstance(rec, Measured):
+        out = {
+            "type": RecordKind.MEASURED.value,
+            "index": rec.index,
+            "name": rec.name,
+            "ok": rec.ok,
+        }
+        if not rec.ok:
+            return {**out, "reason": rec.reason}
+        return {
+            **out,
+            "x_mm": _mm(rec.position),
+            "rpy_deg": _deg(rec.rpy),
+            "sigma_mm": _mm(rec.sigma_pos),
+            "sigma_deg": _deg(rec.sigma_rpy),
+            "rms_px": rec.rms_px,
+            "n_corners": list(rec.n_corners),
+            "n_outliers": rec.n_outliers,
+        }
+    assert isinstance(rec, Failed)
+    return {
+        "type": RecordKind.FAILED.value,
+        "index": rec.index,
+        "name": rec.name,
+        "q_deg": _deg(rec.q),
+        "pan_deg": None if rec.pan is None else float(np.degrees(rec.pan)),
+        "reason": rec.reason,
+        "time_s": rec.time_s,
+    }
+
+
+def _m(v: object) -> F | None:
+    return None if v is None else np.asarray(v, dtype=float) / 1e3
+
+
+def _rad(v: object) -> F | None:
+    return None if v is None else np.radians(np.asarray(v, dtype=float))
+
+
+def decode(obj: Mapping[str, Any]) -> Record:
+    """The typed record of a journal line's JSON object (SI); ``start``, ``resume``, ``stop``
+    and ``end`` stay objects.
+
+    Raises
+    ------
+    KeyError, TypeError, ValueError
+        A record without a field its kind needs (the reader names the line).
+    """
+    kind = RecordKind(obj["type"])
+    if kind is RecordKind.SELFCHECK:
+        ok = bool(obj["ok"])
+        if not ok:
+            return SelfCheck(str(obj["phase"]), False, str(obj.get("reason", "")))
+        T = np.array(obj["T_instr_board_mm"], dtype=float)
+        T[:3, 3] /= 1e3
+        return SelfCheck(
+            str(obj["phase"]),
+            True,
+            T_instr_board=T,
+            sigma_pos=_m(obj.get("sigma_mm")),
+            rms_px=obj.get("rms_px"),
+            time_s=obj.get("time_s"),
+        )
+    if kind is RecordKind.CAPTURED:
+        return Captured(
+            index=int(obj["index"]),
+            name=str(obj["name"]),
+            q=_rad(obj["q_deg"]),
+            pan=float(np.radians(obj["pan_deg"])),
+            time_s=float(obj["time_s"]),
+            images=tuple(str(p) for p in obj["images"]),
+            q_cmd=_rad(obj.get("q_cmd_deg")),
+            attempts=int(obj.get("attempts", 1)),
+            markers=tuple(int(m) for m in obj.get("markers", ())),
+        )
+    if kind is RecordKind.MEASURED:
+        if not obj["ok"]:
+            return Measured(int(obj["index"]), str(obj["name"]), False, str(obj.get("reason", "")))
+        return Measured(
+            index=int(obj["index"]),
+            name=str(obj["name"]),
+            ok=True,
+            position=_m(obj["x_mm"]),
+            rpy=_rad(obj["rpy_deg"]),
+            sigma_pos=_m(obj["sigma_mm"]),
+            sigma_rpy=_rad(obj["sigma_deg"]),
+            rms_px=obj.get("rms_px"),
+            n_corners=tuple(int(c) for c in obj.get("n_corners", ())),
+            n_outliers=int(obj.get("n_outliers", 0)),
+        )
+    if kind is RecordKind.FAILED:
+        pan = obj.get("pan_deg")
+        return Failed(
+            index=int(obj["index"]),
+            name=str(obj["name"]),
+            reason=str(obj.get("reason", "")),
+            q=_rad(obj.get("q_deg")),
+            pan=None if pan is None else float(np.radians(pan)),
+            time_s=obj.get("time_s"),
+        )
+    return dict(obj)

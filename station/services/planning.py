@@ -1,0 +1,87 @@
+"""Plan a cell's fixed loop and write it: plan.json, loop.script and the Fig. 6 plots.
+
+:func:`plan_folder` is ``quickhealth plan`` without its words: the planner's steps 1–5, the
+plan validated as the frozen document a run will load, its URScript program made from that
+document, everything written into one folder (each file atomically) after the planning work.
+
+SYNOPSIS::
+
+    res = plan_folder(load_cell("reference"), 150, 0, Path("plan"))
+    res.result.summary(), res.plan.hash
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..fsio import claim_output_folder, foreign_results, make_dirs, replacing_line, write_atomic
+from ..planning.cell import Cell
+from ..planning.figures import write_figures
+from ..planning.planfile import Plan, dumps, plan_from_dict, plan_to_dict
+from ..planning.planner import PlanResult, plan_loop
+from ..planning.urscript import render_urscript
+
+#: The files of a plan folder.
+PLAN_FILES = ("plan.json", "loop.script", "fig6_joints.png", "fig6_targets.png")
+
+
+@dataclass(frozen=True)
+class PlanFiles:
+    """What :func:`plan_folder` planned and wrote (``replacing``: the line about files it
+    replaced, "" when none)."""
+
+    result: PlanResult
+    plan: Plan
+    paths: tuple[Path, ...]
+    replacing: str
+
+
+def plan_folder(
+    cell: Cell,
+    n_candidates: int,
+    seed: int,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> PlanFiles:
+    """Plan ``cell`` from ``n_candidates`` random targets (``seed``) and write the plan to ``out``.
+
+    Raises
+    ------
+    InputError
+        ``out`` holds another plan, a run or a fit (unless ``force``); checked again after
+        planning, when the new plan's hash is known.
+    """
+    foreign = foreign_results(out, "plan")
+    claim_output_folder(out, foreign, force=force)  # before the planning work
+    res = plan_loop(cell, n_candidates, seed, progress)
+    doc = plan_to_dict(res)
+    plan = plan_from_dict(doc, "plan.json")  # the program is made from the validated document
+    script = render_urscript(plan)
+    other = _other_plan(out / "plan.json", doc["hash"])
+    forced = claim_output_folder(out, foreign + other, force=force)
+    replaced = [n for n in PLAN_FILES if (out / n).exists()]
+    said = replacing_line(out, replaced, "the same plan" if "plan.json" in replaced else "", forced)
+    make_dirs(out)
+    write_atomic(out / "plan.json", dumps(doc).encode("utf-8"), durable=True)
+    write_atomic(out / "loop.script", script.encode("utf-8"), durable=True)
+    figs = write_figures(res, out)
+    return PlanFiles(res, plan, (out / "plan.json", out / "loop.script", *figs), said)
+
+
+def _other_plan(path: Path, new_hash: str) -> list[str]:
+    """Why ``path`` (an existing plan.json) is another plan than the one of ``new_hash``
+    (runs and the trend compare plans by hash: replacing a different plan is not silent)."""
+    if not path.exists():
+        return []
+    try:
+        old = json.loads(path.read_text(encoding="utf-8")).get("hash")
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        return [f"a plan.json that cannot be read ({path.name})"]
+    if old == new_hash:
+        return []
+    return [f"another plan ({path.name} {str(old)[:19]}..., this one {new_hash[:19]}...)"]

@@ -1,0 +1,294 @@
+"""The report of a fitted run: what it finds, the one verdict, report.html and report.json.
+
+:func:`build_report` gathers what a run folder and the archive say (the fitted model, the
+data, the plan, the workspace error, the joint curves, the diagnosis, the trend against the
+baseline, ISO 9283 statistics), judges the run (:func:`quickhealth.station.verdict.judge`) and
+lays it out as the page's sections (:mod:`quickhealth.station.report_html`).
+:func:`report_run` is the door every producer uses (``quickhealth report``, the TUI's Results
+screen, ``reprocess``): it writes report.html and adds the sections, the verdict and the
+``run`` object to report.json, keeping its schema.
+
+SYNOPSIS::
+
+    res = report_run(Path("runs/r1"), archive=Archive.open(), robot="ur5-cell3",
+                     options=ReportOptions(threshold=Threshold(0.5)))
+    res.judgement.verdict, res.judgement.reason
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ...identify.diagnose import diagnose, state_from_fitted
+from ...identify.errors import InputError
+from ...identify.fit import FittedModel
+from ...identify.measurements import Measurements
+from ...identify.trend import TrendResult, assess_trend
+from ...identify.workspace import all_joint_curves, workspace_error
+from .. import report_html as page
+from ..archive import Archive, run_metadata
+from ..formats import measurements as measurements_file
+from ..formats import model as model_file
+from ..formats import report as report_file
+from ..formats.common import write_text_atomic
+from ..fsio import write_atomic
+from ..iso9283 import run_pose_stats
+from ..planning.planfile import plan_joints
+from ..verdict import Figures, Judgement, MissingEffect, judge
+from .options import ReportOptions
+
+#: The report's sections that report.json keeps (beside the fit's keys).
+JSON_SECTIONS = ("coverage", "diagnosis", "trend", "iso9283", "verdict")
+
+
+@dataclass(frozen=True)
+class RunReport:
+    """A run's report: the page's sections and the verdict."""
+
+    page: page.Report
+    judgement: Judgement
+    run_id: str
+    robot: str | None
+
+
+@dataclass(frozen=True)
+class ReportFiles:
+    """What :func:`report_run` wrote: the report, report.html (None with ``html=False``) and
+    report.json's new content."""
+
+    report: RunReport
+    html: Path | None
+    report_json: Path
+    doc: dict[str, Any]
+
+
+def build_report(
+    run_dir: str | Path,
+    *,
+    archive: Archive | None = None,
+    robot: str | None = None,
+    run_id: str | None = None,
+    options: ReportOptions = ReportOptions(),
+    meas: Measurements | None = None,
+    plots: bool = True,
+    in_place_of_archived: bool = False,
+) -> RunReport:
+    """Gather every section of a run's report and judge the run.
+
+    Parameters
+    ----------
+    run_dir : path
+        Folder with ``model.json`` and ``measurements.csv`` (and optionally ``report.json``,
+        ``plan.json``, ``run.json``, ``diagnosis.json``).
+    archive : Archive, optional
+        For the trend section: the archive holding this robot's runs.
+    robot, run_id : str, optional
+        The run's robot and id in the archive (run id default: the folder's name).
+    meas : Measurements, optional
+        The data the model was fitted to (default: the folder's measurements.csv).
+    plots : bool
+        Draw the figures (report.json alone needs none).
+    in_place_of_archived : bool
+        The folder stands for the archived run in the trend (a reprocessed copy): the trend
+        reads this run's figures and model from the folder, not from the archive.
+
+    Raises
+    ------
+    InputError
+        The folder has no ``model.json`` (nothing to report).
+    """
+    d = Path(run_dir)
+    if not (d / "model.json").is_file():
+        raise InputError(f"{d}: no model.json (fit the run first: quickhealth identify fit)")
+    fitted = model_file.read_model(d / "model.json")
+    if meas is None and (d / "measurements.csv").is_file():
+        meas = measurements_file.read_measurements(d / "measurements.csv", fitted.robot.n_joints)
+    if meas is not None and meas.n_poses != fitted.n_poses:
+        meas = None  # not the data this model was fitted to
+    meta = run_metadata(d)
+    rid = run_id or meta.get("run_id") or d.resolve().name
+    if archive is not None and robot is not None:  # the index knows what the folder may not
+        rec = next((r for r in archive.runs(robot) if r.run_id == rid), None)
+        if rec is not None:
+            meta = {**meta, **{k: v for k, v in rec.meta.items() if v}, "time_utc": rec.time_utc}
+
+    q_plan, plan_source = _plan_joints(d, meas)
+    ws = workspace_error(fitted, n_samples=options.workspace_samples)
+    curves = all_joint_curves(fitted, n_points=61)
+    diag = _json(d / "diagnosis.json")
+    if diag is None and options.diagnose_if_missing and meas is not None:
+        diag = diagnose(state_from_fitted(fitted), meas).to_dict(top=8)
+    own = d if in_place_of_archived else None
+    trend, runs, why = _trend(archive, robot, rid, options, own)
+    judgement = judge(
+        Figures.of_report({"workspace": ws.as_dict()}),
+        trend=trend,
+        missing=MissingEffect.of_diagnosis(diag),
+        threshold=options.threshold,
+        conditions=ws.conditions.describe(),
+        uncertainty=_uncertainty_words(fitted),
+    )
+    sections = (
+        page.verdict_section(judgement),
+        page.summary_section(fitted, rid, robot, meta),
+        page.coverage_section(fitted, q_plan, plan_source, plots=plots),
+        page.workspace_section(ws, plots=plots),
+        page.curves_section(curves, fitted, plots=plots),
+        page.residuals_section(fitted, meas, plots=plots),
+        page.diagnosis_section(diag),
+        page.trend_section(trend, runs, missing=why, plots=plots),
+        page.iso_section([] if meas is None else run_pose_stats(fitted, meas), meas, plots=plots),
+    )
+    report = page.Report(
+        title=f"quickhealth report: {fitted.robot.name}, run {rid}",
+        run_dir=str(d),
+        sections=sections,
+    )
+    return RunReport(report, judgement, rid, robot)
+
+
+def report_run(
+    run_dir: str | Path,
+    *,
+    archive: Archive | None = None,
+    robot: str | None = None,
+    run_id: str | None = None,
+    options: ReportOptions = ReportOptions(),
+    meas: Measurements | None = None,
+    html: Path | None = None,
+    write_html: bool = True,
+    in_place_of_archived: bool = False,
+    record_verdict: bool = True,
+) -> ReportFiles:
+    """Report a fitted run folder: report.html (at ``html``, default ``RUN_DIR/report.html``;
+    none with ``write_html=False``) and report.json with the report's sections, its verdict
+    and the ``run`` object added (schema kept).  With ``record_verdict``, an archived run's
+    healthy flag in the index becomes the verdict's (the baseline is the first healthy run).
+
+    Raises
+    ------
+    InputError
+        No model.json or report.json in the folder, or a report.json that is not a complete
+        fit report of its schema (fit the run first).
+    """
+    d = Path(run_dir)
+    fit_first = (
+        f"fit the run first: quickhealth identify fit {d / 'measurements.csv'} --robot ROBOT "
+        f"--out {d}"
+    )
+    for name in ("model.json", "report.json"):
+        if not (d / name).is_file():
+            raise InputError(f"{d}: no {name} ({fit_first})")
+    rp = d / "report.json"
+    doc = report_file.read_report(rp)  # a quickhealth report of a schema this version reads
+    report_file.check_report(doc, str(rp), complete=False)  # the fit's figures are there
+    if doc["schema"] == report_file.REPORT_SCHEMA:  # every key of /2, or it is not a /2 file
+        try:
+            report_file.check_report(doc, str(rp))
+        except InputError as exc:
+            raise InputError(f"{exc}: not a complete report.json ({fit_first})") from None
+    rep = build_report(
+        d,
+        archive=archive,
+        robot=robot,
+        run_id=run_id,
+        options=options,
+        meas=meas,
+        plots=write_html,
+        in_place_of_archived=in_place_of_archived,
+    )
+    sections = rep.page.to_dict()["sections"]
+    j = rep.judgement
+    threshold = options.threshold
+    run = {
+        "run_id": rep.run_id,
+        "robot_name": robot,
+        "verdict": j.verdict.value,
+        "healthy": j.healthy,
+        "threshold_mm": None if threshold is None else threshold.mm,
+        "threshold_figure": None if threshold is None else threshold.figure.value,
+    }
+    text = report_file.with_sections(doc, {k: sections[k] for k in JSON_SECTIONS}, run=run)
+    out = None
+    if write_html:
+        out = Path(html) if html is not None else d / "report.html"
+        write_text_atomic(out, page.render_html(rep.page))
+    write_atomic(rp, text)
+    if record_verdict and archive is not None and robot is not None:
+        if any(r.run_id == rep.run_id for r in archive.runs(robot)):
+            archive.set_healthy(robot, rep.run_id, j.healthy)
+    return ReportFiles(rep, out, rp, json.loads(text))
+
+
+def _json(path: Path) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}") from None
+    return doc if isinstance(doc, dict) else None
+
+
+def _plan_joints(d: Path, meas: Measurements | None) -> tuple[NDArray[np.float64] | None, str]:
+    """The commanded joints (rad) of the folder's plan.json, else the measured poses."""
+    q = plan_joints(d / "plan.json")
+    if q is not None:
+        return q, "plan.json"
+    if meas is not None:
+        return meas.q, "measurements.csv (executed poses)"
+    return None, ""
+
+
+def _uncertainty_words(fitted: FittedModel) -> str:
+    """What the verdict line says when the bands use a scatter estimated from the residuals
+    (the stated instrument uncertainty was too small for them), else ""."""
+    n = fitted.noise
+    if not n.rescaled:
+        return ""
+    return (
+        "uncertainty estimated from the residuals (the stated instrument uncertainty was too "
+        f"small: {n.excess_pos * 1e3:.3g} mm added per axis)"
+    )
+
+
+def _trend(
+    archive: Archive | None,
+    robot: str | None,
+    rid: str,
+    options: ReportOptions,
+    folder: Path | None = None,
+) -> tuple[TrendResult | None, list[tuple[str, str]], str]:
+    """The robot's trend up to run ``rid``, each run's id and time; or why there is none
+    (``folder``: where run ``rid``'s fit is read from instead of its archive folder)."""
+    if archive is None or robot is None:
+        return None, [], "run not archived: quickhealth archive add RUN_DIR --robot NAME"
+    if rid not in [r.run_id for r in archive.runs(robot)]:
+        return None, [], f"run {rid} is not in the archive of robot {robot}"
+    from ..archive import missing_words, trend_runs
+
+    try:  # runs whose archive folders are missing are left out, and said so
+        recs, missing = trend_runs(archive, robot, upto=rid)
+    except InputError as exc:
+        return None, [], str(exc)
+    b = next((i for i, r in enumerate(recs) if r.baseline), None)
+    if b is None:
+        return None, [], f"robot {robot} has no baseline before this run"
+    states = [archive.run_state(r, like=recs[b]) for r in recs[:-1]]
+    states.append(archive.run_state(recs[-1], like=recs[b], folder=folder))
+    threshold = options.threshold
+    res = assess_trend(
+        states,
+        b,
+        threshold_mm=None if threshold is None else threshold.mm,
+        threshold_figure="max" if threshold is None else threshold.figure.value,
+    )
+    if missing:
+        res = replace(res, warnings=(*missing_words(archive, missing), *res.warnings))
+    return res, [(r.run_id, r.time_utc) for r in recs], ""

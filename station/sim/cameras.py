@@ -1,0 +1,149 @@
+"""The simulated stereo pair: renders the scene with the vision renderer (``--sim`` only).
+
+:class:`SimStereoCamera` implements :class:`~quickhealth.station.hardware.cameras.StereoCamera`.
+It renders the smart target at the digital twin's true pose with the pan motor's true angle,
+and the fixed self-check board.  The board is static, so its noise-free image is rendered once
+and fresh sensor noise is added to it on every capture.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ...vision.boards import TargetDescription
+from ...vision.camera import CameraModel, StereoRig
+from ...vision.render import Imaging, render_target
+from ..hardware.cameras import StereoFrame
+
+F = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+
+# The scene of the simulated camera: (T_left_object, description) of everything in view.
+Scene = Callable[[], Sequence[tuple[F, TargetDescription]]]
+
+
+def scaled_rig(rig: StereoRig, factor: float) -> StereoRig:
+    """The rig on sensors resampled by ``factor`` (smaller, faster simulated images)."""
+    if factor == 1.0:
+        return rig
+    return StereoRig(rig.left.scaled(factor), rig.right.scaled(factor), rig.T_left_right)
+
+
+class SimStereoCamera:
+    """A simulated stereo pair that renders its scene with the vision renderer.
+
+    Parameters
+    ----------
+    rig : StereoRig
+        The simulated cameras (use :func:`scaled_rig` for small fast images).
+    target : Scene
+        Callable returning the moving objects now: ``[(T_left_target, description)]``.
+    static : sequence of (T_left_object, description)
+        Objects that never move (the self-check board): rendered once without noise.
+    seed : int
+        Sensor noise seed.
+    """
+
+    def __init__(
+        self,
+        rig: StereoRig,
+        target: Scene,
+        static: Sequence[tuple[F, TargetDescription]] = (),
+        *,
+        seed: int = 0,
+        imaging: Imaging | None = None,
+    ) -> None:
+        self.rig = rig
+        self._scene = target
+        self._imaging = imaging or Imaging()
+        self._quiet = Imaging(**{**self._imaging.__dict__, "noise_dn": 0.0})
+        self._rng = np.random.default_rng(seed)
+        self._static = [
+            self._render_static(cam, [(self._to_cam(i, T), d) for T, d in static])
+            for i, cam in enumerate(rig.cameras)
+        ]
+        self.n_captures = 0
+
+    def _to_cam(self, i: int, T_left: F) -> F:
+        return T_left if i == 0 else self.rig.T_right_left @ T_left
+
+    def _render_static(
+        self, cam: CameraModel, objs: list[tuple[F, TargetDescription]]
+    ) -> tuple[U8, NDArray[np.bool_]] | None:
+        img: U8 | None = None
+        mask = np.zeros((cam.image_size[1], cam.image_size[0]), dtype=bool)
+        for T, d in objs:
+            m = _plate_mask(cam, T, d)
+            if not m.any():
+                continue
+            r = render_target(cam, T, d, imaging=self._quiet, rng=self._rng)
+            img = r if img is None else np.where(m, r, img)
+            mask |= m
+        return None if img is None else (img, mask)
+
+    def capture(self) -> StereoFrame:
+        objs = list(self._scene())
+        out: list[U8] = []
+        times: list[float] = []
+        for i, cam in enumerate(self.rig.cameras):
+            times.append(time.monotonic())
+            w, h = cam.image_size
+            img: U8 | None = None
+            tmask = np.zeros((h, w), dtype=bool)
+            for T, d in objs:
+                Tc = self._to_cam(i, T)
+                m = _plate_mask(cam, Tc, d)
+                if not m.any():
+                    continue
+                r = render_target(cam, Tc, d, imaging=self._imaging, rng=self._rng)
+                img = r if img is None else np.where(m, r, img)
+                tmask |= m
+            if img is None:  # nothing moving in view: the background alone
+                img = self._background(h, w)
+            st = self._static[i]
+            if st is not None:
+                simg, smask = st
+                m = smask & ~tmask
+                noisy = simg.astype(np.float32) + self._rng.normal(
+                    0.0, self._imaging.noise_dn, simg.shape
+                ).astype(np.float32)
+                img = np.where(m, np.clip(np.rint(noisy), 0, 255).astype(np.uint8), img)
+            out.append(img)
+        self.n_captures += 1
+        return StereoFrame(out[0], out[1], times[0], times[1], {"simulated": True})
+
+    def _background(self, h: int, w: int) -> U8:
+        im = self._imaging
+        level = im.dark_dn + im.background * (im.white_dn - im.dark_dn) * im.gain
+        noise = self._rng.normal(0.0, im.noise_dn, (h, w))
+        return np.clip(np.rint(level + noise), 0, 255).astype(np.uint8)
+
+    def close(self) -> None:
+        pass
+
+
+def _plate_mask(cam: CameraModel, T_cam_obj: F, d: TargetDescription) -> NDArray[np.bool_]:
+    """Pixels covered by the object's plate (its outline projected), False when not in view."""
+    w, h = cam.image_size
+    mask = np.zeros((h, w), dtype=np.uint8)
+    (x0, y0), (x1, y1) = d.plate
+    pl = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], dtype=float)
+    p = pl @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
+    if np.any(p[:, 2] <= 0.05):
+        return mask.astype(bool)
+    px = cam.project(p)
+    if (
+        np.all(px[:, 0] < 0)
+        or np.all(px[:, 0] >= w)
+        or np.all(px[:, 1] < 0)
+        or np.all(px[:, 1] >= h)
+    ):
+        return mask.astype(bool)
+    cv2.fillConvexPoly(mask, np.round(px).astype(np.int32), 1)
+    mask = cv2.dilate(mask, np.ones((5, 5), np.uint8))
+    return mask.astype(bool)
