@@ -221,7 +221,10 @@ def report_run(
         write_text_atomic(out, page.render_html(rep.page))
     write_atomic(rp, text)
     if record_verdict and archive is not None and robot is not None:
-        if any(r.run_id == rep.run_id for r in archive.runs(robot)):
+        rec = next((r for r in archive.runs(robot) if r.run_id == rep.run_id), None)
+        # a row whose archive folder was deleted behind the index is left as it is (the
+        # trend refuses to judge that run): the verdict here was made without it
+        if rec is not None and archive.folder(rec).is_dir():
             archive.set_healthy(robot, rep.run_id, j.healthy)
     return ReportFiles(rep, out, rp, json.loads(text))
 
