@@ -94,6 +94,10 @@ class InstrumentNoise:
             sigma_q=self.sigma_q * factor,
         )
 
+    def stated(self) -> InstrumentNoise:
+        """The instrument as stated: without the scatter estimated from a fit's residuals."""
+        return replace(self, excess_pos=0.0, excess_rot=0.0, band_factor=1.0)
+
     @property
     def rescaled(self) -> bool:
         """True when an estimated excess scatter is added to the stated uncertainty."""

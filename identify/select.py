@@ -193,7 +193,7 @@ def estimate_noise_scale(fitted: FittedModel, meas: Measurements) -> NoiseScale:
     cannot move; poses beyond the 99.9 % point are set aside; the rest fix ``τ`` so that
     their mean matches the truncated χ² mean, corrected for the fitted parameters.
     """
-    stated = replace(fitted.noise, excess_pos=0.0, excess_rot=0.0)
+    stated = fitted.noise.stated()
     n = meas.n_poses
     keep = np.ones(n, bool) if meas.excluded is None else ~np.asarray(meas.excluded, bool)
     sp = meas.sigma_pos if meas.sigma_pos is not None else np.full((n, 3), stated.sigma_pos)

@@ -248,7 +248,7 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
     options = FitOptions(
         effects=tuple(e.name for e in old.effects),
         max_order=job.max_order,
-        noise=old.noise,
+        noise=old.noise.stated(),  # the scatter beyond it is estimated anew from this data
         prior=old.prior,
         spec=old.spec if job.orders == "keep" else None,
         workspace_samples=job.workspace_samples,
@@ -261,7 +261,11 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
         a,
         source=str(src / "measurements.csv"),
         extra={
-            "measurements.csv": formats.format_measurements(meas),
+            "measurements.csv": (  # the data as measured, unless detected anew
+                formats.format_measurements(meas)
+                if job.calibration
+                else (src / "measurements.csv").read_text(encoding="utf-8")
+            ),
             "reprocess.json": json.dumps(done, indent=1),
         },
         whole_folder=True,

@@ -538,13 +538,15 @@ class Station:
             return self._health
         a = self.analysis.assessment()
         d = self.run_dir
-        data = {} if (d / "measurements.csv").exists() else {"measurements.csv": a.measurements}
-        write_fit(
-            d,
-            a,
-            source=self.analysis.source,
-            extra={k: format_measurements(m) for k, m in data.items()},
-        )
+        extra = {}
+        if not (d / "measurements.csv").exists():  # the data as measured, not re-rounded
+            src = self.analysis.source
+            extra["measurements.csv"] = (
+                Path(src).read_text(encoding="utf-8")
+                if src is not None and Path(src).is_file()
+                else format_measurements(a.measurements)
+            )
+        write_fit(d, a, source=self.analysis.source, extra=extra)
         self.archive.add_run(self.robot_name, d, run_id=self.run_id)
         judgement = offload(
             jobs.report_job,
