@@ -52,8 +52,14 @@ from ..identify.errors import HardwareError, InputError
 from ..identify.measurements import Measurements
 from ..identify.transforms import R_to_rpy, inv_T, log_so3
 from ..vision.boards import TargetDescription
-from ..vision.markers import detect_markers
-from ..vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
+from ..vision.markers import Box, detect_markers
+from ..vision.pose7d import (
+    PoseMeasurement,
+    Rejection,
+    measure_stereo,
+    roi_from_pose,
+    search_boxes,
+)
 from .formats.common import write_text_atomic
 from .formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
 from .formats.measurements import write_measurements
@@ -348,10 +354,11 @@ def quick_check(
 
 
 def measure_frame(
-    station: Station, target: TargetDescription, left: U8, right: U8, T_pred: F
+    station: Station, target: TargetDescription, left: U8, right: U8, search: tuple[Box, Box]
 ) -> PoseMeasurement | Rejection:
-    """Full 7D measurement of one stereo pair (the vision library)."""
-    return measure_stereo(station.camera.rig, target, left, right, roi_hint=T_pred)
+    """Full 7D measurement of one stereo pair (the vision library), searched first in the
+    boxes ``search`` (px) that the capture record keeps."""
+    return measure_stereo(station.camera.rig, target, left, right, roi_hint=search)
 
 
 def _measured(index: int, name: str, meas: PoseMeasurement, pan: float) -> Measured:
@@ -573,16 +580,17 @@ class _Runner:
         td = time.monotonic()
         images = [f"images/{pose.index:04d}_{pose.name}_{side}.png" for side in "LR"]
         t_capture = time.time() - (time.monotonic() - frame.time) - self.t_epoch
+        search = search_boxes(s.camera.rig, T_pred, s.target)
         self.append(Captured(
             pose.index, pose.name, q_read, pan, t_capture, tuple(images),
-            q_cmd=pose.q, attempts=attempt, markers=counts,
+            q_cmd=pose.q, attempts=attempt, markers=counts, search=search,
         ))  # fmt: skip
         te = time.monotonic()
         self.tick("journal_s", te - td)
         # Images are written (atomically) and measured by the worker while the arm moves on;
         # a capture whose images never reached the disk is revisited on resume.
         self.submit_measure(
-            pose.index, pose.name, frame.left, frame.right, pan, T_pred, write=images
+            pose.index, pose.name, frame.left, frame.right, pan, search, write=images
         )
         self.emit(ProgressKind.POSE, pose.index, pose.name, "captured", f"attempt {attempt}")
 
@@ -602,7 +610,7 @@ class _Runner:
         left: U8,
         right: U8,
         pan: float,
-        T_pred: F,
+        search: tuple[Box, Box],
         write: list[str] | None = None,
     ) -> None:
         # At most two poses in flight: the worker never falls far behind the arm.
@@ -616,7 +624,7 @@ class _Runner:
                     self.write_images(write, left, right)
                     self.tick("images_s", time.monotonic() - t0)
                 t0 = time.monotonic()
-                m = measure_frame(self.s, self.s.target, left, right, T_pred)
+                m = measure_frame(self.s, self.s.target, left, right, search)
                 self.tick("measure_s", time.monotonic() - t0)
                 if isinstance(m, Rejection):
                     rec = Measured(index, name, False, f"{m.reason.value}: {m.detail}")
@@ -644,8 +652,10 @@ class _Runner:
             imgs = [cv2.imread(str(self.dir / p), cv2.IMREAD_GRAYSCALE) for p in rec.images]
             if any(im is None for im in imgs):
                 raise InputError(f"{self.dir}: image of pose {rec.name} is missing or unreadable")
-            T_pred = self.s.predicted_plate(rec.q, rec.pan)
-            self.submit_measure(i, rec.name, imgs[0], imgs[1], rec.pan, T_pred)
+            search = rec.search or search_boxes(
+                self.s.camera.rig, self.s.predicted_plate(rec.q, rec.pan), self.s.target
+            )
+            self.submit_measure(i, rec.name, imgs[0], imgs[1], rec.pan, search)
         self.drain()
 
 

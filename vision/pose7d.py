@@ -170,6 +170,19 @@ def roi_from_pose(
     return (int(lo[0] - g[0]), int(lo[1] - g[1]), int(hi[0] + g[0]) + 1, int(hi[1] + g[1]) + 1)
 
 
+def search_boxes(rig: StereoRig, T_left_target: F, target: TargetDescription) -> tuple[Box, Box]:
+    """The search boxes of both cameras around the target's predicted image (``T_left_target``).
+
+    Detection in a box and in the whole image can differ for a marker at the edge of
+    detectability (OpenCV's candidate stages see other neighbourhoods), so a measurement
+    that is to be repeated from the stored images records its boxes and searches them again.
+    """
+    return (
+        roi_from_pose(rig.left, T_left_target, target),
+        roi_from_pose(rig.right, rig.T_right_left @ T_left_target, target),
+    )
+
+
 def detect_target(
     camera: CameraModel, target: TargetDescription, image: NDArray[np.uint8], roi: Box | None = None
 ) -> tuple[F, F]:
@@ -232,10 +245,7 @@ def measure_stereo(
     rois: tuple[Box | None, Box | None] = (None, None)
     if roi_hint is not None:
         if isinstance(roi_hint, np.ndarray) and roi_hint.shape == (4, 4):
-            rois = (
-                roi_from_pose(rig.left, roi_hint, target),
-                roi_from_pose(rig.right, rig.T_right_left @ roi_hint, target),
-            )
+            rois = search_boxes(rig, roi_hint, target)
         else:
             rois = (tuple(roi_hint[0]), tuple(roi_hint[1]))  # type: ignore[assignment,index]
     seen = []

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from ...identify.errors import InputError
 from .. import lock, options, workers
+from ..formats.journal import Box
 from ..formats.measurements import write_measurements
 from ..fsio import refuse_overwriting_inputs, write_figure
 from ..journal import JOURNAL, read_journal
@@ -128,8 +129,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
     return 1 if args.fail_on_unreliable and res.verdict is Verdict.UNRELIABLE else 0
 
 
-def _read_journal(run: Path) -> tuple[list[str], F, F, F, F, list[tuple[Path, Path]]]:
-    """Captured poses of a `quickhealth run` folder (journal.jsonl), in execution order."""
+def _read_journal(
+    run: Path,
+) -> tuple[list[str], F, F, F, F, list[tuple[Path, Path]], list[tuple[Box, Box] | None]]:
+    """Captured poses of a `quickhealth run` folder (journal.jsonl), in execution order, with
+    the pixel boxes each capture was first searched in (None where not recorded)."""
     from ..formats import vision as io  # OpenCV
 
     st = read_journal(run / JOURNAL)
@@ -152,7 +156,7 @@ def _read_journal(run: Path) -> tuple[list[str], F, F, F, F, list[tuple[Path, Pa
         io.check_pose_id(pid, f"{run / JOURNAL}: captured pose {i + 1}")
     if q.ndim != 2 or not np.all(np.isfinite(q)):
         raise InputError(f"{run / JOURNAL}: captured joint angles are not all finite numbers")
-    return ids, q, pan, time, np.full(len(ids), np.nan), files
+    return ids, q, pan, time, np.full(len(ids), np.nan), files, [r.search for r in recs]
 
 
 @workers.owns_workers
@@ -178,9 +182,10 @@ def run_measure(args: argparse.Namespace) -> int:
     target = io.read_target(tpath)
     from_journal = (run / JOURNAL).is_file()
     if from_journal:
-        ids, q, pan, time, temp, files = _read_journal(run)
+        ids, q, pan, time, temp, files, search = _read_journal(run)
     else:
         ids, q, pan, time, temp = io.read_image_index(run / "images" / "index.csv")
+        search = [None] * len(ids)
         files = [(run / "images" / f"{p}_left.png", run / "images" / f"{p}_right.png") for p in ids]
     if len(set(ids)) != len(ids):
         raise InputError(f"{run}: pose ids repeat; each pose needs its own id")
@@ -194,6 +199,7 @@ def run_measure(args: argparse.Namespace) -> int:
             pid, files[k][0], files[k][1],
             None if np.isnan(pan[k]) else float(pan[k]),
             None if np.isnan(time[k]) else float(time[k]),
+            search[k],
         )
         for k, pid in enumerate(ids)
     ]  # fmt: skip

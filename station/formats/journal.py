@@ -13,7 +13,9 @@ run writes typed records and every reader gets them back typed, through the one 
 
 In the file: joints ``q_deg``, ``q_cmd_deg``, pan ``pan_deg``, the measured target frame at
 pan 0 ``x_mm``, ``rpy_deg`` with ``sigma_mm``, ``sigma_deg``, the board ``T_instr_board_mm``
-(a 4×4 with its translation in mm) — as the journals of earlier versions hold them.
+(a 4×4 with its translation in mm) — as the journals of earlier versions hold them; and
+``search_px``, the two pixel boxes the capture was first searched in (absent in older
+journals), so that its images measured again give the same detection.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 F = NDArray[np.float64]
+Box = tuple[int, int, int, int]  # x0, y0, x1, y1 (px), as vision.markers.Box
 
 
 class RecordKind(StrEnum):
@@ -74,6 +77,7 @@ class Captured:
     q_cmd: F | None = None
     attempts: int = 1
     markers: tuple[int, ...] = ()
+    search: tuple[Box, Box] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,6 +155,7 @@ def encode(rec: Record) -> dict[str, Any]:
             "images": list(rec.images),
             "attempts": rec.attempts,
             "markers": list(rec.markers),
+            **({} if rec.search is None else {"search_px": [list(b) for b in rec.search]}),
         }
     if isinstance(rec, Measured):
         out = {
@@ -191,6 +196,17 @@ def _rad(v: object) -> F | None:
     return None if v is None else np.radians(np.asarray(v, dtype=float))
 
 
+def _boxes(v: object) -> tuple[Box, Box] | None:
+    """Two search boxes ``[[x0, y0, x1, y1], [...]]`` (px), or None when not recorded."""
+    if v is None:
+        return None
+    a = np.asarray(v, dtype=np.int64)
+    if a.shape != (2, 4):
+        raise ValueError(f"search_px must be two boxes of 4 pixel bounds, got shape {a.shape}")
+    l, r = (tuple(int(x) for x in b) for b in a)
+    return l, r  # type: ignore[return-value]
+
+
 def decode(obj: Mapping[str, Any]) -> Record:
     """The typed record of a journal line's JSON object (SI); ``start``, ``resume``, ``stop``
     and ``end`` stay objects.
@@ -226,6 +242,7 @@ def decode(obj: Mapping[str, Any]) -> Record:
             q_cmd=_rad(obj.get("q_cmd_deg")),
             attempts=int(obj.get("attempts", 1)),
             markers=tuple(int(m) for m in obj.get("markers", ())),
+            search=_boxes(obj.get("search_px")),
         )
     if kind is RecordKind.MEASURED:
         if not obj["ok"]:

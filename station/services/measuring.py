@@ -20,6 +20,7 @@ from ...identify.errors import InputError
 from ...identify.measurements import Measurements
 from ...vision.boards import TargetDescription
 from ...vision.camera import StereoRig
+from ...vision.markers import Box
 from ...vision.pose7d import PoseMeasurement, Rejection, measure_stereo, to_measurements
 from ..formats.vision import read_gray
 from ..hardware.target import target0_from_plate
@@ -38,6 +39,7 @@ class StoredPair:
     right: Path
     pan: float | None = None
     time: float | None = None
+    search: tuple[Box, Box] | None = None  # px boxes the run searched first (its journal)
 
 
 # the rig and target of a worker process (set once by its initializer)
@@ -59,7 +61,9 @@ def _measure_one(pair: StoredPair) -> tuple[str, Result]:
                 f"{p}: image is {img.shape[1]}×{img.shape[0]}, the calibration's camera {w}×{h}"
             )
         imgs.append(img)
-    return pair.pose_id, measure_stereo(rig, target, imgs[0], imgs[1], pan=pair.pan, time=pair.time)
+    return pair.pose_id, measure_stereo(
+        rig, target, imgs[0], imgs[1], roi_hint=pair.search, pan=pair.pan, time=pair.time
+    )
 
 
 def measure_pairs(

@@ -4,6 +4,7 @@ typed records in SI, stored in mm and degrees, through one encoder and one decod
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -118,6 +119,7 @@ def test_every_record_round_trips_in_si_and_is_stored_in_mm_and_degrees():
     T[:3, 3] = [0.5, -0.25, 1.75]
     records = [
         _captured(1),
+        replace(_captured(2), search=((10, 20, 300, 400), (0, 5, 250, 390))),
         _measured(1),
         Measured(2, "P002", False, "target not detected"),
         Failed(3, "P003", "no markers", q=np.radians(np.arange(6.0)), pan=0.5, time_s=9.0),
@@ -134,10 +136,12 @@ def test_every_record_round_trips_in_si_and_is_stored_in_mm_and_degrees():
                 assert np.allclose(w, v, rtol=1e-15, atol=1e-15), k
             else:
                 assert w == v, k
-    sc = encode(records[4])
+    assert "search_px" not in encode(records[0])  # older journals: none, searched anew
+    assert encode(records[1])["search_px"] == [[10, 20, 300, 400], [0, 5, 250, 390]]
+    sc = encode(records[5])
     assert sc["T_instr_board_mm"][0][3] == 500.0 and sc["sigma_mm"] == [0.01, 0.01, 0.01]
-    assert encode(records[1])["x_mm"] == [100.0, -200.0, 2000.0]
-    assert encode(records[3])["pan_deg"] == pytest.approx(np.degrees(0.5))
+    assert encode(records[2])["x_mm"] == [100.0, -200.0, 2000.0]
+    assert encode(records[4])["pan_deg"] == pytest.approx(np.degrees(0.5))
 
 
 def test_a_record_missing_a_field_is_refused_with_its_line(tmp_path):
