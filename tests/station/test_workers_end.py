@@ -105,6 +105,14 @@ def inputs(tmp_path_factory):
     return d
 
 
+def _sigint_default() -> None:
+    """In the command's process before it starts: Ctrl-C's default.  A test run started in
+    the background of a non-interactive shell (``make test &``) ignores SIGINT, its children
+    inherit that, and Python then installs no KeyboardInterrupt handler: the command would
+    rightly ignore the signal the test sends."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _argv(name: str, d: Path, out: Path) -> list[str]:
     if name == "fit-plots":
         return ["identify", "fit", str(d / "meas.csv"), "--robot", "ur5", "--out", str(out),
@@ -133,7 +141,7 @@ def test_a_stopped_command_leaves_no_worker_running(inputs, tmp_path, name, sig)
     err_file = tmp_path / "stderr.txt"
     with err_file.open("w") as err:  # not a pipe: a left worker would hold it open
         proc = subprocess.Popen([str(EXE), *_argv(name, inputs, out)], stdout=subprocess.DEVNULL,
-                                stderr=err, cwd=tmp_path)  # fmt: skip
+                                stderr=err, cwd=tmp_path, preexec_fn=_sigint_default)  # fmt: skip
     seen: set[int] = set()
     try:
         t_end = time.monotonic() + 90
