@@ -60,10 +60,21 @@ postgres:
 	  (apt-get update -qq >/dev/null 2>&1; DEBIAN_FRONTEND=noninteractive apt-get install -y -qq postgresql >/dev/null 2>&1) \
 	  && ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1 && echo "installed postgresql for the archive tests"; } || echo "postgresql not available: the PostgreSQL archive tests will fail in CI, skip elsewhere"
 
+# Two parts (tests/conftest.py): every test but the real-time ones on two worker processes,
+# then the real-time ones (stream timing, freeze and stop latency, kills, signals) alone, as a
+# station meets the machine.  Both parts always run; the target fails if either failed.
+TESTENV := QUICKHEALTH_REQUIRE_SERVICES=1 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1
+PYTEST  := $(VENV)/bin/pytest -q -rs -p no:cacheprovider
+
 test: $(STAMP) chromium postgres
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	QUICKHEALTH_REQUIRE_SERVICES=1 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(VENV)/bin/pytest -q -rs -p no:cacheprovider
+	@status=0; \
+	echo "== tests on two workers (all but the real-time ones)"; \
+	$(TESTENV) $(PYTEST) -n 2 -m "not serial" || status=1; \
+	echo "== real-time tests, alone"; \
+	$(TESTENV) $(PYTEST) -m serial || status=1; \
+	exit $$status
 
 check: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(VENV)/bin/pytest -q -m "not slow" -x

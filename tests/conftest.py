@@ -1,0 +1,35 @@
+"""Rules for the whole test session.
+
+``serial``: the tests of real-time behaviour (the simulated controller's stream timing, the
+0.5 s freeze check, stop latency, faults and kills in the middle of a move or a write, signals
+to running commands).  ``make test`` runs every other test on two worker processes
+(pytest-xdist), then these alone, so that they meet the machine as a station would and no
+other test competes with them for the two cores.  A module is serial by being listed here.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+SERIAL_MODULES = frozenset(
+    {
+        "test_robot_ur.py",  # the real ur-rtde client: freeze detection, stop latency
+        "test_sim_stream.py",  # 125/500 Hz streams, gaps
+        "test_simcontroller.py",
+        "test_run.py",  # faults mid-run on the in-process cell
+        "test_run_sim.py",  # the simulated cell with the real client, kill -9 and --resume
+        "test_run_cli.py",  # two runs at once, the run lock
+        "test_tui_sim_cell.py",  # the TUI on the simulated cell, a controller restart
+        "test_archive_fleet.py",  # stations killed mid-write
+        "test_workers_end.py",  # signals to commands while their workers run
+        "test_motor.py",  # serial time-outs
+        "test_owner.py",  # device-owner time-outs
+    }
+)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.name in SERIAL_MODULES:
+            item.add_marker(pytest.mark.serial)
