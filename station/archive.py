@@ -32,7 +32,9 @@ import math
 import os
 import re
 import shutil
+import socket
 import tempfile
+import uuid
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -42,13 +44,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from quickhealth.identify.errormodel import ErrorModelSpec
-from quickhealth.identify.errors import InputError
+from ..identify.errormodel import ErrorModelSpec
+from ..identify.errors import InputError
+from ..identify.fit import fit_model
+from . import formats
+from .formats import load_json_limited
+from .fsio import copy_plain_tree, make_dirs, pid_alive, plain_tree, write_atomic, write_error
+from .provenance import software_version
+from .verdict import healthy_of
 
 if TYPE_CHECKING:
-    from quickhealth.identify.trend import RunState
-
-from .verdict import healthy_of
+    from ..identify.trend import RunState, TrendResult
 
 ENV_VAR = "QUICKHEALTH_ARCHIVE"
 #: the main figures, as ``identify.trend.FIGURES`` (a test checks): importing the trend costs
@@ -142,7 +148,6 @@ def _iso(t: datetime) -> str:
 
 
 def _read_json(path: Path) -> dict[str, Any]:
-    from quickhealth.station.formats import load_json_limited
 
     doc = load_json_limited(path, "json")
     if not isinstance(doc, dict):
@@ -234,7 +239,6 @@ def model_arrays(
 
     The covariance is the Chebyshev block of the fit's covariance (effect parameters left out).
     """
-    from quickhealth.station import formats
 
     fitted = formats.model_from_json(dict(doc), name)
     n = fitted.spec.n_params
@@ -293,9 +297,6 @@ def prepare_run(
         1..9999), a missing or incomplete report.json or model.json, a link or a special
         file in the folder.
     """
-    from quickhealth.station import formats
-
-    from .fsio import plain_tree
 
     robot = safe_name(robot, "robot")
     if run_id is not None:
@@ -393,6 +394,7 @@ class Archive:
         create: bool = True,
         timeout_s: float | None = None,
     ) -> None:
+        # SQLAlchemy (~0.3 s) only once an archive is opened, not for importing this module
         import sqlalchemy as sa
 
         from .indexdb import IndexDB
@@ -459,16 +461,12 @@ class Archive:
         self._made = made  # ... or if the command that opened it is refused (undo_creation)
         try:
             if url is None and not self.root.is_dir():
-                from .fsio import make_dirs
-
                 made += [p for p in (self.root, *self.root.parents) if not p.exists()][::-1]
                 make_dirs(self.root)
             if index_file is not None and not index_file.exists():
                 made.append(index_file)
             self._open_schema(create)
             if not self.root.is_dir():  # a shared index: the run folders' root
-                from .fsio import make_dirs
-
                 if not create:
                     return
                 made += [p for p in (self.root, *self.root.parents) if not p.exists()][::-1]
@@ -538,8 +536,6 @@ class Archive:
                 sa.select(self.t_meta.c.value).where(self.t_meta.c.key == "index_id")
             ).first()
             if have is None:
-                import uuid
-
                 con.execute(sa.insert(self.t_meta).values(key="index_id", value=uuid.uuid4().hex))
 
     def _schema_state(self) -> str:
@@ -657,7 +653,6 @@ class Archive:
             The run is already archived (unless ``replace_existing``), or its folder in the
             archive belongs to another index.
         """
-        from .fsio import copy_plain_tree, write_atomic, write_error
 
         src, robot, rid = prep.src, prep.robot, prep.run_id
         dst = self.run_path(robot, rid)
@@ -670,7 +665,6 @@ class Archive:
             self._refuse_foreign(dst, robot, rid, replacing=True)
             self._index_and_place(row, None, dst, True, True, mark)
             return self.get(robot, rid)
-        from .fsio import make_dirs
 
         make_dirs(dst.parent)
         self._sweep_stale_staging(dst.parent)
@@ -689,7 +683,6 @@ class Archive:
 
     def _mark(self, robot: str, run_id: str) -> str:
         """The contents of a run folder's :data:`MARKER`: this index and the writer."""
-        import socket
 
         doc = {
             "index_id": self.index_id,
@@ -722,9 +715,6 @@ class Archive:
     def _sweep_stale_staging(self, folder: Path) -> None:
         """Remove staging folders this index's writers on this machine left when they were
         killed (their process is gone); another index's or a live writer's are left alone."""
-        import socket
-
-        from .fsio import _pid_alive
 
         for d in folder.glob(".incoming-*"):
             try:
@@ -732,7 +722,7 @@ class Archive:
                 mine = doc.get("index_id") == self.index_id and doc.get("host") == (
                     socket.gethostname()
                 )
-                stale = mine and not _pid_alive(int(doc["pid"]))
+                stale = mine and not pid_alive(int(doc["pid"]))
             except (OSError, ValueError, KeyError, TypeError, AttributeError):
                 continue
             if stale and not d.is_symlink():
@@ -748,7 +738,6 @@ class Archive:
         mark: str,
     ) -> None:
         """Insert the run's row and rename its staged folder into place, in one transaction."""
-        from .fsio import write_atomic
 
         sa = self._sa
         t = self.t_runs
@@ -790,7 +779,6 @@ class Archive:
                 except OSError as exc:
                     if dst.exists():  # another index's station put it there just now
                         self._refuse_foreign(dst, robot, rid, replacing=False)
-                    from .fsio import write_error
 
                     raise write_error(dst, exc) from None
                 moved.append((dst, stage / "run"))
@@ -986,7 +974,6 @@ class Archive:
             Read the run's fit from this folder instead of its archive folder (a reprocessed
             copy): its report's figures replace the index's.
         """
-        from quickhealth.station import formats
 
         own = folder is not None
         folder = self.folder(rec) if folder is None else Path(folder)
@@ -1017,7 +1004,7 @@ class Archive:
         if spec is not None and csv.is_file():
             q = formats.read_measurements(csv, spec.n_joints).q
             q_measured = (q.min(axis=0), q.max(axis=0))
-        from quickhealth.identify.trend import RunState
+        from ..identify.trend import RunState  # scipy.stats: see FIGURES
 
         return RunState(
             run_id=rec.run_id,
@@ -1034,8 +1021,6 @@ class Archive:
     def _like_model(
         self, folder: Path, mp: Path, csv: Path, like: RunRecord, bspec: ErrorModelSpec
     ) -> tuple[ErrorModelSpec, np.ndarray, np.ndarray | None]:
-        from quickhealth.identify.fit import fit_model
-        from quickhealth.station import formats
 
         cache = folder / f"model.like-{safe_name(like.run_id, 'run id')}.json"
         if not cache.is_file():
@@ -1047,7 +1032,6 @@ class Archive:
 
 
 def _software_version() -> str:
-    from .provenance import software_version
 
     return software_version()
 
@@ -1096,11 +1080,11 @@ def missing_words(arch: Archive, missing: list[RunRecord]) -> list[str]:
     ]
 
 
-def trend_for(arch: Archive, robot: str, **kwargs: Any) -> Any:
+def trend_for(arch: Archive, robot: str, **kwargs: Any) -> TrendResult:
     """:func:`~quickhealth.identify.trend.assess_trend` over a robot's archived runs (oldest
     first) whose folders exist (:func:`trend_runs`), against its baseline run; ``kwargs`` go
     to ``assess_trend``."""
-    from quickhealth.identify.trend import assess_trend
+    from ..identify.trend import assess_trend  # scipy.stats: see FIGURES
 
     recs, _ = trend_runs(arch, robot)
     b = next((i for i, r in enumerate(recs) if r.baseline), None)

@@ -35,7 +35,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from quickhealth.identify.errors import InputError, QuickhealthError
+from ..identify.errors import InputError, QuickhealthError
 
 # errors that say "this path cannot be written": the user picks another one (exit 2)
 _USAGE_ERRNOS = {
@@ -128,7 +128,7 @@ def write_atomic(
 _TEMP_NAME = re.compile(r"^\..+\.(\d+)\.[0-9a-f]{8}\.tmp$")  # write_atomic's temporary files
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -147,7 +147,7 @@ def remove_stale_temp_files(folder: str | os.PathLike[str]) -> list[str]:
     gone = []
     for f in sorted(d.iterdir()) if d.is_dir() else []:
         m = _TEMP_NAME.match(f.name)
-        if m and f.is_file() and not _pid_alive(int(m.group(1))):
+        if m and f.is_file() and not pid_alive(int(m.group(1))):
             f.unlink(missing_ok=True)
             gone.append(f.name)
     return gone

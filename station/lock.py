@@ -23,7 +23,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, TypeVar
 
-from quickhealth.identify.errors import HardwareError
+from ..identify.errors import HardwareError
 
 ENV_VAR = "QUICKHEALTH_LOCK_DIR"
 F = TypeVar("F", bound=Callable[..., Any])

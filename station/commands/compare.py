@@ -16,10 +16,9 @@ import argparse
 import json
 from pathlib import Path
 
-from quickhealth.station import options
-
 from ...identify.compare import compare_effect, plot_comparison
 from ...identify.errors import InputError
+from .. import options
 from ..formats import read_measurements, read_model, write_text_atomic
 from ..fsio import refuse_overwriting_inputs, write_figure
 
@@ -69,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     nj = fitted.robot.n_joints
     train = read_measurements(args.meas, nj)
     held = read_measurements(args.heldout, nj) if args.heldout else None
-    from quickhealth.station.progress import Progress
+    from ..progress import Progress
 
     with Progress(quiet=args.quiet) as say:  # a bar on a terminal, stage lines in a log
         cmp = compare_effect(

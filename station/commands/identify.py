@@ -174,7 +174,7 @@ def _fit(args: argparse.Namespace) -> int:
         margin=args.margin,
         auto_rescale=args.auto_rescale,
     )
-    from quickhealth.station.progress import Progress
+    from ..progress import Progress
 
     say = Progress(quiet=args.quiet)  # a bar on a terminal, stage lines in a log
     say(
@@ -334,7 +334,7 @@ def _band_chunked(fm: Any, meas: Any) -> Any:
     """:func:`~quickhealth.identify.workspace.prediction_band` in blocks (bounded memory)."""
     import numpy as np
 
-    from quickhealth.identify.workspace import prediction_band
+    from ...identify.workspace import prediction_band
 
     n = meas.n_poses
     return np.concatenate(

@@ -101,15 +101,15 @@ def _columns(text: str | None) -> tuple[str, ...] | None:
 def _import_tracker(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.formats import write_measurements
-    from quickhealth.station.formats.tracker import (
+    from ...identify.errors import InputError
+    from ..formats import write_measurements
+    from ..formats.tracker import (
         PRESETS,
         TrackerLayout,
         layout_with,
         read_tracker,
     )
-    from quickhealth.station.fsio import refuse_overwriting_inputs
+    from ..fsio import refuse_overwriting_inputs
 
     refuse_overwriting_inputs([("--out", args.out)], [args.file])
     if args.preset is not None and args.preset not in PRESETS:

@@ -18,11 +18,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.measurements import Measurements
-from quickhealth.identify.robot import RobotModel
-from quickhealth.identify.transforms import R_to_quat, quat_to_R
-
+from ...identify.errors import InputError
+from ...identify.measurements import Measurements
+from ...identify.robot import RobotModel
+from ...identify.transforms import R_to_quat, quat_to_R
 from .common import (
     MAX_CELL_CHARS,
     MAX_FIT_ROWS,

@@ -41,9 +41,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.measurements import Measurements
-
+from ...identify.errors import InputError
+from ...identify.measurements import Measurements
 from .common import MAX_CELL_CHARS, MAX_ROWS, read_text_limited
 
 F = NDArray[np.float64]
