@@ -21,22 +21,38 @@ of the command line (the TUI's Results screen and ``reprocess`` fit the same way
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
+import io
 import math
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ...identify.errors import InputError
+from ...identify.fit import FittedModel
 from ...identify.linearize import InstrumentNoise
+from ...identify.measurements import Measurements
+from ...identify.transforms import R_to_rpy
+from ...identify.workspace import (
+    CommandPrediction,
+    Conditions,
+    predict_commands,
+    prediction_band,
+)
 from .. import formats, lock, options, workers
 from ..fsio import claim_output_folder, refuse_overwriting_inputs
+from ..progress import Progress
 from ..services.fitting import FigureRenderer, claim_fit_folder, fit_folder
 from ..services.options import FitOptions
 from ..services.wam import wam_sign
 from . import compare
+
+F = NDArray[np.float64]
 
 # every door's instrument defaults (0.03 mm, 0.1 mrad), in the command line's units (help);
 # an option left out keeps the default itself, not its round trip through mm and degrees
@@ -174,8 +190,6 @@ def _fit(args: argparse.Namespace) -> int:
         margin=args.margin,
         auto_rescale=args.auto_rescale,
     )
-    from ..progress import Progress
-
     say = Progress(quiet=args.quiet)  # a bar on a terminal, stage lines in a log
     say(
         f"{meas.n_poses} poses, {'full pose' if meas.has_orientation else 'position only'}; "
@@ -202,12 +216,10 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def csv_cells(values: Any) -> list[str]:
+def csv_cells(values: Iterable[str]) -> list[str]:
     """Each text as one CSV cell, quoted as the csv module quotes it (only when it holds a
     comma, a quote or a line break): for rows built by ``%`` formatting, where the other
     cells are numbers."""
-    import csv
-    import io
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -227,12 +239,6 @@ def csv_cells(values: Any) -> list[str]:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from ...identify.transforms import R_to_rpy
-    from .. import formats
-    from ..fsio import refuse_overwriting_inputs
-
     if args.threshold_mm is not None:
         _positive("--threshold-mm", args.threshold_mm)
     refuse_overwriting_inputs([("--out", args.out)], [args.model, args.input])
@@ -330,12 +336,8 @@ def _predict(args: argparse.Namespace) -> int:
 PREDICT_CHUNK = 5000  # commands per block: memory stays bounded (~100 MB) for any file
 
 
-def _band_chunked(fm: Any, meas: Any) -> Any:
+def _band_chunked(fm: FittedModel, meas: Measurements) -> NDArray[np.float64]:
     """:func:`~quickhealth.identify.workspace.prediction_band` in blocks (bounded memory)."""
-    import numpy as np
-
-    from ...identify.workspace import prediction_band
-
     n = meas.n_poses
     return np.concatenate(
         [
@@ -345,12 +347,10 @@ def _band_chunked(fm: Any, meas: Any) -> Any:
     )
 
 
-def _predict_chunked(fm: Any, q: Any, thr: Any, time: Any, temp: Any) -> Any:
+def _predict_chunked(
+    fm: FittedModel, q: F, thr: float | None, time: F | None, temp: F | None
+) -> CommandPrediction:
     """:func:`predict_commands` in blocks of ``PREDICT_CHUNK`` commands (bounded memory)."""
-    import numpy as np
-
-    from ...identify.workspace import CommandPrediction, predict_commands
-
     parts = []
     for a in range(0, len(q), PREDICT_CHUNK):
         b = a + PREDICT_CHUNK
@@ -374,7 +374,7 @@ def _predict_chunked(fm: Any, q: Any, thr: Any, time: Any, temp: Any) -> Any:
     )  # fmt: skip
 
 
-def _missing(c: Any) -> list[str]:
+def _missing(c: Conditions) -> list[str]:
     return [n for n, v in (("temp", c.temp_c), ("time", c.time_s)) if v is not None]
 
 
