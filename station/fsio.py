@@ -31,6 +31,7 @@ import io
 import os
 import re
 import secrets
+import stat as _stat
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -398,8 +399,6 @@ def _copy_plain_file(fd_in: int, src: Path, dst: Path) -> None:
     """Copy one open regular file to the new file ``dst``, keeping its mode and modification
     time.  A read error is the source's (exit 2), a write error the target's
     (:func:`write_error`: disk full is exit 3)."""
-    import stat as _stat
-
     st = os.fstat(fd_in)
     try:
         fd_out = os.open(dst, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
@@ -430,8 +429,6 @@ def _copy_dir(dfd: int, src: Path, dst: Path) -> None:
     """Copy the folder open as ``dfd`` (path ``src``, for messages) to the new folder ``dst``;
     every entry is opened relative to its folder's descriptor without following a link, so a
     link planted while the copy runs is refused, never followed."""
-    import stat as _stat
-
     try:
         dst.mkdir()
     except OSError as exc:

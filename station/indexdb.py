@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+import socket
 import threading
 import time
 import weakref
@@ -164,8 +165,6 @@ class IndexDB:
     def _cut(self, fired: threading.Event) -> None:
         """The watchdog: shut the socket of every connection down, so a call blocked on a
         server that stopped answering returns with an error at once."""
-        import socket
-
         fired.set()
         for con in list(self._cons):
             try:

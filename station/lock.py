@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import fcntl
 import functools
+import hashlib
 import json
 import os
 import time
@@ -123,8 +124,6 @@ class OutputLock:
     def acquire(
         cls, output: str | os.PathLike[str], command: str, *, directory: Path | None = None
     ) -> OutputLock:
-        import hashlib
-
         target = Path(output).resolve()
         key = str(target)
         mine = (os.getpid(), key)  # a forked child does not hold its parent's locks

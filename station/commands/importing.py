@@ -16,7 +16,15 @@ quickhealth import tracker FILE --out MEAS.csv [--preset ipa-ur10|wam]
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from typing import Any
+
+import numpy as np
+
+from ...identify.errors import InputError
+from ..formats import write_measurements
+from ..formats.tracker import PRESETS, TrackerLayout, layout_with, read_tracker
+from ..fsio import refuse_overwriting_inputs
 
 
 def register(subparsers: Any) -> None:
@@ -99,18 +107,6 @@ def _columns(text: str | None) -> tuple[str, ...] | None:
 
 
 def _import_tracker(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
-    from ...identify.errors import InputError
-    from ..formats import write_measurements
-    from ..formats.tracker import (
-        PRESETS,
-        TrackerLayout,
-        layout_with,
-        read_tracker,
-    )
-    from ..fsio import refuse_overwriting_inputs
-
     refuse_overwriting_inputs([("--out", args.out)], [args.file])
     if args.preset is not None and args.preset not in PRESETS:
         raise InputError(f"--preset {args.preset!r}: unknown; known: {', '.join(PRESETS)}")
@@ -151,8 +147,6 @@ def _import_tracker(args: argparse.Namespace) -> int:
     if m.rot is not None:
         what = "position and orientation (quaternion)"
         if m.sigma_rot is not None:
-            import numpy as np
-
             s = np.degrees(m.sigma_rot)
             what += f", srot {np.median(s):.2g} deg median ({s.min():.2g}-{s.max():.2g})"
     print(f"wrote {args.out}: {m.n_poses} poses, {m.n_joints} joints, {what}")

@@ -9,10 +9,12 @@ with one line (exit 2) before it can cost memory.  Every file a format writes go
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
 import re
+import stat as _stat
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -51,8 +53,6 @@ def read_text_limited(path: str | os.PathLike[str], what: str = "json") -> str:
         raise InputError(f"{p}: file not found") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot read: {exc.strerror}") from None
-    import stat as _stat
-
     if _stat.S_ISDIR(st.st_mode):
         raise InputError(f"{p}: is a directory, expected a {what} file")
     if not _stat.S_ISREG(st.st_mode):
@@ -126,8 +126,6 @@ def json_plain(x: Any, *, finite_only: bool = False) -> Any:
 
 def finite_float(text: str) -> float:
     """argparse type of every float option: a finite number (``nan``, ``inf`` are refused)."""
-    import argparse
-
     try:
         v = float(text)
     except ValueError:

@@ -30,6 +30,7 @@ DH table format (TOML)::
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import re
@@ -102,8 +103,6 @@ def read_ur_calibration(path: str | os.PathLike[str]) -> tuple[UrKinematics, str
     (rad) as finite numbers; ``hash`` is optional.  One line, naming the file, for anything
     else.
     """
-    import hashlib
-
     import yaml
 
     p = Path(path)
