@@ -751,21 +751,27 @@ def _nuisance_joints(effect: Effect, nj: int) -> tuple[int, ...]:
 
 
 class _Bases:
-    """What candidates are tested against: the model's columns plus nuisance columns (cached)."""
+    """What candidates are tested against: the model's columns plus nuisance columns.
+
+    The model's own basis is kept; of the others only the last one asked for (each is poses ×
+    parameters: at 20,000 poses a dozen of them held 1.2 GB).  :func:`_scan` takes the
+    candidates grouped by their nuisance joints, so each basis is still made once.
+    """
 
     def __init__(self, state: LoopState, wp: WhitenedProblem, Q: F, r: F) -> None:
         self.state, self.wp, self.Q, self.r = state, wp, Q, r
-        self._cache: dict[tuple[int, ...], _Basis] = {(): _Basis.of(Q, r)}
-        self._blocks: dict[int, F] = {}
+        self._plain = _Basis.of(Q, r)
+        self._last: tuple[tuple[int, ...], _Basis] | None = None
 
     def __getitem__(self, joints: tuple[int, ...]) -> _Basis:
-        if joints not in self._cache:
-            for j in joints:
-                if j not in self._blocks:
-                    self._blocks[j] = _order_block(self.state, self.wp, j)
-            cols = np.concatenate([self.Q, *[self._blocks[j] for j in joints]], axis=1)
-            self._cache[joints] = _Basis.of(_orthonormal_basis(cols), self.r)
-        return self._cache[joints]
+        if not joints:
+            return self._plain
+        if self._last is None or self._last[0] != joints:
+            self._last = None  # let the previous one go before the next is made
+            blocks = [_order_block(self.state, self.wp, j) for j in joints]
+            cols = np.concatenate([self.Q, *blocks], axis=1)
+            self._last = (joints, _Basis.of(_orthonormal_basis(cols), self.r))
+        return self._last[1]
 
 
 def _bases(state: LoopState, wp: WhitenedProblem, Q: F, r: F) -> _Bases:
@@ -792,17 +798,23 @@ def _scan(
     """
     from scipy import stats  # 1 s to import: only where it is used
 
-    out: list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]] = []
+    out: list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]] = [
+        (e, None, 0.0, 0.0, None) for e in effects
+    ]
     plain = bases[()]
-    for i, effect in enumerate(effects):
+    nj = bases.state.robot.n_joints
+    # grouped by nuisance joints, so that each basis is made once; results in the given order
+    order = sorted(range(len(effects)), key=lambda i: _nuisance_joints(effects[i], nj))
+    for done, i in enumerate(order):
+        effect = effects[i]
         if advance is not None:
-            advance(i, len(effects), "testing candidate effects")
-        nuisance = _nuisance_joints(effect, bases.state.robot.n_joints)
+            advance(done, len(effects), "testing candidate effects")
+        nuisance = _nuisance_joints(effect, nj)
         b = bases[nuisance]
         one = _one_step(wp, b.Q, b.r_perp, effect)
         s2 = b.rss / max(b.dof, 1)
         if one is None:
-            out.append((effect, None, 0.0, s2, None))
+            out[i] = (effect, None, 0.0, s2, None)
             continue
         one_plain = _one_step(wp, plain.Q, plain.r_perp, effect) if nuisance else one
         k, S = one[0], one[1]
@@ -812,7 +824,7 @@ def _scan(
         if not np.isfinite(logp):  # beyond double precision: the χ² tail's asymptote
             logp = float(stats.chi2.logsf(k * F_stat, k))
             logp = logp if np.isfinite(logp) else -0.5 * k * F_stat
-        out.append((effect, one, min(0.0, logp + np.log(m_tests)), s2, one_plain))
+        out[i] = (effect, one, min(0.0, logp + np.log(m_tests)), s2, one_plain)
     return out
 
 
