@@ -26,7 +26,7 @@ def open_simulated(
     cell: str = "reference",
     plan: Path | None = None,
     archive: Path = Path("archive"),
-    robot_name: str = "ur5-sim",
+    robot_name: str | None = None,
     n_poses: int = 40,
     threshold_mm: float = 2.0,
     run_id: str | None = None,
@@ -35,14 +35,16 @@ def open_simulated(
     image_scale: float = 0.3,
 ) -> Station:
     """The station for ``quickhealth tui --sim``: controller simulator subprocess, emulated pan
-    motor, rendered cameras.  ``say`` receives a line before each slow step."""
+    motor, rendered cameras.  ``say`` receives a line before each slow step.  The arm is the
+    cell's (``[robot] model``), carrying the cell's smart target; ``robot_name`` defaults to
+    ``<arm>-sim`` (``ur5-sim`` on the reference cell)."""
     tell = say or (lambda line: None)
     c, the_plan = cell_and_plan(cell, plan, n_poses, tell)
     tell("starting the simulated cell (UR controller simulator, pan motor, cameras)…")
     hw, simcell = sim_station(cell, image_scale=image_scale, speed_factor=speed_factor)
     station = Station(
-        robot=c.robot,
-        robot_name=robot_name,
+        robot=c.robot_with_target(),
+        robot_name=robot_name or f"{c.robot.name}-sim",
         archive_root=Path(archive),
         run_id=run_id or new_run_id(),
         cell_name=c.name,
@@ -85,7 +87,7 @@ def in_process(
     if plan is None:
         plan = make_plan(cell, n_candidates, plan_seed)
     return Station(
-        robot=cell.robot,
+        robot=cell.robot_with_target(),
         robot_name=robot_name,
         archive_root=Path(archive_root),
         run_id=run_id,
