@@ -143,8 +143,6 @@ def _positive(name: str, v: float) -> None:
         raise InputError(f"{name} must be > 0, got {v}")
 
 
-@workers.owns_workers
-@lock.holds_outputs("identify fit", lambda a: [a.out])
 def _carrying_target(robot: RobotModel, cell_spec: str) -> RobotModel:
     """``robot`` carrying the smart target of cell ``cell_spec``; the cell must name the same
     arm when ``robot`` is a built-in one."""
@@ -155,6 +153,8 @@ def _carrying_target(robot: RobotModel, cell_spec: str) -> RobotModel:
     return cell.robot_with_target(robot)
 
 
+@workers.owns_workers
+@lock.holds_outputs("identify fit", lambda a: [a.out])
 def _fit(args: argparse.Namespace) -> int:
     for name in ("sigma_pos_mm", "sigma_rot_deg"):
         if getattr(args, name) is not None:

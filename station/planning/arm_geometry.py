@@ -30,9 +30,10 @@ link                  segment                                                   
 base_link             the base axis from the table to the shoulder (z 0 … d1)    ``base``
 shoulder_link         axis 2 from the base axis to the shoulder offset           ``upper``
 upper_arm_link        axis 2 (the same, turning with joint 2), the tube from     ``upper``
-                      shoulder to elbow at the shoulder offset, axis 3 from the  (elbow:
-                      shoulder offset to the elbow offset                        ``fore``)
-forearm_link          the tube from elbow to wrist 1 at the elbow offset         ``fore``
+                      shoulder to elbow at the shoulder offset; axis 3 from the
+                      shoulder offset to the elbow offset (the elbow housing)    ``elbow``
+forearm_link          the elbow housing again (turning with joint 3);            ``elbow``
+                      the tube from elbow to wrist 1 at the elbow offset         ``wrist``
 wrist_1_link          axis 4 from the elbow offset to axis 5 (d4)                ``wrist``
 wrist_2_link          axis 5 from axis 4 to axis 6 (d5)                          ``wrist``
 wrist_3_link          axis 6 from axis 5 to the flange (d6)                      ``flange``
@@ -89,11 +90,11 @@ class CapsuleArm:
 
     shoulder_offset: float  # upper arm beside the base axis' plane, along axis 2
     elbow_offset: float  # forearm, along axis 3
-    base: float
-    upper: float
-    fore: float
-    wrist: float
-    flange: float
+    base: float  # the base column
+    upper: float  # shoulder housing and upper arm
+    elbow: float  # elbow housing
+    wrist: float  # forearm tube, wrists 1 and 2
+    flange: float  # wrist 3
     radii_source: str
 
 
@@ -107,14 +108,14 @@ _BIG = "the UR10's radii × 245/190 (base Ø 245 mm against 190 mm) + 10 mm"
 #: the reference the e-Series radii are derived from.
 UR_CAPSULES: dict[str, CapsuleArm] = {
     "ur3": CapsuleArm(0.1198, 0.0275, 0.105, 0.080, 0.065, 0.055, 0.040, _CB3),
-    "ur5": CapsuleArm(0.13585, 0.0165, 0.115, 0.090, 0.080, 0.065, 0.045, _CB3),
-    "ur10": CapsuleArm(0.220941, 0.049042, 0.100, 0.120, 0.090, 0.080, 0.050, _CB3),
+    "ur5": CapsuleArm(0.13585, 0.0165, 0.115, 0.090, 0.065, 0.065, 0.045, _CB3),
+    "ur10": CapsuleArm(0.220941, 0.049042, 0.100, 0.120, 0.090, 0.085, 0.050, _CB3),
     "ur3e": CapsuleArm(0.120, 0.027, 0.115, 0.090, 0.075, 0.065, 0.050, _E.format("UR3", 128)),
-    "ur5e": CapsuleArm(0.138, 0.007, 0.125, 0.100, 0.090, 0.075, 0.055, _E.format("UR5", 149)),
-    "ur10e": CapsuleArm(0.1762, 0.0393, 0.110, 0.130, 0.100, 0.090, 0.060, _E.format("UR10", 190)),
-    "ur16e": CapsuleArm(0.176, 0.040, 0.110, 0.130, 0.100, 0.090, 0.060, _E.format("UR10", 190)),
-    "ur20": CapsuleArm(0.260, 0.043, 0.140, 0.165, 0.130, 0.115, 0.075, _BIG),
-    "ur30": CapsuleArm(0.260, 0.043, 0.140, 0.165, 0.130, 0.115, 0.075, _BIG),
+    "ur5e": CapsuleArm(0.138, 0.007, 0.125, 0.100, 0.075, 0.075, 0.055, _E.format("UR5", 149)),
+    "ur10e": CapsuleArm(0.1762, 0.0393, 0.110, 0.130, 0.100, 0.095, 0.060, _E.format("UR10", 190)),
+    "ur16e": CapsuleArm(0.176, 0.040, 0.110, 0.130, 0.100, 0.095, 0.060, _E.format("UR10", 190)),
+    "ur20": CapsuleArm(0.260, 0.043, 0.140, 0.165, 0.130, 0.120, 0.075, _BIG),
+    "ur30": CapsuleArm(0.260, 0.043, 0.140, 0.165, 0.130, 0.120, 0.075, _BIG),
 }
 
 
@@ -351,8 +352,9 @@ def capsule_segments(name: str) -> list[tuple[int, F, F, float]]:
         (1, (0, 0, 0), (0, 0, so), caps.upper),
         (2, (-a2, 0, 0), (-a2, 0, so), caps.upper),
         (2, (-a2, 0, so), (0, 0, so), caps.upper),
-        (2, (0, 0, eo), (0, 0, so), caps.fore),
-        (3, (-a3, 0, eo), (0, 0, eo), caps.fore),
+        (2, (0, 0, eo), (0, 0, so), caps.elbow),
+        (3, (-a3, 0, eo), (-a3, 0, so), caps.elbow),
+        (3, (-a3, 0, eo), (0, 0, eo), caps.wrist),
         (4, (0, -(d4 - eo), 0), (0, 0, 0), caps.wrist),
         (5, (0, d5, 0), (0, 0, 0), caps.wrist),
         (6, (0, 0, -d6), (0, 0, 0), caps.flange),
@@ -402,8 +404,8 @@ def capsule_geometry(name: str) -> ArmGeometry:
         source=(
             f"capsules on the DH lines, shoulder/elbow offsets {caps.shoulder_offset * 1000:g}/"
             f"{caps.elbow_offset * 1000:g} mm, radii base {caps.base * 1000:g}, upper arm "
-            f"{caps.upper * 1000:g}, forearm {caps.fore * 1000:g}, wrist {caps.wrist * 1000:g}, "
-            f"flange {caps.flange * 1000:g} mm: {caps.radii_source}"
+            f"{caps.upper * 1000:g}, elbow {caps.elbow * 1000:g}, forearm and wrist "
+            f"{caps.wrist * 1000:g}, flange {caps.flange * 1000:g} mm: {caps.radii_source}"
         ),
     )
 
