@@ -104,23 +104,27 @@ def degrade_truth(
     with a colon) to the effect's size (:func:`~quickhealth.identify.twin.effect_params`: a
     compliance in rad/(N·m), a backlash play in rad), which needs the twin's ``robot``.  The
     simulated cell uses it for "a month later" runs and for effects a run must find.
-    Effects that need the time or the temperature (``thermal``, ``drift``) are refused: the
-    simulated arm has neither.
+    Effects that need the time or the temperature (``thermal``, ``drift``) or belong to the
+    camera (``depthscale``) are refused: the simulated arm has no clock or temperature and
+    the images are rendered.
     """
     labels = truth.spec.labels()
     coeffs = truth.coeffs.copy()
     effects = dict(truth.effects)
     for label, delta in changes.items():
-        if ":" in label:
+        if ":" in label or label in _UNTIMED:
             effects.update(_hidden_effect(label, delta, robot, truth.seed))
             continue
         if label not in labels:
             raise InputError(
                 f"degradation {label!r}: not a coefficient of the twin's error model "
-                f"(e.g. {labels[0]}, j2.ex.c0)"
+                f"(e.g. {labels[0]}, j2.ex.c0) nor an effect (compliance:j2, backlash:j3)"
             )
         coeffs[labels.index(label)] += float(delta)
     return replace(truth, coeffs=coeffs, effects=effects)
+
+
+_UNTIMED = ("thermal", "drift", "depthscale")  # effects the simulated arm cannot carry
 
 
 def _hidden_effect(
@@ -130,10 +134,10 @@ def _hidden_effect(
     if robot is None:
         raise InputError(f"degradation {name!r}: a hidden effect needs the twin's robot")
     e = parse_effect(name, robot)
-    if e.name.split(":")[0] in ("thermal", "drift", "depthscale"):
+    if e.name.split(":")[0] in _UNTIMED:
         raise InputError(
-            f"degradation {name!r}: the simulated arm has no clock or temperature; hide "
-            "compliance, backlash or cyclic errors"
+            f"degradation {name!r}: the simulated arm hides arm effects only (compliance, "
+            "backlash, cyclic): it has no clock or temperature, and the camera is rendered"
         )
     return {e.name: list(map(float, effect_params(e, size, np.random.default_rng(seed))))}
 
