@@ -125,3 +125,17 @@ def test_the_fake_robot_streams_at_its_controllers_rate():
         1 / 500 / 2
     )
     assert FakeRobot().sample_period == pytest.approx(0.008)  # the UR5: 125 Hz
+
+
+def test_the_tuis_simulated_sensor_keeps_the_farthest_marker_detectable():
+    from quickhealth.station.planning.cell import load_cell
+    from quickhealth.station.planning.planfile import plan_from_dict, plan_to_dict
+    from quickhealth.station.planning.planner import plan_loop
+    from quickhealth.station.tui.simulated import sensor_scale
+
+    def scale(name: str) -> float:
+        cell = load_cell(name)
+        return sensor_scale(cell, plan_from_dict(plan_to_dict(plan_loop(cell, 30, 1)), "p"))
+
+    assert scale("reference") == 0.3  # the paper's cell: as fast as before
+    assert 0.35 <= scale("ur10e") <= 0.5  # targets 3 m and more away need a larger sensor
