@@ -4,7 +4,8 @@ Stages (each the application-layer function the command a user runs by hand call
 demo goes the real code path; the equivalent commands are printed as it goes and each step's
 lines are kept in ``demo.log``):
 
-1. **plan**      ``quickhealth plan --cell reference``: the fixed loop for the paper's cell
+1. **plan**      ``quickhealth plan --cell CELL``: the fixed loop for the cell (``reference``,
+                 the paper's UR5 cell, unless ``--cell`` names another)
 2. **run**       ``quickhealth run --sim``: UR controller simulator driven by the real ur-rtde
                  client, emulated pan motor on a pseudo-terminal, rendered stereo images,
                  7D measurements, crash-safe journal
@@ -42,9 +43,8 @@ from .services.diagnosis import diagnose_model, write_diagnosis
 from .services.fitting import fit_folder
 from .services.planning import plan_folder
 from .services.report import report_run
-from .sim.cell import sim_station
+from .sim.cell import sim_robot_name, sim_station
 
-ROBOT = "sim-ur5"
 #: The wear the "month later" run carries: joint 2 tilts 0.5 mrad more about its x axis.
 DEFAULT_DEGRADATION = {"j2.ex.c0": 5e-4}
 
@@ -137,6 +137,7 @@ class _Log:
 def run_demo(
     out: Path,
     *,
+    cell: str = "reference",
     n_candidates: int = 150,
     seed: int = 0,
     speed_factor: float = 20.0,
@@ -149,6 +150,8 @@ def run_demo(
 
     Parameters
     ----------
+    cell : str
+        The cell (a built-in name or a file): its arm is planned, simulated and assessed.
     n_candidates : int
         Random targets the planner draws (the paper: 150).
     speed_factor : float
@@ -170,14 +173,14 @@ def run_demo(
     log = _Log(out / "demo.log")
     results: list[DemoRunResult] = []
     try:
-        plan, plan_summary = _plan(out / "plan", n_candidates, seed, say, log)
+        plan, plan_summary = _plan(cell, out / "plan", n_candidates, seed, say, log)
         t0 = datetime.now(UTC).replace(microsecond=0)
         for k, run in enumerate(demo_runs(degrade), start=1):
             t_run = time.monotonic()
             say("")
             say(f"{k + 1}. run {run.run_id}: {run.story}")
-            folder = _run(out, run, plan, speed_factor, image_scale, say, log, pose_progress)
-            result = _assess(out, folder, run, t0, say, log)
+            folder = _run(cell, out, run, plan, speed_factor, image_scale, say, log, pose_progress)
+            result = _assess(cell, out, folder, run, t0, say, log)
             result.seconds = time.monotonic() - t_run
             results.append(result)
     finally:
@@ -187,12 +190,12 @@ def run_demo(
 
 
 def _plan(
-    out: Path, n_candidates: int, seed: int, say: Callable[[str], None], log: _Log
+    cell: str, out: Path, n_candidates: int, seed: int, say: Callable[[str], None], log: _Log
 ) -> tuple[Plan, list[str]]:
-    """1. the fixed loop of the reference cell; the first lines of its summary."""
-    argv = ["plan", "--cell", "reference", "--n", str(n_candidates), "--seed", str(seed)]
+    """1. the fixed loop of the cell; the first lines of its summary."""
+    argv = ["plan", "--cell", cell, "--n", str(n_candidates), "--seed", str(seed)]
     say(f"1. plan: quickhealth {' '.join(argv)}")
-    res = plan_folder(load_cell("reference"), n_candidates, seed, out)
+    res = plan_folder(load_cell(cell), n_candidates, seed, out)
     lines = [*res.result.summary(), f"plan {res.plan.hash}"]
     log.step([*argv, "--out", str(out)], lines + ["wrote " + ", ".join(map(str, res.paths))])
     summary = [ln for ln in lines if ln.strip()][:4]
@@ -202,6 +205,7 @@ def _plan(
 
 
 def _run(
+    cell: str,
     out: Path,
     run: DemoRun,
     plan: Plan,
@@ -214,18 +218,17 @@ def _run(
     """2. the plan on the simulated cell (worn as the run says); the run folder."""
     wear = ",".join(f"{a}={b:g}" for a, b in run.degrade.items())
     say(
-        "   quickhealth run --sim --cell reference --plan plan/plan.json"
+        f"   quickhealth run --sim --cell {cell} --plan plan/plan.json"
         + (f" --sim-degrade {wear}" if wear else "")
     )
     station, _ = sim_station(
-        "reference",
+        cell,
         twin_seed=1,
         image_scale=image_scale,
         speed_factor=speed_factor,
         degrade=run.degrade or None,
         camera_seed=run.camera_seed,
     )
-    station.robot_name = ROBOT
     folder = out / "runs" / run.run_id
     try:
         res: RunResult = run_plan(
@@ -243,6 +246,7 @@ def _run(
 
 
 def _assess(
+    cell_name: str,
     out: Path,
     folder: Path,
     run: DemoRun,
@@ -252,11 +256,15 @@ def _assess(
 ) -> DemoRunResult:
     """3.–6. fit, diagnose, archive and trend, report."""
     csv = folder / "measurements.csv"
-    robot = load_robot("ur5")
+    cell = load_cell(cell_name)
+    arm = cell.robot.name
+    robot = cell.robot_with_target(load_robot(arm))  # compliance: the arm's and target's masses
+    robot_name = sim_robot_name(cell)
     meas = read_measurements(csv, robot.n_joints)
     fit = fit_folder(meas, robot, folder, source=str(csv))
+    target = ["--cell", cell_name] if cell.target_mass > 0 else []
     log.step(
-        ["identify", "fit", str(csv), "--robot", "ur5", "--out", str(folder)],
+        ["identify", "fit", str(csv), "--robot", arm, *target, "--out", str(folder)],
         fit.assessment.summary(),
     )
     report = fit.files.report
@@ -289,12 +297,22 @@ def _assess(
     archive_dir = out / "archive"
     when = (t0 + timedelta(days=run.days_after_baseline)).isoformat().replace("+00:00", "Z")
     arch = Archive.open(archive_dir)
-    rec = arch.add_run(ROBOT, folder, run_id=run.run_id, time_utc=when)
+    rec = arch.add_run(robot_name, folder, run_id=run.run_id, time_utc=when)
     baseline = run.days_after_baseline == 0
     if baseline:
         arch.set_baseline(rec.robot, rec.run_id)
     log.step(
-        ["archive", "add", str(folder), "--robot", ROBOT, "--run-id", run.run_id, "--time", when]
+        [
+            "archive",
+            "add",
+            str(folder),
+            "--robot",
+            robot_name,
+            "--run-id",
+            run.run_id,
+            "--time",
+            when,
+        ]
         + ["--archive", str(archive_dir)]
         + (["--baseline"] if baseline else []),
         [f"archived {rec.robot}/{rec.run_id} ({rec.time_utc}) in {arch.folder(rec)}"],
@@ -303,17 +321,19 @@ def _assess(
     if baseline:
         result.verdict = "baseline"
     else:
-        result.flags = list(trend_for(arch, ROBOT).flags())
+        result.flags = list(trend_for(arch, robot_name).flags())
         result.verdict = "FLAGGED" if result.flags else "healthy"
         say(f"   trend against the baseline: {result.verdict}")
         for line in result.flags:
             say(f"     - {line}")
 
     html = result.folder / "report.html"
-    argv = ["report", str(result.folder), "--out", str(html), "--robot", ROBOT, "--run-id"]
+    argv = ["report", str(result.folder), "--out", str(html), "--robot", robot_name, "--run-id"]
     argv += [run.run_id, "--archive", str(archive_dir)]
     try:
-        rep = report_run(result.folder, archive=arch, robot=ROBOT, run_id=run.run_id, html=html)
+        rep = report_run(
+            result.folder, archive=arch, robot=robot_name, run_id=run.run_id, html=html
+        )
     except QuickhealthError as exc:  # the demo goes on; the table says the report is missing
         log.step(argv, [f"quickhealth: error: {exc}"])
         say(f"   report: failed ({exc})")

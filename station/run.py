@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 
 from ..identify.errors import HardwareError, InputError
 from ..identify.measurements import Measurements
+from ..identify.robot import builtin_robot
 from ..identify.transforms import R_to_rpy, inv_T, log_so3
 from ..vision.boards import TargetDescription
 from ..vision.markers import Box, detect_markers
@@ -958,7 +959,8 @@ def ur_station(
     rig = read_rig(Path(calibration))
     closers: list[Callable[[], None]] = []
     try:
-        robot = UrRobot(robot_ip)
+        arm = builtin_robot(c.robot.name)  # the cell's arm with its own limits; its stream rate
+        robot = UrRobot(robot_ip, model=arm, frequency=arm.control_hz or 125.0)
         closers.append(robot.close)
         motor = SerialPanMotor(motor_port)
         closers.append(motor.close)

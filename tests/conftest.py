@@ -18,6 +18,7 @@ SERIAL_MODULES = frozenset(
         "test_simcontroller.py",
         "test_run.py",  # faults mid-run on the in-process cell
         "test_run_sim.py",  # the simulated cell with the real client, kill -9 and --resume
+        "test_ur10e_sim.py",  # a UR10e end to end on its simulated cell (500 Hz stream)
         "test_run_cli.py",  # two runs at once, the run lock
         "test_tui_sim_cell.py",  # the TUI on the simulated cell, a controller restart
         "test_archive_fleet.py",  # stations killed mid-write

@@ -15,14 +15,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "demo",
         help="the whole loop on the simulated cell: plan, runs, fit, diagnosis, trend, reports",
         description=(
-            "Plans the fixed loop for the paper's reference cell, runs it three times on the "
-            "simulated cell (UR controller simulator driven by the real ur-rtde client, "
+            "Plans the fixed loop for the paper's reference cell (or --cell CELL, e.g. ur10e), "
+            "runs it three times on the simulated cell (UR controller simulator driven by the real ur-rtde client, "
             "emulated pan motor, rendered stereo images) — a baseline, a healthy repeat and a "
             "worn robot a month later — fits, diagnoses, archives, trends and writes an HTML "
             "report per run.  Exit 0 when the trend flags the worn run (and only it), else 1."
         ),
     )
     p.add_argument("--out", default="demo-output", help="output folder (default %(default)s)")
+    p.add_argument(
+        "--cell",
+        default="reference",
+        help="cell file or built-in name whose arm is simulated (default %(default)s: the "
+        "paper's UR5; ur10e: the built-in UR10e cell)",
+    )
     p.add_argument(
         "--n", type=options.PLAN_POSES, default=150, help="candidate targets to plan (default 150)"
     )
@@ -52,6 +58,7 @@ def _demo(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TimeRemainingColumn
 
     from ..demo import run_demo  # the whole station and the simulated cell
+    from ..planning.cell import load_cell  # the planner's cell reader
     from ..sim.world import parse_degradation  # the simulated world: OpenCV, the twin
 
     if args.n < 1:
@@ -61,6 +68,7 @@ def _demo(args: argparse.Namespace) -> int:
     if not 0.05 <= args.image_scale <= 1:
         raise InputError(f"--image-scale must be in 0.05..1, got {args.image_scale}")
     degrade = parse_degradation(args.degrade)
+    load_cell(args.cell)  # a bad cell is one line before anything is written
     console = Console(highlight=False)
     bars = Progress(
         "[progress.description]{task.description}",
@@ -80,6 +88,7 @@ def _demo(args: argparse.Namespace) -> int:
     with bars:
         res = run_demo(
             Path(args.out),
+            cell=args.cell,
             n_candidates=args.n,
             seed=args.seed,
             speed_factor=args.speed_factor,

@@ -1,7 +1,7 @@
 """``quickhealth identify``: fit the error model to measurements, predict new commands.
 
-quickhealth identify fit MEAS.csv --robot ROBOT [--calibration CAL.yaml] --out DIR
-    [--effects LIST] [--max-order N]
+quickhealth identify fit MEAS.csv --robot ROBOT [--calibration CAL.yaml] [--cell CELL]
+    --out DIR [--effects LIST] [--max-order N]
     [--sigma-pos-mm S] [--sigma-rot-deg S] [--sigma-q-deg S] [--plots] [--auto-rescale]
 quickhealth identify predict DIR/model.json INPUT --out PRED.csv [--threshold-mm T]
     INPUT: a measurement CSV, a CSV of joint columns only, or a URScript file (.script)
@@ -37,6 +37,7 @@ from ...identify.errors import InputError
 from ...identify.fit import FittedModel
 from ...identify.linearize import InstrumentNoise
 from ...identify.measurements import Measurements
+from ...identify.robot import BUILTIN_ROBOTS, RobotModel
 from ...identify.transforms import R_to_rpy
 from ...identify.workspace import (
     CommandPrediction,
@@ -46,6 +47,7 @@ from ...identify.workspace import (
 )
 from .. import formats, lock, options, workers
 from ..fsio import claim_output_folder, refuse_overwriting_inputs
+from ..planning.cell import load_cell
 from ..progress import Progress
 from ..services.fitting import FigureRenderer, claim_fit_folder, fit_folder
 from ..services.options import FitOptions
@@ -79,6 +81,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--calibration",
         default=None,
         help="the controller's calibration (UR ROS driver kinematics YAML) as nominal kinematics",
+    )
+    f.add_argument(
+        "--cell",
+        default=None,
+        help="the cell the data were measured in (file or built-in name): the robot carries "
+        "its smart target ([target] mass_kg), so gravity compliance uses both masses",
     )
     f.add_argument("--out", required=True, help="output directory")
     f.add_argument("--effects", default=None, help="comma-separated effect names")
@@ -151,6 +159,16 @@ def _positive(name: str, v: float) -> None:
         raise InputError(f"{name} must be > 0, got {v}")
 
 
+def _carrying_target(robot: RobotModel, cell_spec: str) -> RobotModel:
+    """``robot`` carrying the smart target of cell ``cell_spec``; the cell must name the same
+    arm when ``robot`` is a built-in one."""
+    cell = load_cell(cell_spec)
+    base = robot.nominal.robot if robot.nominal is not None else robot.name
+    if base in BUILTIN_ROBOTS and base != cell.robot.name:
+        raise InputError(f"--cell {cell_spec}: its arm is the {cell.robot.name}, not the {base}")
+    return cell.robot_with_target(robot)
+
+
 @workers.owns_workers
 @lock.holds_outputs("identify fit", lambda a: [a.out])
 def _fit(args: argparse.Namespace) -> int:
@@ -165,12 +183,19 @@ def _fit(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a directory")
     robot = formats.load_robot(args.robot, args.calibration)
+    if args.cell is not None:
+        robot = _carrying_target(robot, args.cell)
     outputs = ["model.json", "report.json", "residuals.csv"]
     if args.plots:
         outputs += FigureRenderer.names(robot.n_joints)
     refuse_overwriting_inputs(
         [("--out", out / n) for n in outputs],
-        [args.meas, args.robot if Path(args.robot).is_file() else None, args.calibration],
+        [
+            args.meas,
+            args.robot if Path(args.robot).is_file() else None,
+            args.calibration,
+            args.cell if args.cell and Path(args.cell).is_file() else None,
+        ],
     )
     _, other = claim_fit_folder(out, Path(args.meas))
     forced = claim_output_folder(out, other, force=args.force)

@@ -268,7 +268,10 @@ def _register(out: Path, args: argparse.Namespace, plan: Plan) -> str:
 
     csv = out / "measurements.csv"
     try:
-        robot = load_robot("ur5")
+        from ..planning import load_cell  # the planner: the collision library
+
+        cell = load_cell(args.cell)  # the cell's arm carrying its smart target
+        robot = cell.robot_with_target(load_robot(cell.robot.name))
         meas = read_measurements(csv, robot.n_joints)
         check_poses_for_fit(meas, robot, csv)
         fit_folder(meas, robot, out, source=str(csv))

@@ -49,7 +49,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         default=Path("archive"),
         help="archive folder: runs and baselines (default ./archive)",
     )
-    p.add_argument("--robot-name", default="ur5-sim", help="the robot's name in the archive")
+    p.add_argument(
+        "--robot-name",
+        default=None,
+        help="the robot's name in the archive (default: the cell's arm, e.g. ur5-sim with --sim)",
+    )
     p.add_argument(
         "--threshold-mm",
         type=options.LENGTH_MM,
@@ -67,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         station = Station.from_data(
             args.data,
             args.heldout,
-            robot_name=args.robot_name,
+            robot_name=args.robot_name or "ur5-sim",
             archive_root=args.archive,
             threshold_mm=args.threshold_mm,
         )

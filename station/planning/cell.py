@@ -19,7 +19,9 @@ import hashlib
 import math
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -28,14 +30,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ...identify.errors import InputError
-from ...identify.robot import RobotModel, ur5
+from ...identify.robot import BUILTIN_ROBOTS, RobotModel, builtin_robot, with_payload
 from ...identify.transforms import inv_T, make_T, rpy_to_R
 
 F = NDArray[np.float64]
 
 SCHEMA = "quickhealth.cell/1"
-BUILTIN_CELLS = {"reference": "reference_cell.toml"}
-ROBOTS = {"ur5": ur5}
+#: Built-in cells by name: the paper's UR5 set-up and a UR10e cell (docs/plan.md).
+BUILTIN_CELLS = {"reference": "reference_cell.toml", "ur10e": "ur10e_cell.toml"}
+#: Every built-in arm a cell may name (``[robot] model``, any case): its nominal model.
+ROBOTS: dict[str, Callable[[], RobotModel]] = {
+    name: partial(builtin_robot, name) for name in BUILTIN_ROBOTS
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,6 +138,18 @@ class Cell:
     motion: Motion
     planner: PlannerSettings
     home: F | None = None  # (6,) rad: where the loop starts; the first leg is checked from it
+    target_mass: float = 0.0  # kg, the smart target on the flange; 0: not stated
+    target_com: F | None = None  # (3,) m, its centre of mass in the flange frame
+
+    def robot_with_target(self, robot: RobotModel | None = None) -> RobotModel:
+        """``robot`` (default: the cell's arm) carrying the cell's smart target on its flange:
+        the target's mass lumped into the last link (:func:`~quickhealth.identify.robot.with_payload`),
+        so gravity compliance uses the arm's masses plus the target's.  Unchanged when the
+        cell states no target mass."""
+        r = self.robot if robot is None else robot
+        if self.target_mass <= 0.0 or self.target_com is None:
+            return r
+        return with_payload(r, self.target_mass, self.target_com)
 
     @property
     def T_base_world(self) -> F:
@@ -323,7 +341,7 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
     robot, T_world_base, home = _robot(top.sub("robot"))
     top_z, tmin, tmax, thick = _table(top.sub("table"))
     wmin, wmax, spread = _workspace(top.sub("workspace"), top_z)
-    T_flange_target, pan, facing, bsize, T_target_body = _target(top.sub("target"))
+    T_flange_target, pan, facing, bsize, T_target_body, mass, com = _target(top.sub("target"))
     cam, Tc = _camera(top.sub("camera"))
     obstacles = _obstacles(top, label)
     motion = _motion(top.sub("motion"))
@@ -356,14 +374,17 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         motion=motion,
         planner=planner,
         home=home,
+        target_mass=mass,
+        target_com=com,
     )
 
 
 def _robot(rt: _Tab) -> tuple[RobotModel, F, F | None]:
     """The ``[robot]`` table: the model with the cell's planning limits, its base, home."""
-    model = rt.text("model")
+    given = rt.text("model")
+    model = given.strip().lower()
     if model not in ROBOTS:
-        raise rt.err("model", f"unknown robot {model!r} (known: {', '.join(sorted(ROBOTS))})")
+        raise rt.err("model", f"unknown robot {given!r} (known: {', '.join(ROBOTS)})")
     robot = ROBOTS[model]()
     T_world_base = _pose(rt, "base_xyz_mm", "base_rpy_deg")
     qlo = np.radians(rt.vec("q_min_deg", 6, list(np.degrees(robot.q_min))))
@@ -408,8 +429,9 @@ def _workspace(wt: _Tab, top_z: float) -> tuple[F, F, float]:
     return wmin, wmax, spread
 
 
-def _target(gt: _Tab) -> tuple[F, F, float, F, F]:
-    """The ``[target]`` table: its mount, pan range (deg), facing limit, body and its frame."""
+def _target(gt: _Tab) -> tuple[F, F, float, F, F, float, F]:
+    """The ``[target]`` table: its mount, pan range (deg), facing limit, body and its frame,
+    mass (kg) and centre of mass (flange frame, m)."""
     T_flange_target = _pose(gt, "xyz_mm", "rpy_deg")
     pan = gt.vec("pan_range_deg", 2, [-90.0, 90.0])
     if not -180.0 <= pan[0] <= pan[1] <= 180.0:
@@ -419,8 +441,11 @@ def _target(gt: _Tab) -> tuple[F, F, float, F, F]:
     if np.any(bsize <= 0):
         raise gt.err("body_size_mm", "every edge must be > 0")
     T_target_body = make_T(np.eye(3), gt.vec("body_center_mm", 3, [0.0, 0.0, 0.0]) / 1000.0)
+    mass = gt.num("mass_kg", 0.0, lo=0.0, hi=100.0)
+    com_target = gt.vec("com_mm", 3, list(T_target_body[:3, 3] * 1000.0)) / 1000.0
+    com = (T_flange_target @ np.r_[com_target, 1.0])[:3]
     gt.done()
-    return T_flange_target, pan, facing, bsize, T_target_body
+    return T_flange_target, pan, facing, bsize, T_target_body, mass, com
 
 
 def _camera(ct: _Tab) -> tuple[Camera, list[F]]:

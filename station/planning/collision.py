@@ -1,17 +1,16 @@
-"""Collision checking of the UR5 in its cell with python-fcl and the example-robot-data meshes.
+"""Collision checking of a UR arm in its cell with python-fcl.
 
-The robot's collision geometry is the STL collision meshes of ``ur_description`` (package
-example-robot-data).  Its URDF uses the ur_description frames: the URDF ``base_link`` is the
-DH base turned 180° about z (notes/ur5.md), and the joint angles are the same.  Link frames are
-computed here from the URDF's joint origins, vectorised over configurations, then placed in
-the world with ``T_world_base · Rz(π)``.
+The arm's collision shapes come from :mod:`.arm_geometry`: the STL collision meshes of
+example-robot-data for the UR3, UR5 and UR10, a capsule model built from the DH table for the
+e-Series arms.  Link frames are computed vectorised over configurations in the DH base frame,
+then placed in the world with ``T_world_base``.
 
 Checked pairs
 -------------
-- self collision: every link pair except those the package's SRDF disables (adjacent or
-  never-touching links);
+- self collision: every pair of shapes on different links except adjacent links and those
+  ur_description's SRDF disables (never-touching links);
 - the smart-target body (a box on the flange) against every link but wrist 3, its mount;
-- every link and the target body against every obstacle and the table (the base link
+- every shape and the target body against every obstacle and the table (the base link
   excepted for the table), with obstacles and the table grown by ``planner.clearance``.
 
 :class:`CollisionWorld` is scratch (pinocchio's ``data``): it owns fcl objects whose poses it
@@ -20,161 +19,76 @@ sets per query.  Build one per cell and thread.
 
 from __future__ import annotations
 
-import importlib.metadata
-import xml.etree.ElementTree as ET
-from dataclasses import dataclass
-from functools import cache, lru_cache
-from pathlib import Path
-
 import fcl
 import numpy as np
 from numpy.typing import NDArray
 
-from ...identify.errors import InputError
-from ...identify.robot import ur5
-from ...identify.transforms import make_T, rot_z, rpy_to_R
+from ...identify.transforms import make_T
+from .arm_geometry import (
+    LINKS,
+    T_DHBASE_URDFBASE,
+    ArmGeometry,
+    Shape,
+    UrdfChain,
+    arm_geometry,
+    mesh_data,
+    read_stl,
+    urdf_chain,
+    urdf_link_frames,
+    urdf_tool0_frames,
+)
 from .cell import Cell, Obstacle
 
 F = NDArray[np.float64]
 
-LINKS = (
-    "base_link",
-    "shoulder_link",
-    "upper_arm_link",
-    "forearm_link",
-    "wrist_1_link",
-    "wrist_2_link",
-    "wrist_3_link",
-)
 TARGET = "target"
 TABLE = "table"
-T_DHBASE_URDFBASE = make_T(rot_z(np.pi), np.zeros(3))
+
+__all__ = [
+    "LINKS",
+    "T_DHBASE_URDFBASE",
+    "TABLE",
+    "TARGET",
+    "CollisionWorld",
+    "UrdfChain",
+    "link_frames",
+    "obstacle_geometry",
+    "read_stl",
+    "tool0_frames",
+    "ur5_chain",
+]
 
 
-@dataclass(frozen=True, eq=False)
-class UrdfChain:
-    """The serial chain of the URDF: per link, its parent joint's origin and axis."""
-
-    origins: F  # (7, 4, 4): T_parent_joint at q = 0 (origins[0] = identity for base_link)
-    axes: F  # (7, 3): joint axes in the joint frame (axes[0] unused)
-    mesh_files: tuple[Path, ...]  # collision mesh per link
-    T_link_mesh: F  # (7, 4, 4): collision origin inside each link
-    disabled: frozenset[frozenset[str]]  # SRDF pairs never checked
-    T_wrist3_tool0: F  # (4, 4)
-
-
-def _share() -> Path:
-    try:
-        files = importlib.metadata.files("example-robot-data") or []
-    except importlib.metadata.PackageNotFoundError:
-        raise InputError(
-            "example-robot-data is not installed: pip install example-robot-data"
-        ) from None
-    for f in files:
-        s = str(f)
-        if s.endswith("ur_description/urdf/ur5_robot.urdf"):
-            urdf = Path(str(f.locate()))
-            return urdf.parents[4]  # …/cmeel.prefix/share
-    raise InputError("example-robot-data has no ur_description/urdf/ur5_robot.urdf")
-
-
-def _origin(el: ET.Element | None) -> F:
-    if el is None:
-        return np.eye(4)
-    xyz = np.array([float(v) for v in el.get("xyz", "0 0 0").split()])
-    rpy = np.array([float(v) for v in el.get("rpy", "0 0 0").split()])
-    return make_T(rpy_to_R(rpy[0], rpy[1], rpy[2]), xyz)
-
-
-@lru_cache(maxsize=1)
 def ur5_chain() -> UrdfChain:
-    """Parse ur5_robot.urdf and ur5.srdf of example-robot-data (cached)."""
-    share = _share()
-    desc = share / "example-robot-data" / "robots" / "ur_description"
-    root = ET.parse(desc / "urdf" / "ur5_robot.urdf").getroot()
-    joints = {j.find("child").get("link"): j for j in root.findall("joint")}  # type: ignore[union-attr]
-    links = {lk.get("name"): lk for lk in root.findall("link")}
-    origins = np.tile(np.eye(4), (7, 1, 1))
-    axes = np.zeros((7, 3))
-    meshes = []
-    T_mesh = np.tile(np.eye(4), (7, 1, 1))
-    for i, name in enumerate(LINKS):
-        if i > 0:
-            j = joints[name]
-            if j.find("parent").get("link") != LINKS[i - 1]:  # type: ignore[union-attr]
-                raise InputError(f"ur5_robot.urdf: unexpected parent of {name}")
-            origins[i] = _origin(j.find("origin"))
-            axes[i] = [float(v) for v in j.find("axis").get("xyz").split()]  # type: ignore[union-attr]
-        col = links[name].find("collision")
-        mesh = col.find("geometry/mesh")  # type: ignore[union-attr]
-        uri = mesh.get("filename")  # type: ignore[union-attr]
-        meshes.append(share / uri.removeprefix("package://"))  # type: ignore[union-attr]
-        T_mesh[i] = _origin(col.find("origin"))  # type: ignore[union-attr]
-    tool = next(j for j in root.findall("joint") if j.find("child").get("link") == "tool0")  # type: ignore[union-attr]
-    srdf = ET.parse(desc / "srdf" / "ur5.srdf").getroot()
-    disabled = frozenset(
-        frozenset((d.get("link1"), d.get("link2"))) for d in srdf.iter("disable_collisions")
-    )
-    return UrdfChain(origins, axes, tuple(meshes), T_mesh, disabled, _origin(tool.find("origin")))  # type: ignore[arg-type]
+    """The UR5's URDF chain of example-robot-data (:func:`.arm_geometry.urdf_chain`)."""
+    return urdf_chain("ur5")
 
 
 def link_frames(q: F) -> F:
     """``T_dhbase_link`` of the 7 UR5 links for configurations ``q`` (m, 6) rad → (m, 7, 4, 4)."""
-    ch = ur5_chain()
-    q = np.atleast_2d(q)
-    m = q.shape[0]
-    out = np.empty((m, 7, 4, 4))
-    T = np.broadcast_to(T_DHBASE_URDFBASE, (m, 4, 4)).copy()
-    out[:, 0] = T
-    for i in range(1, 7):
-        R = _axis_rot(ch.axes[i], q[:, i - 1])
-        T = T @ ch.origins[i] @ R
-        out[:, i] = T
-    return out
+    return urdf_link_frames(q, "ur5")
 
 
 def tool0_frames(q: F) -> F:
-    """``T_dhbase_tool0`` from the URDF chain (for checking it against the DH model)."""
-    return link_frames(q)[:, 6] @ ur5_chain().T_wrist3_tool0
+    """``T_dhbase_tool0`` of the UR5 from the URDF chain (checked against the DH model)."""
+    return urdf_tool0_frames(q, "ur5")
 
 
-def _axis_rot(axis: F, a: F) -> F:
-    k = axis / np.linalg.norm(axis)
-    c, s = np.cos(a), np.sin(a)
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    R = np.eye(3) + s[:, None, None] * K + (1 - c)[:, None, None] * (K @ K)
-    return make_T(R, np.zeros(3))
-
-
-def read_stl(path: Path) -> tuple[F, NDArray[np.int32]]:
-    """Vertices (3k, 3) and triangles (k, 3) of a binary or ASCII STL file."""
-    raw = path.read_bytes()
-    if len(raw) >= 84:
-        n = int(np.frombuffer(raw, dtype="<u4", count=1, offset=80)[0])
-        if 84 + 50 * n == len(raw):
-            rec = np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
-            tri = np.frombuffer(raw, dtype=rec, count=n, offset=84)["v"].astype(float)
-            return tri.reshape(-1, 3), np.arange(3 * n, dtype=np.int32).reshape(-1, 3)
-    words = raw.decode("ascii", errors="replace").split()
-    idx = [i for i, w in enumerate(words) if w == "vertex"]
-    vs = np.array([[float(words[i + 1]), float(words[i + 2]), float(words[i + 3])] for i in idx])
-    if len(vs) == 0 or len(vs) % 3:
-        raise InputError(f"{path}: not a readable STL mesh")
-    return vs, np.arange(len(vs), dtype=np.int32).reshape(-1, 3)
-
-
-@cache
-def _mesh_data(path: str) -> tuple[F, NDArray[np.int32]]:
-    return read_stl(Path(path))
-
-
-def _bvh(path: Path) -> fcl.BVHModel:
-    v, t = _mesh_data(str(path))
+def _bvh(path: str) -> fcl.BVHModel:
+    v, t = mesh_data(path)
     m = fcl.BVHModel()
     m.beginModel(len(v), len(t))
     m.addSubModel(v, t)
     m.endModel()
     return m
+
+
+def _shape_geometry(s: Shape) -> fcl.CollisionGeometry:
+    if s.mesh is not None:
+        return _bvh(str(s.mesh))
+    if s.length < 1e-9:
+        return fcl.Sphere(s.radius)
+    return fcl.Capsule(s.radius, s.length)
 
 
 def _tf(T: F) -> fcl.Transform:
@@ -192,20 +106,22 @@ def obstacle_geometry(o: Obstacle, grow: float = 0.0) -> fcl.CollisionGeometry:
 class CollisionWorld:
     """The robot, its target body, the obstacles and the table of one cell, in fcl."""
 
-    def __init__(self, cell: Cell) -> None:
-        ch = ur5_chain()
+    def __init__(self, cell: Cell, geometry: ArmGeometry | None = None) -> None:
+        geom = arm_geometry(cell.robot) if geometry is None else geometry
         self.cell = cell
+        self.geometry = geom
         g = cell.planner.clearance
         self._T_world_dhbase = cell.T_world_base
-        self._T_link_mesh = ch.T_link_mesh
+        self._link_frames = geom.link_frames
+        self._shape_link = np.array([sh.link for sh in geom.shapes])
+        self._T_link_shape = np.array([sh.T_link_shape for sh in geom.shapes])
+        self._last = len(geom.links) - 1
+        self.n_arm = len(geom.shapes)  # the arm's shapes come first in ``moving``
         self.moving: list[tuple[str, fcl.CollisionObject]] = [
-            (name, fcl.CollisionObject(_bvh(path)))
-            for name, path in zip(LINKS, ch.mesh_files, strict=True)
+            (geom.links[sh.link], fcl.CollisionObject(_shape_geometry(sh))) for sh in geom.shapes
         ]
         self.moving.append((TARGET, fcl.CollisionObject(fcl.Box(*cell.target_body_size))))
-        self._T_wrist3_body = (
-            ch.T_wrist3_tool0 @ _T_tool0_flange() @ cell.T_flange_target @ cell.T_target_body
-        )
+        self._T_last_body = geom.T_last_flange @ cell.T_flange_target @ cell.T_target_body
         # static: obstacles (grown) and the table, plus exact copies for line-of-sight tests
         self.static: list[tuple[str, fcl.CollisionObject]] = []
         self.sight_static: list[tuple[str, fcl.CollisionObject]] = []
@@ -227,13 +143,14 @@ class CollisionWorld:
             (TABLE, fcl.CollisionObject(fcl.Box(*size), _tf(make_T(np.eye(3), ctr))))
         )
         names = [n for n, _ in self.moving]
+        # the link of each moving object (the target counts as the link after the last)
+        link = [*self._shape_link.tolist(), self._last + 1]
         self.self_pairs = [
             (i, j)
             for i in range(len(names))
             for j in range(i + 1, len(names))
-            if j != i + 1
-            and frozenset((names[i], names[j])) not in ch.disabled
-            and not (names[j] == TARGET and names[i] == "wrist_3_link")
+            if abs(link[j] - link[i]) > 1  # other links, not adjacent (target: not on wrist 3)
+            and frozenset((names[i], names[j])) not in geom.disabled
         ]
         self.static_pairs = [
             (i, k)
@@ -243,15 +160,11 @@ class CollisionWorld:
         ]
         self._req = fcl.CollisionRequest()
         # broadphase: a bounding sphere per object, tested for all samples at once in numpy
-        centres, radii = [], []
-        for path in ch.mesh_files:
-            v, _ = _mesh_data(str(path))
-            c = (v.min(0) + v.max(0)) / 2
-            centres.append(c)
-            radii.append(float(np.linalg.norm(v - c, axis=1).max()))
+        centres = [sh.centre for sh in geom.shapes]
+        radii = [sh.bound for sh in geom.shapes]
         centres.append(np.zeros(3))
         radii.append(float(np.linalg.norm(cell.target_body_size) / 2))
-        self._c_local = np.array(centres)  # (8, 3)
+        self._c_local = np.array(centres)  # (n_arm + 1, 3)
         self._r = np.array(radii) + 1e-3
         s_c, s_r = [], []
         for o in cell.obstacles:
@@ -272,11 +185,11 @@ class CollisionWorld:
         ]
 
     def frames(self, q: F) -> F:
-        """``T_world_x`` of the 7 links' meshes and the target body, (m, 8, 4, 4)."""
-        L = self._T_world_dhbase @ link_frames(q)
-        out = np.empty((L.shape[0], 8, 4, 4))
-        out[:, :7] = L @ self._T_link_mesh
-        out[:, 7] = L[:, 6] @ self._T_wrist3_body
+        """``T_world_x`` of the arm's shapes and the target body, (m, n_arm + 1, 4, 4)."""
+        L = self._T_world_dhbase @ self._link_frames(q)
+        out = np.empty((L.shape[0], self.n_arm + 1, 4, 4))
+        out[:, : self.n_arm] = L[:, self._shape_link] @ self._T_link_shape
+        out[:, self.n_arm] = L[:, self._last] @ self._T_last_body
         return out
 
     def _candidates(self, Tall: F) -> NDArray[np.bool_]:
@@ -378,7 +291,7 @@ class CollisionWorld:
                 continue
             self._place(Tm)
             hit = None
-            for name, obj in self.moving[:7] + self.sight_static:
+            for name, obj in self.moving[: self.n_arm] + self.sight_static:
                 if fcl.collide(beam, obj, self._req, fcl.CollisionResult()):
                     hit = name
                     break
@@ -408,16 +321,3 @@ def _beam(a: F, b: F, radius: float) -> fcl.CollisionObject | None:
     x /= np.linalg.norm(x)
     R = np.stack([x, np.cross(z, x), z], axis=1)
     return fcl.CollisionObject(fcl.Cylinder(max(radius, 1e-4), length), _tf(make_T(R, (a + b) / 2)))
-
-
-@lru_cache(maxsize=1)
-def _T_tool0_flange_cached() -> bytes:
-    """Constant transform from URDF tool0 to the DH flange (computed from both models)."""
-    q = np.array([[0.3, -1.1, 1.4, -0.7, 0.9, 0.5]])
-    T_flange = ur5().fk(q)[0]
-    T_tool0 = tool0_frames(q)[0]
-    return (np.linalg.inv(T_tool0) @ T_flange).tobytes()
-
-
-def _T_tool0_flange() -> F:
-    return np.frombuffer(_T_tool0_flange_cached()).reshape(4, 4).copy()

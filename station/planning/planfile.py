@@ -343,7 +343,7 @@ def plan_from_dict(doc: object, label: str = "plan") -> Plan:
 def _robot(label: str, rob: dict[str, Any]) -> tuple[RobotModel, F | None]:
     """The plan's robot with its planning limits, and its home (rad)."""
     model = rob.get("model")
-    if model not in ROBOTS:
+    if not isinstance(model, str) or model not in ROBOTS:
         raise _err(
             label, "robot.model", f"unknown robot {str(model)[:40]!r} (known: {', '.join(ROBOTS)})"
         )

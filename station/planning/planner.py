@@ -33,11 +33,13 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
+from functools import cache
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ...identify.errors import InputError
+from ...identify.robot import RobotModel, ur5
 from ...identify.transforms import exp_so3, inv_T, log_so3, make_T
 from ..hardware.legs import Leg
 from .cell import Cell
@@ -48,9 +50,30 @@ from .sight import PoseSight, pose_sight, robot_blockers, static_blockers
 F = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
 
-# Largest distance of any robot or target point from each joint axis (m), for sweep sampling.
+# Largest distance of any robot or target point from each joint axis (m), for sweep sampling:
+# the UR5's; other arms scale it by :func:`sweep_reach`.
 _REACH = np.array([1.0, 1.0, 0.65, 0.35, 0.3, 0.25])
+_TARGET_REACH = 0.15  # m the smart target reaches beyond the flange (not scaled with the arm)
 USABLE_TAIL = 0.025
+
+
+def _arm_reach(robot: RobotModel) -> F:
+    """Per joint, the length of the links beyond it plus the target's (an upper bound of any
+    point's distance from the joint's axis, m)."""
+    t = np.linalg.norm(robot.links[1:, :3, 3], axis=1)  # (6,) link translations after joint i
+    return np.cumsum(t[::-1])[::-1] + _TARGET_REACH
+
+
+def sweep_reach(robot: RobotModel) -> F:
+    """How far any robot or target point moves per radian of each joint (m/rad), for sampling
+    legs: the UR5's figures scaled per joint by the arm's length beyond that joint against the
+    UR5's (exactly the UR5's on the UR5)."""
+    return _REACH * (_arm_reach(robot) / _ur5_arm_reach())
+
+
+@cache
+def _ur5_arm_reach() -> F:
+    return _arm_reach(ur5())
 
 
 class DropReason(StrEnum):
@@ -598,7 +621,7 @@ def linear_leg_ok(cell: Cell, world: CollisionWorld, T_a: F, q_a: F, T_b: F, q_b
         return False
     if not within_limits(qs, cell.robot).all():
         return False
-    return world.first_collision(_sweep(qs, pl.clearance)) < 0
+    return world.first_collision(_sweep(qs, pl.clearance, sweep_reach(cell.robot))) < 0
 
 
 def joint_leg_ok(cell: Cell, world: CollisionWorld, q_a: F, q_b: F) -> bool:
@@ -606,12 +629,14 @@ def joint_leg_ok(cell: Cell, world: CollisionWorld, q_a: F, q_b: F) -> bool:
     d = np.abs(q_b - q_a)
     m = max(2, math.ceil(d.max() / cell.planner.joint_step)) + 1
     qs = q_a + np.linspace(0.0, 1.0, m)[:, None] * (q_b - q_a)
-    return world.first_collision(_sweep(qs, cell.planner.clearance)) < 0
+    reach = sweep_reach(cell.robot)
+    return world.first_collision(_sweep(qs, cell.planner.clearance, reach)) < 0
 
 
-def _sweep(qs: F, clearance: float) -> F:
-    """Insert joint-space sub-samples so no robot point moves more than ``clearance`` between them."""
-    seg = np.abs(np.diff(qs, axis=0)) @ _REACH
+def _sweep(qs: F, clearance: float, reach: F = _REACH) -> F:
+    """Insert joint-space sub-samples so no robot point moves more than ``clearance`` between
+    them (``reach``: m per rad of each joint, :func:`sweep_reach`)."""
+    seg = np.abs(np.diff(qs, axis=0)) @ reach
     sub = np.maximum(1, np.ceil(seg / max(clearance, 1e-3)).astype(int))
     if np.all(sub == 1):
         return qs

@@ -18,7 +18,9 @@ job each:
 
 The RTDE stream never waits on path planning: each stream thread holds the controller lock
 only to copy state, on absolute deadlines at the requested rate (125 Hz for a CB3 version,
-500 Hz for an e-Series one: ``--controller-version 5.11.1``).
+500 Hz for an e-Series one).  The arm is the cell's (``--cell``): its kinematics, own joint
+limits and joint speed limits; the version it reports is that arm's generation's unless
+``--controller-version`` says otherwise (3.15.7 CB3, 5.11.1 e-Series).
 
 Faults (control port ``{"cmd": "fault", "kind": ...}``, now, ``after_s`` or
 ``after_moves``): ``protective_stop``, ``emergency_stop``, ``program_stop``,

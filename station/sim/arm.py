@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -192,9 +192,18 @@ class Motion:
     accel: float
 
     @classmethod
-    def timed(cls, path: Path, speed: float, accel: float, t0: float) -> Motion:
-        """The motion along ``path`` starting at ``t0`` with a trapezoidal profile."""
+    def timed(
+        cls, path: Path, speed: float, accel: float, t0: float, qd_max: F | None = None
+    ) -> Motion:
+        """The motion along ``path`` starting at ``t0`` with a trapezoidal profile.
+
+        ``qd_max`` (rad/s per joint): the arm's joint speed limits; the cruise speed is
+        lowered until no joint exceeds its limit anywhere on the path (:func:`speed_cap`),
+        as the controller scales a move down rather than overspeed a joint.
+        """
         d = max(path.distance, 1e-12)
+        if qd_max is not None:
+            speed = min(speed, speed_cap(path, qd_max))
         return cls(t0, trapezoid_duration(d, speed, accel), path.q, d, accel)
 
     def fraction(self, t: float) -> float:
@@ -211,6 +220,45 @@ class Motion:
         i = min(int(x), m - 2)
         w = x - i
         return (1.0 - w) * self.path[i] + w * self.path[i + 1], f >= 1.0
+
+
+def speed_cap(path: Path, qd_max: F) -> float:
+    """The highest path speed (the profile's unit per s) at which no joint of ``path`` moves
+    faster than its limit ``qd_max`` (rad/s): joint k turns by ``|Δq_k|`` while the path
+    advances by ``distance / (m − 1)`` between two samples."""
+    dq = np.abs(np.diff(path.q, axis=0))  # (m - 1, nj)
+    if dq.size == 0 or path.distance <= 0.0:
+        return math.inf
+    ds = path.distance / dq.shape[0]
+    rate = dq.max(axis=0) / ds  # rad per unit of path, worst segment, per joint
+    with np.errstate(divide="ignore"):
+        caps = np.where(rate > 0.0, np.asarray(qd_max, dtype=float) / rate, np.inf)
+    return float(caps.min())
+
+
+def limit_violation(robot: RobotModel, q: F) -> str | None:
+    """A one-line reason when any joint of the path samples ``q`` (m, nj) leaves the arm's
+    joint limits, else None (the controller refuses such a move with a protective stop)."""
+    q = np.atleast_2d(q)
+    low = q < robot.q_min - 1e-9
+    high = q > robot.q_max + 1e-9
+    if not (low.any() or high.any()):
+        return None
+    j = int(np.flatnonzero((low | high).any(axis=0))[0])
+    lo, hi = np.degrees(robot.q_min[j]), np.degrees(robot.q_max[j])
+    worst = np.degrees(q[:, j].min() if low[:, j].any() else q[:, j].max())
+    return f"joint {j + 1} limit: {worst:.1f}° outside {lo:.0f}..{hi:.0f}°"
+
+
+def controller_arm(robot: RobotModel) -> RobotModel:
+    """The arm as its controller knows it: ``robot``'s kinematics with the arm's own joint
+    limits (a built-in arm's, ±360° on a UR; not a cell's planning limits)."""
+    from quickhealth.identify.robot import BUILTIN_ROBOTS, builtin_robot
+
+    if robot.name not in BUILTIN_ROBOTS:
+        return robot
+    own = builtin_robot(robot.name)
+    return replace(robot, q_min=own.q_min, q_max=own.q_max)
 
 
 def joint_path(q0: np.ndarray, q1: np.ndarray) -> Path:
@@ -439,9 +487,9 @@ class Arm:
             self.motion = motion
 
     def move_joint(self, q: np.ndarray, speed: float, accel: float, now: float) -> Motion:
-        """Start a synchronised trapezoidal joint move."""
+        """Start a synchronised trapezoidal joint move (within the joint speed limits)."""
         with self.lock:
-            m = Motion.timed(joint_path(self.hold(now), q), speed, accel, now)
+            m = Motion.timed(joint_path(self.hold(now), q), speed, accel, now, self.robot.qd_max)
             self.start(m)
             return m
 
@@ -459,7 +507,8 @@ class Arm:
         controller simulator does not use this: it plans in its planner thread.
         """
         q0 = self.hold(now)
-        m = Motion.timed(linear_path(self.robot, self.tcp, q0, T_goal, q_goal), speed, accel, now)
+        path = linear_path(self.robot, self.tcp, q0, T_goal, q_goal)
+        m = Motion.timed(path, speed, accel, now, self.robot.qd_max)
         self.start(m)
         return m
 

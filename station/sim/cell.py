@@ -37,6 +37,7 @@ from ..hardware.target import T_target_plate
 from ..planning import load_cell
 from ..planning.cell import Cell
 from ..run import Station
+from .arm import controller_arm
 from .cameras import SimStereoCamera, scaled_rig
 from .fake_robot import FakeRobot
 from .motor_emulator import MotorEmulator
@@ -126,7 +127,8 @@ def start_sim_cell(
     emu = MotorEmulator().start()
     robot = motor = None
     try:
-        robot = UrRobot(sim.host)
+        arm = controller_arm(world.twin.robot)  # the cell's arm, its own limits, its rate
+        robot = UrRobot(sim.host, model=arm, frequency=arm.control_hz or 125.0)
         motor = SerialPanMotor(emu.port)
         rig = scaled_rig(world.rig, image_scale)
 
@@ -185,6 +187,7 @@ def sim_station(
         sc.motor,
         sc.camera,
         instrument=f"simulated stereo camera ({w.rig.left.image_size[0] * image_scale:.0f} px wide)",
+        robot_name=sim_robot_name(c),
         closers=[sc.stop_simulators],
     )
     return st, sc
@@ -198,7 +201,7 @@ def station_in_world(
     camera: StereoCamera,
     *,
     instrument: str = "simulated stereo camera",
-    robot_name: str = "sim-ur5",
+    robot_name: str | None = None,
     closers: list[Callable[[], None]] | None = None,
 ) -> Station:
     """A run's :class:`~quickhealth.station.run.Station` in the simulated ``world`` of ``cell``.
@@ -218,9 +221,15 @@ def station_in_world(
         cell_name=cell.name,
         cell_sha256=cell.sha256,
         instrument=instrument,
-        robot_name=robot_name,
+        robot_name=robot_name or sim_robot_name(cell),
         closers=list(closers or []),
     )
+
+
+def sim_robot_name(cell: Cell) -> str:
+    """The simulated robot's name in journals and archives: ``sim-`` and the cell's arm
+    (``sim-ur5`` on the reference cell)."""
+    return f"sim-{cell.robot.name}"
 
 
 def inprocess_sim_station(

@@ -39,7 +39,17 @@ from quickhealth.station.hardware.urtypes import (
     safety_status_bits,
 )
 
-from .arm import Arm, Motion, Path, T_from_pose, ik_near, joint_path, linear_path, pose_from_T
+from .arm import (
+    Arm,
+    Motion,
+    Path,
+    T_from_pose,
+    ik_near,
+    joint_path,
+    limit_violation,
+    linear_path,
+    pose_from_T,
+)
 from .wire import CB3_VERSION, CONTROL_PORT, HOST, max_stream_hz
 
 # Register commands of the rtde_control script (rtde.h).
@@ -82,7 +92,25 @@ class PlanJob:
 
 
 def plan_command(arm: Arm, job: PlanJob) -> Path | str:
-    """The path of an accepted motion command, or an error text (pure; runs without the lock)."""
+    """The path of an accepted motion command, or an error text (pure; runs without the lock).
+
+    A path that leaves the arm's joint limits is refused (an error text: protective stop)."""
+    path = _plan_path(arm, job)
+    if isinstance(path, str):
+        return path
+    why = limit_violation(arm.robot, path.q)
+    return path if why is None else f"{_NAMES.get(job.cmd, 'move')}: {why}"
+
+
+_NAMES = {
+    CMD_MOVEJ: "moveJ",
+    CMD_MOVEJ_IK: "moveJ_IK",
+    CMD_MOVEL: "moveL",
+    CMD_MOVEL_FK: "moveL_FK",
+}
+
+
+def _plan_path(arm: Arm, job: PlanJob) -> Path | str:
     q0 = np.asarray(job.q0)
     target = np.asarray(job.target)
     if job.cmd == CMD_MOVEL_FK:
@@ -305,8 +333,8 @@ class Controller:
                 self.planning = job
                 self._report_async(t)
                 self._jobs.put(job)
-            else:  # moveJ: nothing to plan
-                self._install(job, joint_path(q0, np.asarray(job.target)), t)
+            else:  # moveJ: nothing to plan but the limits
+                self._install(job, plan_command(self.arm, job), t)
         elif cmd in (CMD_STOPJ, CMD_STOPL):
             self.note_stop("stopj" if cmd == CMD_STOPJ else "stopl")
             self._cancel_planning()
@@ -332,7 +360,10 @@ class Controller:
                 self.outputs["output_int_register_2"] = -1
             self._protective_stop(path)
             return
-        m = Motion.timed(path, job.speed, job.accel, t)
+        qd_max = self.arm.robot.qd_max  # the arm's joint speed limits, at the simulated clock
+        m = Motion.timed(
+            path, job.speed, job.accel, t, None if qd_max is None else qd_max * self.speed_factor
+        )
         self.arm.start(m)
         self.say(
             f"cmd {job.cmd} {'async' if job.is_async else 'sync'} {m.duration:.3f} s"

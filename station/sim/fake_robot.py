@@ -76,8 +76,9 @@ class FakeRobot:
         self.n_moves = 0
         self._faults: list[tuple[str, int]] = []
         self.moves: list[tuple[F, Leg]] = []
-        self.sample_period = 0.008 / self.time_scale
-        self._halted = threading.Event()  # a 125 Hz stream in simulated time
+        # the controller's stream in simulated time: 125 Hz (CB3) or 500 Hz (e-Series)
+        self.sample_period = 1.0 / (self.model.control_hz or 125.0) / self.time_scale
+        self._halted = threading.Event()
 
     def now(self) -> float:
         """Simulated controller time, s."""

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from .arm import HOME_Q_DEG, Arm
+from .arm import HOME_Q_DEG, Arm, controller_arm
 from .controller import Controller, close_socket
 from .servers import serve, shutdown
 from .wire import (
@@ -32,6 +32,7 @@ from .wire import (
     check_loopback,
     max_stream_hz,
     parse_version,
+    version_for,
 )
 
 PORT_LOCK = "/tmp/quickhealth-ur-ports-{host}.lock"
@@ -206,8 +207,9 @@ def start_sim_controller(
     by a lock file until it stops): simulators started by different programs at once never
     meet.  Connect the client to :attr:`SimControllerHandle.host`.  With ``host`` given,
     wait up to ``wait_s`` seconds for that address to become free.
-    ``controller_version`` (``"5.11.1"``) makes it report an e-Series controller, which
-    streams at 500 Hz; the default is a CB3 (3.15.7, 125 Hz).
+    ``controller_version`` (``"5.11.1"``) makes it report that version (major 5: an
+    e-Series controller, which streams at 500 Hz); the default is the version of the cell's
+    arm: 3.15.7 (125 Hz) for a CB3 arm, 5.11.1 (500 Hz) for an e-Series one.
 
     Raises
     ------
@@ -276,19 +278,22 @@ def build_controller(
     cell: str = "reference",
     verbose: bool = False,
     degrade: dict[str, float] | None = None,
-    version: tuple[int, int, int, int] = CB3_VERSION,
+    version: tuple[int, int, int, int] | None = None,
     host: str = HOST,
 ) -> Controller:
     """A controller whose arm is the digital twin of ``twin_seed`` placed in ``cell``.
 
-    The arm's kinematics are the twin's nominal robot (``world.twin.robot``: the cell's
-    UR5 with its planning limits), which is what the controller reports and plans with.
+    The arm is the cell's (:func:`~.arm.controller_arm`): its nominal kinematics, which the
+    controller reports and plans with, its own joint limits and speeds.  ``version``: the
+    software version reported, by default that of the arm's controller generation.
     """
     from quickhealth.station.sim.world import build_world
 
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
     q0 = np.radians(q0_deg if q0_deg is not None else HOME_Q_DEG)
-    arm = Arm(world.twin.robot, q0, truth=world.T_instr_target0)
+    robot = controller_arm(world.twin.robot)
+    version = version_for(robot.controller) if version is None else version
+    arm = Arm(robot, q0, truth=world.T_instr_target0)
     ctrl = Controller(arm, control_port=control_port, verbose=verbose, version=version, host=host)
     ctrl.world = world
     return ctrl
@@ -336,9 +341,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--controller-version",
-        default=".".join(map(str, CB3_VERSION[:3])),
+        default=None,
         help="controller software version reported to clients; major 3 = CB3 (RTDE at "
-        "125 Hz), 5 = e-Series (500 Hz), e.g. 5.11.1 (default %(default)s)",
+        "125 Hz), 5 = e-Series (500 Hz), e.g. 5.11.1 (default: the cell's arm's, "
+        f"{'.'.join(map(str, CB3_VERSION[:3]))} for a CB3, 5.11.1 for an e-Series)",
     )
     p.add_argument("--verbose", action="store_true", help="log controller events to stderr")
     p.add_argument(
@@ -382,7 +388,8 @@ def run_from_args(args: argparse.Namespace) -> int:
         sys.stderr.write("quickhealth: error: --control-port must be in 1024..65535\n")
         return 2
     try:
-        version = parse_version(getattr(args, "controller_version", None) or "3.15.7")
+        given = getattr(args, "controller_version", None)
+        version = None if given is None else parse_version(given)
     except ValueError as exc:
         sys.stderr.write(f"quickhealth: error: --controller-version: {exc}\n")
         return 2
@@ -413,7 +420,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     # The stream threads wake every 2-8 ms; let them take the GIL from the planner quickly.
     sys.setswitchinterval(0.0005)
     ctrl.say(
-        f"controller version {'.'.join(map(str, version))}, RTDE up to {max_stream_hz(version):.0f} Hz"
+        f"{ctrl.arm.robot.name} controller version {'.'.join(map(str, ctrl.version))}, "
+        f"RTDE up to {max_stream_hz(ctrl.version):.0f} Hz"
     )
     if args.parent_pid:
         threading.Thread(target=_watch_parent, args=(ctrl, args.parent_pid), daemon=True).start()

@@ -51,6 +51,7 @@ from .wire import (
     SCRIPT_PORT,
     Recipe,
     check_loopback,
+    dashboard_model,
     packet,
     recv_exact,
     rtde_type,
@@ -257,7 +258,7 @@ def dashboard(ctrl: Controller, conn: socket.socket) -> None:
             elif cmd == "get serial number":
                 reply("20185500001")
             elif cmd == "get robot model":
-                reply("UR5")
+                reply(dashboard_model(ctrl.arm.robot.name))
             elif cmd == "is in remote control":
                 reply("true")
             elif cmd == "robotmode":
@@ -398,6 +399,7 @@ def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
                 "frozen": ctrl.frozen is not None,
                 "accepting": ctrl.accepting(),
                 "version": list(ctrl.version),
+                "robot": robot_facts(ctrl.arm.robot),
                 "streams": [
                     {"hz": r.hz(), "packets": r.packets, "max_lag_ms": r.max_lag * 1e3}
                     for r in ctrl.sessions
@@ -435,6 +437,19 @@ def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
         shutdown(ctrl)
         return {}
     raise ValueError(f"unknown control command {cmd!r}")
+
+
+def robot_facts(robot: Any) -> dict[str, Any]:
+    """The arm the simulated controller drives: its dashboard model, built-in name, joint
+    limits (°) and joint speed limits (°/s)."""
+    qd = robot.qd_max
+    return {
+        "model": dashboard_model(robot.name),
+        "name": robot.name,
+        "q_min_deg": np.degrees(robot.q_min).tolist(),
+        "q_max_deg": np.degrees(robot.q_max).tolist(),
+        "qd_max_deg_s": None if qd is None else np.degrees(qd).tolist(),
+    }
 
 
 def shutdown(ctrl: Controller) -> None:

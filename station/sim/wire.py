@@ -38,6 +38,25 @@ CONTROL_PORT = 30090
 
 CB3_VERSION = (3, 15, 7, 106331)  # the default: the client streams at 125 Hz
 CONTROLLER_VERSION = CB3_VERSION
+E_SERIES_VERSION = (5, 11, 1, 0)  # what an e-Series arm's simulator reports: 500 Hz
+
+
+def version_for(controller: str) -> tuple[int, int, int, int]:
+    """The software version the simulator of an arm of this controller generation reports
+    (``RobotModel.controller``: ``"e-Series"`` → 5.11.1, anything else → CB3 3.15.7)."""
+    return E_SERIES_VERSION if controller == "e-Series" else CB3_VERSION
+
+
+def dashboard_model(robot_name: str) -> str:
+    """The dashboard server's answer to ``get robot model`` for a built-in arm.
+
+    UR's dashboard names the arm without its series (``UR10`` on a UR10 and on a UR10e,
+    ``UR16`` on a UR16e, ``UR20``, ``UR30``); the software version (``PolyscopeVersion``, 3.x
+    against 5.x) tells a CB3 from an e-Series.
+    """
+    name = robot_name.strip().upper()
+    return name[:-1] if name.endswith("E") else name
+
 
 # RTDE packet types.
 P_REQUEST_PROTOCOL_VERSION = ord("V")

@@ -22,9 +22,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ...identify.effects import parse_effect
 from ...identify.errors import InputError
+from ...identify.robot import RobotModel
 from ...identify.transforms import inv_T, make_T
-from ...identify.twin import Twin, TwinTruth, make_twin, twin_from_truth
+from ...identify.twin import Twin, TwinTruth, effect_params, make_twin, twin_from_truth
 from ...vision.boards import TargetDescription
 from ...vision.camera import StereoRig
 from ...vision.reference import reference_rig
@@ -73,7 +75,8 @@ class SimWorld:
 
 
 def parse_degradation(text: str | None) -> dict[str, float]:
-    """``"j2.ex.c0=5e-4,j3.dz.c1=2e-5"`` → ``{"j2.ex.c0": 5e-4, ...}`` (SI: m or rad)."""
+    """``"j2.ex.c0=5e-4,compliance:j2=2e-5"`` → ``{"j2.ex.c0": 5e-4, ...}`` (SI: m, rad, or
+    an effect's size as :func:`~quickhealth.identify.twin.effect_params` reads it)."""
     out: dict[str, float] = {}
     for item in (text or "").split(","):
         if not item.strip():
@@ -90,22 +93,53 @@ def parse_degradation(text: str | None) -> dict[str, float]:
     return out
 
 
-def degrade_truth(truth: TwinTruth, changes: Mapping[str, float]) -> TwinTruth:
-    """The same twin with some true Chebyshev coefficients changed (wear, a crash, a repair).
+def degrade_truth(
+    truth: TwinTruth, changes: Mapping[str, float], robot: RobotModel | None = None
+) -> TwinTruth:
+    """The same twin with some true Chebyshev coefficients changed (wear, a crash, a repair),
+    or a physical effect hidden in it.
 
     ``changes`` maps coefficient labels (``j2.ex.c0``: joint 2, tilt about x, order 0) to the
-    amount added, in m or rad.  The simulated cell uses it for "a month later" runs.
+    amount added, in m or rad, and effect names (``compliance:j2``, ``backlash:j3``: any name
+    with a colon) to the effect's size (:func:`~quickhealth.identify.twin.effect_params`: a
+    compliance in rad/(N·m), a backlash play in rad), which needs the twin's ``robot``.  The
+    simulated cell uses it for "a month later" runs and for effects a run must find.
+    Effects that need the time or the temperature (``thermal``, ``drift``) or belong to the
+    camera (``depthscale``) are refused: the simulated arm has no clock or temperature and
+    the images are rendered.
     """
     labels = truth.spec.labels()
     coeffs = truth.coeffs.copy()
+    effects = dict(truth.effects)
     for label, delta in changes.items():
+        if ":" in label or label in _UNTIMED:
+            effects.update(_hidden_effect(label, delta, robot, truth.seed))
+            continue
         if label not in labels:
             raise InputError(
                 f"degradation {label!r}: not a coefficient of the twin's error model "
-                f"(e.g. {labels[0]}, j2.ex.c0)"
+                f"(e.g. {labels[0]}, j2.ex.c0) nor an effect (compliance:j2, backlash:j3)"
             )
         coeffs[labels.index(label)] += float(delta)
-    return replace(truth, coeffs=coeffs)
+    return replace(truth, coeffs=coeffs, effects=effects)
+
+
+_UNTIMED = ("thermal", "drift", "depthscale")  # effects the simulated arm cannot carry
+
+
+def _hidden_effect(
+    name: str, size: float, robot: RobotModel | None, seed: int
+) -> dict[str, list[float]]:
+    """``{effect name: true parameters}`` of an effect hidden in the simulated arm."""
+    if robot is None:
+        raise InputError(f"degradation {name!r}: a hidden effect needs the twin's robot")
+    e = parse_effect(name, robot)
+    if e.name.split(":")[0] in _UNTIMED:
+        raise InputError(
+            f"degradation {name!r}: the simulated arm hides arm effects only (compliance, "
+            "backlash, cyclic): it has no clock or temperature, and the camera is rendered"
+        )
+    return {e.name: list(map(float, effect_params(e, size, np.random.default_rng(seed))))}
 
 
 def build_world(
@@ -113,19 +147,22 @@ def build_world(
 ) -> SimWorld:
     """The simulated cell for a cell name or file, with a twin drawn from ``twin_seed``.
 
-    ``degrade`` changes the twin's true error coefficients (see :func:`degrade_truth`).
+    ``degrade`` changes the twin's true error coefficients or hides an effect in it (see
+    :func:`degrade_truth`).  The twin's robot is the cell's arm carrying the cell's smart
+    target (``[target] mass_kg``), so a hidden compliance bends under both.
     """
     c = load_cell(cell)
     rig = reference_rig()
     T_world_instr = c.T_world_cam_left
+    robot = c.robot_with_target()  # the arm carrying the smart target (gravity compliance)
     twin = make_twin(
-        c.robot,
+        robot,
         seed=twin_seed,
         T_instr_base=inv_T(T_world_instr) @ c.T_world_base,
         T_flange_target=c.T_flange_target,
     )
     if degrade:
-        twin = twin_from_truth(degrade_truth(twin.truth, degrade), c.robot)
+        twin = twin_from_truth(degrade_truth(twin.truth, degrade, robot), robot)
     board_center = _board_center(c)
     T_world_board = make_T(_R_WORLD_BOARD, board_center)
     return SimWorld(

@@ -326,7 +326,7 @@ class Station:
         cell: str = "reference",
         plan: Path | None = None,
         archive: Path = Path("archive"),
-        robot_name: str = "ur5-sim",
+        robot_name: str | None = None,
         robot_ip: str | None = None,
         motor_port: str | None = None,
         cameras: tuple[str, str] | None = None,
@@ -339,7 +339,9 @@ class Station:
         """The station for ``quickhealth tui`` on the real cell: UR robot, serial pan motor,
         two cameras (``quickhealth tui --sim``: :func:`~.simulated.open_simulated`).
 
-        ``say`` receives a line before each slow step (planning, connecting)."""
+        ``say`` receives a line before each slow step (planning, connecting).  The robot is
+        the cell's arm carrying the cell's smart target, named ``robot_name`` (default: the
+        arm's name) in the archive."""
         tell = say or (lambda line: None)
         c, the_plan = cell_and_plan(cell, plan, n_poses, tell)
         tell(f"connecting to the robot at {robot_ip}…")
@@ -351,8 +353,8 @@ class Station:
             cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
         )
         return cls(
-            robot=c.robot,
-            robot_name=robot_name,
+            robot=c.robot_with_target(),
+            robot_name=robot_name or c.robot.name,
             archive_root=Path(archive),
             run_id=run_id or new_run_id(),
             cell_name=c.name,

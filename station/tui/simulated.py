@@ -12,9 +12,14 @@ this module builds a :class:`~.facade.Station` on a simulated cell of
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
+from ..hardware.target import reference_target
+from ..planning.cell import Cell
 from ..planning.planfile import Plan
 from ..run import RunSettings
 from ..sim.cell import inprocess_sim_station, sim_station
@@ -26,23 +31,28 @@ def open_simulated(
     cell: str = "reference",
     plan: Path | None = None,
     archive: Path = Path("archive"),
-    robot_name: str = "ur5-sim",
+    robot_name: str | None = None,
     n_poses: int = 40,
     threshold_mm: float = 2.0,
     run_id: str | None = None,
     say: Callable[[str], None] | None = None,
     speed_factor: float = 1.0,
-    image_scale: float = 0.3,
+    image_scale: float | None = None,
 ) -> Station:
     """The station for ``quickhealth tui --sim``: controller simulator subprocess, emulated pan
-    motor, rendered cameras.  ``say`` receives a line before each slow step."""
+    motor, rendered cameras.  ``say`` receives a line before each slow step.  The simulated
+    sensor is ``image_scale`` of the reference one, by default :func:`sensor_scale` of the
+    plan.  The arm is the
+    cell's (``[robot] model``), carrying the cell's smart target; ``robot_name`` defaults to
+    ``<arm>-sim`` (``ur5-sim`` on the reference cell)."""
     tell = say or (lambda line: None)
     c, the_plan = cell_and_plan(cell, plan, n_poses, tell)
     tell("starting the simulated cell (UR controller simulator, pan motor, cameras)…")
-    hw, simcell = sim_station(cell, image_scale=image_scale, speed_factor=speed_factor)
+    scale = sensor_scale(c, the_plan) if image_scale is None else image_scale
+    hw, simcell = sim_station(cell, image_scale=scale, speed_factor=speed_factor)
     station = Station(
-        robot=c.robot,
-        robot_name=robot_name,
+        robot=c.robot_with_target(),
+        robot_name=robot_name or f"{c.robot.name}-sim",
         archive_root=Path(archive),
         run_id=run_id or new_run_id(),
         cell_name=c.name,
@@ -54,6 +64,25 @@ def open_simulated(
     )
     station.simcell = simcell  # the simulated cell's handles (controller, emulator)
     return station
+
+
+#: The smallest simulated sensor (× the reference 4000 px) and the marker width, in pixels,
+#: the plan's farthest target must keep on it (the detector loses 24 mm markers below about
+#: 10 px: measured on the UR10e cell at 1000 px wide, lost beyond 3.1 m).
+MIN_SENSOR_SCALE = 0.3
+MIN_MARKER_PX = 14.0
+
+
+def sensor_scale(cell: Cell, plan: Plan) -> float:
+    """The simulated sensor size for ``plan`` in ``cell``: 0.3 of the reference sensor (fast),
+    larger in 0.05 steps until the farthest target's marker spans ``MIN_MARKER_PX`` (the
+    paper's UR5 cell stays at 0.3; the UR10e cell, targets up to 3.6 m away, takes 0.45)."""
+    cams = np.stack([cell.T_world_cam_left[:3, 3], cell.T_world_cam_right[:3, 3]])
+    p = np.array([(cell.T_world_base @ pose.T_base_target)[:3, 3] for pose in plan.poses])
+    far = float(np.linalg.norm(p[:, None, :] - cams[None], axis=-1).max())
+    marker = float(np.ptp(reference_target().corners[0], axis=0).max())  # edge length, m
+    need = MIN_MARKER_PX * far / (marker * cell.camera.fx)
+    return max(MIN_SENSOR_SCALE, round(math.ceil(need / 0.05 - 1e-9) * 0.05, 2))
 
 
 def in_process(
@@ -85,7 +114,7 @@ def in_process(
     if plan is None:
         plan = make_plan(cell, n_candidates, plan_seed)
     return Station(
-        robot=cell.robot,
+        robot=cell.robot_with_target(),
         robot_name=robot_name,
         archive_root=Path(archive_root),
         run_id=run_id,
