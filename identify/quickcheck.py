@@ -65,7 +65,7 @@ SYNOPSIS::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 import numpy as np
@@ -76,6 +76,7 @@ from .errormodel import MOTION_WORDS, MOTIONS, ErrorModelSpec
 from .errors import InputError
 from .fit import FittedModel, linearised
 from .linearize import (
+    Whitening,
     coefficient_columns,
     effect_channels,
     effect_jacobian,
@@ -84,8 +85,7 @@ from .linearize import (
     sensitivities,
 )
 from .measurements import Measurements
-from .transforms import R_to_rpy
-from .workspace import _registration_columns
+from .transforms import R_to_rpy, skew
 
 F = NDArray[np.float64]
 
@@ -222,6 +222,14 @@ class ChangeModel:
     P_eta: F  # their prior covariance: baseline covariance and set-up change
     d: int  # residual components per pose (6 or 3)
     orientation: bool
+    pairs: dict[str, int] = field(default_factory=dict)  # pose id -> row of the baseline's data
+    base_raw: F | None = None  # (n_b, d) the baseline's own residuals (measured − model)
+    base_cov: F | None = None  # (n_b, d, d) their noise covariance
+
+    @property
+    def paired(self) -> bool:
+        """True when each check pose is compared with the baseline's measurement of it."""
+        return self.base_raw is not None
 
     @property
     def n_raw(self) -> int:
@@ -317,8 +325,20 @@ def _change(fam: ChangeFamily, est: F, cov: F, prob: float, log_lr: float) -> Ch
 # --------------------------------------------------------------------------- the change model
 
 
-def change_model(fitted: FittedModel, settings: CheckSettings = CheckSettings()) -> ChangeModel:
+def change_model(
+    fitted: FittedModel,
+    settings: CheckSettings = CheckSettings(),
+    baseline: Measurements | None = None,
+) -> ChangeModel:
     """Families of change of the baseline ``fitted``, their priors and ``H1`` boundaries.
+
+    With ``baseline`` (the measurements the model was fitted to, with their pose ids) the
+    check is *paired*: a pose the baseline measured is compared with that measurement, the
+    residual of the check's measurement against the model minus the baseline's own residual
+    there.  What the model does not describe at that pose (its model error) and the model's
+    estimation error cancel; the two measurements' noise adds.  Only poses with a baseline
+    measurement can then be checked.  Without it every pose is compared with the model's
+    prediction, whose covariance (``cov_scale`` times the fit's) is integrated out.
 
     Raises
     ------
@@ -338,19 +358,19 @@ def change_model(fitted: FittedModel, settings: CheckSettings = CheckSettings())
     effects = tuple(_effect_families(settings.effects, robot))
     rng = np.random.default_rng(0)
     q_ws = rng.uniform(spec.q_lo, spec.q_hi, (settings.workspace_samples, nj))
-    G = _raw_columns(fitted, spec, effects, q_ws, np.ones_like(q_ws), time=None, d=3)
-    # a change base and tool can take up is a set-up change, no change of the robot
-    R = _registration_columns(fitted, q_ws).reshape(-1, 9)
+    G, R = _raw_columns(fitted, spec, effects, q_ws, np.ones_like(q_ws), None, 3, True)
+    # a change base and tool can take up is a set-up change, no change of the robot: the
+    # registration's columns from the same loop, so a set-up direction cancels to rounding
+    R = R.reshape(-1, 9)
     Gf = G.reshape(-1, G.shape[-1])
     Greg = (Gf - R @ np.linalg.lstsq(R, Gf, rcond=None)[0]).reshape(G.shape)
-    scale = max(float(np.max(np.linalg.norm(G, axis=1))), 1e-300)
     fams = []
     idx = spec.index()
     for j in range(1, nj + 1):
         for m, mot in enumerate(MOTIONS):
             cols = np.flatnonzero((idx[:, 0] == j) & (idx[:, 1] == m))
-            fam = _family(f"j{j}.{mot}", FamilyKind.MOTION, j, mot, cols, Greg, scale,
-                          settings, "m" if m < 3 else "rad")  # fmt: skip
+            fam = _family(f"j{j}.{mot}", FamilyKind.MOTION, j, mot, cols, G, Greg, settings,
+                          "m" if m < 3 else "rad")  # fmt: skip
             if fam is not None:
                 fams.append(fam)
     pos = spec.n_params
@@ -358,25 +378,39 @@ def change_model(fitted: FittedModel, settings: CheckSettings = CheckSettings())
         cols = np.arange(pos, pos + e.n_params)
         pos += e.n_params
         kind, joint = e.name.split(":")[0], int(e.name.split(":j")[1])
-        fam = _family(e.name, FamilyKind.EFFECT, joint, kind, cols, Greg, scale, settings,
+        # a backlash's size is the TCP jump between the two approach directions: no set-up
+        # change takes up a shift whose sign follows the approach
+        g_reg = 2.0 * G if kind == "backlash" else Greg
+        fam = _family(e.name, FamilyKind.EFFECT, joint, kind, cols, G, g_reg, settings,
                       e.param_units[0])  # fmt: skip
         if fam is not None:
             fams.append(fam)
     labels = fitted.labels
-    out = set(fitted.unidentifiable) | set(fitted.held)
     setup = np.array([lb.startswith(("base.", "tool.")) for lb in labels])
-    eta = np.flatnonzero(np.array([lb not in out for lb in labels]) | setup)
-    C = np.asarray(fitted.cov, float)[np.ix_(eta, eta)] * settings.cov_scale
     add = np.array(
-        [
-            (settings.setup_rot if labels[i].split(".")[1].startswith("e") else settings.setup_pos)
-            ** 2
-            if setup[i]
-            else 0.0
-            for i in eta
-        ]
-    )
-    P = C + np.diag(add)
+        [(settings.setup_rot if lb.split(".")[1].startswith("e") else settings.setup_pos) ** 2
+         for lb in labels]
+    )  # fmt: skip
+    pairs: dict[str, int] = {}
+    base_raw = base_cov = None
+    if baseline is not None:
+        if baseline.pose_id is None:
+            raise InputError(
+                "the baseline's measurements have no pose ids: a paired check needs them"
+            )
+        m = _for_model(fitted, baseline)
+        lin = linearised(fitted, m)
+        L = np.linalg.inv(lin.W)
+        base_raw = (L @ lin.r.reshape(m.n_poses, lin.d)[..., None])[..., 0]
+        base_cov = lin.cov
+        pairs = {pid: i for i, pid in enumerate(m.pose_id or ())}
+        eta = np.flatnonzero(setup)
+        P = np.diag(add[eta])
+    else:
+        out = set(fitted.unidentifiable) | set(fitted.held)
+        eta = np.flatnonzero(np.array([lb not in out for lb in labels]) | setup)
+        C = np.asarray(fitted.cov, float)[np.ix_(eta, eta)] * settings.cov_scale
+        P = C + np.diag(np.where(setup[eta], add[eta], 0.0))
     P = 0.5 * (P + P.T) + np.eye(len(eta)) * 1e-30
     return ChangeModel(
         settings=settings,
@@ -387,6 +421,9 @@ def change_model(fitted: FittedModel, settings: CheckSettings = CheckSettings())
         P_eta=P,
         d=6 if fitted.has_orientation else 3,
         orientation=fitted.has_orientation,
+        pairs=pairs,
+        base_raw=base_raw,
+        base_cov=base_cov,
     )
 
 
@@ -408,18 +445,21 @@ def _family(
     joint: int,
     motion: str,
     cols: NDArray[np.int64],
+    G: F,
     Greg: F,
-    scale: float,
     settings: CheckSettings,
     unit: str,
 ) -> ChangeFamily | None:
     """The family of raw columns ``cols``, reduced to the coordinates that move the TCP
-    (None when none does: a set-up change)."""
+    (None when none does: a set-up change).  A direction whose TCP displacement a set-up
+    change takes up to a millionth of itself is a set-up change."""
     g = Greg[:, :, cols]  # (n_ws, 3, k_raw)
     n_ws = g.shape[0]
     M = np.einsum("nik,nil->kl", g, g) / n_ws  # mean squared TCP displacement metric
+    g0 = G[:, :, cols]
+    scale = float(np.linalg.eigvalsh(np.einsum("nik,nil->kl", g0, g0) / n_ws).max())
     w, V = np.linalg.eigh(M)
-    keep = w > (1e-6 * scale) ** 2
+    keep = w > 1e-12 * max(scale, 1e-300)
     if not np.any(keep):
         return None
     V = V[:, keep]
@@ -450,9 +490,13 @@ def _raw_columns(
     approach: F,
     time: F | None,
     d: int,
-) -> F:
+    registration: bool = False,
+) -> F | tuple[F, F]:
     """∂(model pose)/∂(change parameters) at joints ``q``, (n, d, n_raw): the changed motions'
-    Chebyshev coefficients and the effect families' parameters, at the baseline's estimate."""
+    Chebyshev coefficients and the effect families' parameters, at the baseline's estimate.
+
+    With ``registration`` also the target position's derivative (n, 3, 9) by a set-up change
+    (base rotation about the instrument origin, base translation, tool point) from the same loop."""
     robot = fitted.robot
     ctx = effect_context(robot, q, approach, time, None)
     pert = (
@@ -479,7 +523,12 @@ def _raw_columns(
             loop=(T, A, mot),
         )
         cols += [effect_jacobian(e, ctx, sens)[:, :d] for e in effects]
-    return np.concatenate(cols, axis=-1)
+    out = np.concatenate(cols, axis=-1)
+    if not registration:
+        return out
+    p = T[:, :3, 3]
+    R = np.concatenate([-skew(p), np.broadcast_to(np.eye(3), (len(q), 3, 3)), T[:, :3, :3]], axis=2)
+    return out, R
 
 
 # --------------------------------------------------------------------------- the data
@@ -514,12 +563,40 @@ def _rows(model: ChangeModel, fitted: FittedModel, meas: Measurements) -> _Rows:
     m = _for_model(fitted, meas)
     lin = linearised(fitted, m)
     n, d = m.n_poses, lin.d
-    r = lin.r.reshape(n, d)
-    A = lin.J.reshape(n, d, -1)[:, :, model.eta]
+    L = np.linalg.inv(lin.W)
+    raw_r = (L @ lin.r.reshape(n, d)[..., None])[..., 0]
+    raw_A = (L @ lin.J.reshape(n, d, -1))[:, :, model.eta]
+    cov = lin.cov
+    if model.paired:
+        assert model.base_raw is not None and model.base_cov is not None
+        idx = pair_rows(model, m)
+        raw_r = raw_r - model.base_raw[idx]
+        cov = cov + model.base_cov[idx]
+    W = Whitening.of(cov).W
     raw = _raw_columns(fitted, model.spec, model.effects, m.q, m.approach_sign(), m.time, d)
-    raw = np.matmul(lin.W, raw)
+    assert isinstance(raw, np.ndarray)
+    raw = np.matmul(W, raw)
     B = np.concatenate([raw[:, :, f.columns] @ f.basis for f in model.families], axis=2)
-    return _Rows(r, A, B, lin.W)
+    r = np.matmul(W, raw_r[..., None])[..., 0]
+    return _Rows(r, np.matmul(W, raw_A), B, W)
+
+
+def pair_rows(model: ChangeModel, meas: Measurements) -> NDArray[np.int64]:
+    """The baseline's row of every pose of ``meas`` (paired check; by pose id).
+
+    Raises
+    ------
+    InputError
+        A pose the baseline did not measure.
+    """
+    ids = meas.pose_id or ()
+    missing = [p for p in ids if p not in model.pairs]
+    if missing or len(ids) != meas.n_poses:
+        raise InputError(
+            f"pose {missing[0] if missing else '?'}: the baseline did not measure it, a "
+            "paired check cannot compare it"
+        )
+    return np.array([model.pairs[p] for p in ids], dtype=np.int64)
 
 
 def _family_slices(model: ChangeModel) -> list[slice]:
@@ -748,7 +825,9 @@ def _interleave(a: Measurements, b: Measurements) -> Measurements:
         sigma_pos=cat(a.sigma_pos, b.sigma_pos),
         sigma_rpy=cat(a.sigma_rpy, b.sigma_rpy),
         sigma_rot=cat(a.sigma_rot, b.sigma_rot),
-        pose_id=None,
+        pose_id=None
+        if a.pose_id is None
+        else tuple(np.repeat(np.asarray(b.pose_id, dtype=object), 2)),
         excluded=None,
     )
 
