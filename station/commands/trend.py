@@ -20,7 +20,7 @@ from ..formats.common import json_plain, write_text_atomic
 from ..formats.report import trend_to_json
 from ..fsio import refuse_outputs_inside, refuse_overwriting_inputs, write_figure
 from ..verdict import Figures, HealthVerdict, Threshold, ThresholdFigure, judge, missing_effect_in
-from .archive import add_archive_options, open_archive
+from .archive import add_archive_options, check_lines, open_archive
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -142,8 +142,21 @@ def _trend(args: argparse.Namespace) -> int:
         print(f"  - {line}")
     for p in res.prognoses.values():
         print(f"prognosis: {p.words()}")
+    # quick checks are listed apart: a verdict against the baseline, not an assessment
+    checks = [c for c in arch.checks(args.robot) if c.time_utc >= recs[res.baseline_index].time_utc]
+    for line in check_lines(checks):
+        print(line)
+    if checks and checks[-1].verdict == "changed" and checks[-1].time_utc > latest.time_utc:
+        print(
+            f"latest quick check {checks[-1].check_id} (after the latest run) says CHANGED: "
+            "run a full assessment"
+        )
     if args.json:
-        write_text_atomic(args.json, json.dumps(json_plain(trend_to_json(res)), indent=1) + "\n")
+        doc = json_plain(trend_to_json(res))
+        doc["checks"] = [
+            {k: v for k, v in c.__dict__.items() if k not in ("root", "path")} for c in checks
+        ]
+        write_text_atomic(args.json, json.dumps(json_plain(doc), indent=1) + "\n")
     if args.plot:
         from ..report_html import trend_figure  # matplotlib: only for --plot
 
