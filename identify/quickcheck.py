@@ -288,6 +288,16 @@ class CheckStatus:
         """The family that keeps the check from calling "unchanged"."""
         return self.model.families[int(np.argmax(self.sup_h1_families))].name
 
+    @property
+    def omnibus_probability(self) -> float:
+        """The omnibus alternative's share of the evidence for a change: a change no family
+        describes (every pose shifted its own way)."""
+        w = self.model.weights
+        logs = np.log(np.maximum(w, 1e-300)) + self.log_lr_families
+        o = math.log(self.model.settings.omnibus_weight) + self.log_lr_omnibus
+        top = max(float(logs.max(initial=-np.inf)), o)
+        return float(math.exp(o - top) / (np.exp(logs - top).sum() + math.exp(o - top)))
+
     def changes(self, min_probability: float = 0.05) -> list[Change]:
         """The families that explain the evidence for a change, most likely first."""
         fams = self.model.families
@@ -723,6 +733,65 @@ def _omnibus(model: ChangeModel, rows: _Rows, Pinv: F, q0: float, logdet0: float
     return -0.5 * (q1 - q0) - 0.5 * (logdet1 - logdet0)
 
 
+# --------------------------------------------------------------------------- a check as it runs
+
+#: Evidence one family must hold before a "changed" check stops (the poses after the
+#: decision only name the change).
+NAME_PROBABILITY = 0.9
+#: Poses a check may add after its decision to name the change (or as many as it took to
+#: decide, if more).
+NAMING_POSES = 6
+
+
+class CheckRun:
+    """The test as the poses come in: the first boundary crossed is the decision (the
+    guarantees are about the first crossing: later poses, measured to name a change, never
+    undo it), and when to stop (:meth:`stop_reason`)."""
+
+    def __init__(self, model: ChangeModel, fitted: FittedModel) -> None:
+        self.model = model
+        self.fitted = fitted
+        self.status: CheckStatus | None = None
+        self.decision: tuple[Decision, int] | None = None  # and after how many poses
+        self.scanned = 0
+
+    def update(self, meas: Measurements | None) -> None:
+        """The test after every pose of ``meas`` (execution order, growing call by call)."""
+        if meas is None:
+            return
+        if meas.n_poses < self.scanned:  # pragma: no cover - the data only grow
+            self.scanned, self.decision = 0, None
+        for n in range(self.scanned + 1, meas.n_poses + 1):
+            sub = meas if n == meas.n_poses else meas.subset(slice(0, n))
+            st = check_status(self.model, self.fitted, sub)
+            if self.decision is None and st.decision is not Decision.CONTINUE:
+                self.decision = (st.decision, n)
+            self.status = st
+        self.scanned = max(self.scanned, meas.n_poses)
+
+    @property
+    def verdict(self) -> Decision:
+        """CHANGED, UNCHANGED, or CONTINUE (not decided yet)."""
+        return Decision.CONTINUE if self.decision is None else self.decision[0]
+
+    def stop_reason(self, name_probability: float = NAME_PROBABILITY) -> str | None:
+        """Why the check can stop now, or None: "unchanged" at once; "changed" once one
+        family holds ``name_probability`` of the evidence."""
+        if self.decision is None or self.status is None:
+            return None
+        if self.decision[0] is Decision.UNCHANGED:
+            return "decided: unchanged"
+        ch = self.status.changes()
+        if ch and ch[0].probability >= name_probability:
+            return f"decided: changed ({ch[0].words})"
+        if self.status.omnibus_probability >= name_probability:
+            return "decided: changed (no single joint motion or effect describes it)"
+        after = self.status.n_poses - self.decision[1]
+        if after >= max(self.decision[1], NAMING_POSES):
+            return "decided: changed (not named within the naming poses)"
+        return None
+
+
 # --------------------------------------------------------------------------- choosing poses
 
 
@@ -845,7 +914,9 @@ def _spd_inv(P: F) -> F:
 
 
 __all__ = [
+    "NAME_PROBABILITY",
     "Change",
+    "CheckRun",
     "ChangeFamily",
     "ChangeModel",
     "CheckSettings",

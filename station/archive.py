@@ -1252,6 +1252,24 @@ def missing_words(arch: Archive, missing: list[RunRecord]) -> list[str]:
     ]
 
 
+def check_lines(checks: list[CheckRecord]) -> list[str]:
+    """A robot's quick checks, one line each (not assessments: no figures)."""
+    if not checks:
+        return []
+    out = [f"quick checks ({len(checks)}; not assessments):"]
+    for c in checks:
+        frac = (
+            c.robot_time_s / c.full_loop_robot_time_s if c.full_loop_robot_time_s else float("nan")
+        )
+        out.append(
+            f"  {c.check_id:<23} {c.time_utc:<21} {c.verdict.upper() if c.verdict == 'changed' else c.verdict}"
+            f"{'' if c.decided else ' (undecided)'} after {c.poses} poses, {c.robot_time_s:.0f} s "
+            f"({100 * frac:.0f} % of the loop) vs baseline {c.baseline_run_id}"
+            + (f": {c.changes}" if c.changes else "")
+        )
+    return out
+
+
 def trend_for(arch: Archive, robot: str, **kwargs: Any) -> Any:
     """:func:`~quickhealth.identify.trend.assess_trend` over a robot's archived runs (oldest
     first) whose folders exist (:func:`trend_runs`), against its baseline run; ``kwargs`` go

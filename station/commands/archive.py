@@ -15,7 +15,7 @@ for a shared index): :func:`add_archive_options`.
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ...identify.errors import InputError
 from .. import options
@@ -158,24 +158,8 @@ def _archive_list(args: argparse.Namespace) -> int:
             f"{mark}{x.run_id:<23} {x.time_utc:<21} {x.mean_mm:7.3f} {x.std_mm:7.3f} "
             f"{x.max_mm:7.3f}  {x.plan_hash[:12]} / {x.cell} / {x.calibration_id}"
         )
+    from ..archive import check_lines
+
     for line in check_lines(arch.checks(args.robot)):
         print(line)
     return 0
-
-
-def check_lines(checks: list[Any]) -> list[str]:
-    """A robot's quick checks, one line each (not assessments: no figures)."""
-    if not checks:
-        return []
-    out = [f"quick checks ({len(checks)}; not assessments):"]
-    for c in checks:
-        frac = (
-            c.robot_time_s / c.full_loop_robot_time_s if c.full_loop_robot_time_s else float("nan")
-        )
-        out.append(
-            f"  {c.check_id:<23} {c.time_utc:<21} {c.verdict.upper() if c.verdict == 'changed' else c.verdict}"
-            f"{'' if c.decided else ' (undecided)'} after {c.poses} poses, {c.robot_time_s:.0f} s "
-            f"({100 * frac:.0f} % of the loop) vs baseline {c.baseline_run_id}"
-            + (f": {c.changes}" if c.changes else "")
-        )
-    return out

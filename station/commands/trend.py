@@ -20,7 +20,7 @@ from ..formats.common import json_plain, write_text_atomic
 from ..formats.report import trend_to_json
 from ..fsio import refuse_outputs_inside, refuse_overwriting_inputs, write_figure
 from ..verdict import Figures, HealthVerdict, Threshold, ThresholdFigure, judge, missing_effect_in
-from .archive import add_archive_options, check_lines, open_archive
+from .archive import add_archive_options, open_archive
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -88,6 +88,7 @@ def _trend(args: argparse.Namespace) -> int:
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
     from ..archive import (  # the archive and the trend: SQLAlchemy, scipy.stats
+        check_lines,
         missing_words,
         trend_for,
         trend_runs,

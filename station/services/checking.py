@@ -72,9 +72,6 @@ F = NDArray[np.float64]
 
 CHECK_FILE = "check.json"
 CHECK_SCHEMA = "quickhealth.check/1"
-#: Evidence one family must hold before a "changed" check stops (the poses after the
-#: decision only name the change).
-NAME_PROBABILITY = 0.9
 #: Dwell at a pose (s) assumed before the first one is measured: the cell's settle time plus
 #: a capture.
 FIRST_DWELL_EXTRA_S = 0.5
@@ -189,6 +186,24 @@ def plan_loop_s(plan: Plan, dwell: float) -> float:
 # --------------------------------------------------------------------------- the sequence
 
 
+def rank_candidates(
+    model: qc.ChangeModel,
+    baseline: Baseline,
+    plan: Plan,
+    meas: Measurements | None,
+    q_now: F,
+    left: list[PlanPose],
+    rows: Measurements,
+    dwell: float,
+) -> list[PlanPose]:
+    """The poses ``left`` (their candidate ``rows``), best first: information on change
+    (:func:`~quickhealth.identify.quickcheck.information_gains`) per second of robot time
+    (the joint move from ``q_now`` at the plan's speed, plus ``dwell``)."""
+    gains = qc.information_gains(model, baseline.fitted, meas, q_now, rows)
+    cost = np.array([joint_move_s(plan, q_now, p.q) for p in left]) + dwell
+    return [left[int(k)] for k in np.argsort(-(gains / cost))]
+
+
 class CheckSequence:
     """Chooses the check's poses as the data come in (a :class:`~..run.PoseSequence`)."""
 
@@ -213,9 +228,7 @@ class CheckSequence:
         self.q_start = np.asarray(q_start, float)
         self.say = say or (lambda s: None)
         self.world = CollisionWorld(cell)
-        self.status: qc.CheckStatus | None = None
-        self.decision: tuple[qc.Decision, int] | None = None  # the first boundary crossed
-        self.scanned = 0
+        self.run = qc.CheckRun(model, baseline.fitted)
         self.stop_reason = ""
         self.candidates = self._candidates()
         self.skipped: list[str] = []
@@ -271,48 +284,41 @@ class CheckSequence:
             return float(np.median(d))
         return float(self.plan.motion.settle_s) + FIRST_DWELL_EXTRA_S
 
+    @property
+    def status(self) -> qc.CheckStatus | None:
+        """The test after every pose measured so far."""
+        return self.run.status
+
+    @property
+    def decision(self) -> tuple[qc.Decision, int] | None:
+        """The first boundary crossed and after how many poses."""
+        return self.run.decision
+
     def update(self, state: JournalState) -> Measurements | None:
-        """The test after every pose measured so far; the first boundary any prefix crossed
-        is the decision (the guarantees are about the first crossing: later poses, measured
-        to name a change, never undo it)."""
+        """The test after every pose the journal holds (:class:`~..identify.quickcheck.CheckRun`)."""
         meas = self.measurements(state)
-        if meas is None:
-            return None
-        if meas.n_poses < self.scanned:  # pragma: no cover - the journal only grows
-            self.scanned, self.decision = 0, None
-        for n in range(self.scanned + 1, meas.n_poses + 1):
-            sub = meas if n == meas.n_poses else meas.subset(slice(0, n))
-            st = qc.check_status(self.model, self.base.fitted, sub)
-            if self.decision is None and st.decision is not qc.Decision.CONTINUE:
-                self.decision = (st.decision, n)
-            self.status = st
-        self.scanned = meas.n_poses
+        self.run.update(meas)
         return meas
 
     def next_pose(self, state: JournalState) -> PlanPose | None:
         from ..planning.planner import joint_leg_ok
 
         meas = self.update(state)
-        if self.decision is not None and self.status is not None:
-            if self.decision[0] is qc.Decision.UNCHANGED:
-                self.stop_reason = "decided: unchanged"
-                return None
-            ch = self.status.changes()
-            if ch and ch[0].probability >= NAME_PROBABILITY:
-                self.stop_reason = f"decided: changed ({ch[0].words})"
-                return None
+        why = self.run.stop_reason()
+        if why is not None:
+            self.stop_reason = why
+            return None
         done = state.done_indices
         left = [p for p in self.candidates if p.index not in done]
         if not left:
             self.stop_reason = "the plan's poses are all measured"
             return None
         q_now = self._here(state)
-        gains = qc.information_gains(self.model, self.base.fitted, meas, q_now, self._rows(left))
-        dwell = self._dwell(state)
-        cost = np.array([joint_move_s(self.plan, q_now, p.q) for p in left]) + dwell
-        order = np.argsort(-(gains / cost))
-        for k in order:
-            p = left[int(k)]
+        ranked = rank_candidates(
+            self.model, self.base, self.plan, meas, q_now, left, self._rows(left),
+            self._dwell(state),
+        )  # fmt: skip
+        for p in ranked:
             if joint_leg_ok(self.cell, self.world, q_now, p.q):
                 return replace(p, leg=Leg.JOINT)
             self.skipped.append(p.name)
@@ -368,6 +374,9 @@ class CheckResult:
             + ("" if d["decided"] else " (undecided at the end of the plan)")
         ]
         for c in d["changes"]:
+            if c["size"] is None:
+                lines.append(f"  {c['words']} ({100 * c['probability']:.0f} % of the evidence)")
+                continue
             lines.append(
                 f"  {c['words']}: changed by {c['size']:.4g} {c['size_unit']} ± {c['sigma']:.2g} "
                 f"(TCP up to {c['tcp_mm']:.3f} mm; {100 * c['probability']:.0f} % of the evidence)"
@@ -520,6 +529,22 @@ def check_document(
     changes = []
     if status is not None and decision is qc.Decision.CHANGED:
         changes = [_change_json(c) for c in status.changes()]
+        if status.omnibus_probability >= 0.05:
+            changes.append(
+                {
+                    "joint": None,
+                    "motion": "other",
+                    "family": "omnibus",
+                    "words": "a change no single joint motion or effect describes",
+                    "size": None,
+                    "sigma": None,
+                    "size_unit": None,
+                    "tcp_mm": None,
+                    "probability": status.omnibus_probability,
+                    "log_lr": status.log_lr_omnibus,
+                }
+            )
+            changes.sort(key=lambda c: -c["probability"])
     measured_move = sum((state.captured[i].timing or {}).get("move", 0.0) for i in order)
     return {
         "schema": CHECK_SCHEMA,
