@@ -137,7 +137,7 @@ class Ur10Set:
 def needed(n_sel: float, err: float, ns: list[int], med: list[float]) -> float:
     """Random poses with median error ``err`` (log-log interpolation), over ``n_sel``."""
     x, y = np.log(ns), np.log(med)
-    order = np.argsort(-y)  # error falls with N
+    order = np.argsort(y)  # error falls with N: ascending error, descending N
     n = float(np.exp(np.interp(np.log(err), y[order], x[order], left=np.nan, right=np.nan)))
     return n / n_sel
 

@@ -18,7 +18,7 @@ Criteria (Bayesian, so a handful of poses already has a finite value):
   ``G(q)`` the target position's derivative by the joint coefficients *after the best rigid
   registration of base and tool* (a change those take up is no TCP error).  This is "the
   predicted workspace TCP error band of the model fitted later" (squared, averaged).
-- **D-optimal**: ``log det P⁻¹`` (the volume of the coefficients' uncertainty).
+- **D-optimal**: ``log det P`` (the volume of the coefficients' uncertainty).
 
 The workspace is the candidates themselves (they are where the robot can be measured).
 Selection is greedy: each step takes the pose with the largest decrease of the criterion,
@@ -226,7 +226,7 @@ def _criterion(J: F, M: F, P0: F, rows: list[int], crit: Criterion) -> float:
     P = _posterior(J, P0, rows)
     if crit is Criterion.I_OPTIMAL:
         return float(np.trace(M @ P))
-    return float(-np.linalg.slogdet(P)[1])
+    return float(np.linalg.slogdet(P)[1])  # log det of the posterior covariance: lower is better
 
 
 def _greedy(J: F, M: F, P0: F, n: int, groups: NDArray[np.int64], crit: Criterion) -> list[int]:

@@ -452,7 +452,7 @@ def quick_check(
     jpath = out / JOURNAL
     if resume and jpath.is_file():
         st0 = read_journal(jpath)
-        if st0.ended:  # killed after its end record: only check.json is missing
+        if st0.ended and not (out / CHECK_FILE).is_file():  # killed after its end record
             same_check(st0)
             return _finish(out, plan, baseline, model, seq, st0, None)
     res = run_plan(
