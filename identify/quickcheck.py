@@ -25,8 +25,9 @@ log likelihood ratio against H0 is ``f_j(δ) = δᵀ s_j − ½ δᵀ I_j δ`` w
 the information ``I_j`` of the family after ``η`` is integrated out.
 
 - **"changed"** when the *mixture* likelihood ratio ``Λ = Σ_j w_j ∫ e^{f_j(δ)} π_j(δ) dδ + w_o Λ_o``
-  reaches ``A = 1/α`` (Robbins' mixture SPRT, 1970): ``π_j`` a Gaussian whose typical change
-  moves the TCP by ``prior_scale · detect`` (root mean square over the workspace), and ``Λ_o``
+  reaches ``A = 1/α`` (Robbins' mixture SPRT, 1970): ``π_j`` an equal mixture of Gaussians
+  whose typical change moves the TCP by 1, 4 and 16 times ``prior_scale · detect`` (root
+  mean square over the workspace), and ``Λ_o``
   an *omnibus* alternative that lets every pose shift on its own (``N(0, τ²)`` per component,
   ``τ = detect`` in position, ``detect / 0.5 m`` in rotation): changes no family describes.
   Under H0, ``Λ`` is a non-negative martingale with mean 1 whatever poses are chosen, as long
@@ -680,7 +681,25 @@ def check_status(model: ChangeModel, fitted: FittedModel, meas: Measurements) ->
     )
 
 
+#: Scales of a family's prior, equally weighted: changes of about the detectable size, and
+#: 4 and 16 times larger (a large change would otherwise sit in the tail of a prior sized for
+#: the smallest one, and the omnibus would explain it better than its own family).
+PRIOR_SCALES = (1.0, 4.0, 16.0)
+
+
 def _mixture(I_j: F, s_j: F, prior: F) -> tuple[float, F, F]:
+    """log ∫ e^{f(δ)} π(δ) dδ for the scale mixture π of ``N(0, c² Π)`` over
+    :data:`PRIOR_SCALES`, and the posterior mean and covariance of δ under its most likely
+    scale."""
+    parts = [_gaussian_mixture(I_j, s_j, prior * c * c) for c in PRIOR_SCALES]
+    logs = np.array([p[0] for p in parts])
+    top = float(logs.max())
+    log_lam = top + math.log(float(np.exp(logs - top).mean()))
+    best = parts[int(np.argmax(logs))]
+    return log_lam, best[1], best[2]
+
+
+def _gaussian_mixture(I_j: F, s_j: F, prior: F) -> tuple[float, F, F]:
     """log ∫ e^{f(δ)} N(δ; 0, Π) dδ and the posterior mean and covariance of δ."""
     k = s_j.size
     Ph = np.linalg.cholesky(prior)
