@@ -909,7 +909,8 @@ class Archive:
         as a check of ``robot``: listed by :meth:`checks` and the trend, never a run.
 
         The folder is copied into a staging folder first and renamed into place inside the
-        transaction that inserts its row (as :meth:`add_prepared` does for a run).
+        transaction that inserts its row (as :meth:`add_prepared` does for a run); a check
+        made in its archive folder (:meth:`check_path`, the TUI's) is indexed in place.
 
         Raises
         ------
@@ -943,6 +944,7 @@ class Archive:
             for c in doc.get("changes", [])
         )[:1000]
         dst = self.check_path(robot, cid)
+        in_place = dst.exists() and src.resolve() == dst  # checked into its archive folder
         row = {
             "robot": robot,
             "check_id": cid,
@@ -957,13 +959,23 @@ class Archive:
             "changes": words,
             "plan_hash": str(doc.get("plan_hash", ""))[:200],
         }
+        sa = self._sa
+        t = self.t_checks
+        if in_place:  # the TUI checks straight into the archive: its row, its mark
+            with self._write() as con:
+                try:
+                    con.execute(sa.insert(t).values(**row))
+                except sa.exc.IntegrityError:
+                    raise InputError(
+                        f"check {robot}/{cid} is already archived (use another check id)"
+                    ) from None
+                write_atomic(dst / MARKER, self._mark(robot, cid))
+            return self._check_record(row)
         make_dirs(dst.parent)
         try:
             stage = Path(tempfile.mkdtemp(prefix=f".incoming-{cid}-", dir=dst.parent))
         except OSError as exc:
             raise write_error(dst.parent, exc) from None
-        sa = self._sa
-        t = self.t_checks
         try:
             copy_plain_tree(src, stage / "check")
             write_atomic(stage / "check" / MARKER, self._mark(robot, cid))
