@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 from ...identify.errors import InputError
+from ...identify.quickcheck import CheckSettings
 from .. import lock, options
 from ..fsio import claim_output_folder, foreign_results, make_dirs, refuse_overwriting_inputs
 from ..lock import RunLock
@@ -80,10 +81,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 @lock.holds_outputs("check", lambda a: [a.out])
 def run(args: argparse.Namespace) -> int:
     """Validate everything that can be validated without hardware, then check."""
-    from ...identify.quickcheck import CheckSettings
     from ..archive import safe_name  # the archive module loads the trend's scipy.stats
     from ..planning import load_cell, load_plan  # the planner: the collision library
-    from ..services import checking
+    from ..services import checking  # the run: OpenCV and the vision library
 
     out: Path = args.out
     if ".." in out.parts:
@@ -126,8 +126,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check_locked(args, plan, cell, baseline, settings, out) -> int:  # type: ignore[no-untyped-def]
-    from ..run import Progress
-    from ..services.checking import quick_check
+    from ..run import Progress  # the run: OpenCV and the vision library
+    from ..services.checking import quick_check  # (the same)
 
     make_dirs(out)
     log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115

@@ -23,9 +23,15 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from ...identify.design import Criterion, DesignSettings
 from ...identify.errors import InputError
+from ...identify.linearize import InstrumentNoise
+from ...identify.transforms import make_T
 from .. import lock, options
-from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs
+from ..formats import load_robot
+from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs, write_atomic
 from ..planning.cell import load_cell
 
 
@@ -140,14 +146,7 @@ def run(args: argparse.Namespace) -> int:
 @lock.holds_outputs("plan select", lambda a: [a.out])
 def run_select(args: argparse.Namespace) -> int:
     """``plan select``: the rows an optimal design chooses, written with all their columns."""
-    import numpy as np
-
-    from ...identify.design import Criterion, DesignSettings
-    from ...identify.linearize import InstrumentNoise
-    from ...identify.transforms import make_T
-    from ..formats import load_robot
-    from ..fsio import write_atomic
-    from ..services.planning import select_rows
+    from ..services.planning import select_rows  # the planner's module: the collision library
 
     refuse_overwriting_inputs([("--out", args.out)], [args.candidates])
     try:

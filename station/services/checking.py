@@ -49,6 +49,7 @@ from ...identify import quickcheck as qc
 from ...identify.errors import HardwareError, InputError
 from ...identify.fit import FittedModel
 from ...identify.measurements import Measurements
+from ...identify.transforms import R_to_rpy
 from ..formats import read_measurements, read_model
 from ..formats.common import write_text_atomic
 from ..hardware.legs import Leg
@@ -160,7 +161,7 @@ def archive_baseline(robot: str, archive: str | Path | None, db: str | None = No
 def joint_move_s(plan: Plan, q_from: F, q_to: F) -> float:
     """Duration (s) of a moveJ from ``q_from`` to ``q_to`` at the plan's joint speed and
     acceleration: the synchronised trapezoid of the largest joint change."""
-    from ..planning.planner import trap_time
+    from ..planning.planner import trap_time  # the planner loads python-fcl: not for a report
 
     mo = plan.motion
     d = float(np.max(np.abs(np.asarray(q_to, float) - np.asarray(q_from, float))))
@@ -265,8 +266,6 @@ class CheckSequence:
             sub = bm.subset(np.array([self.model.pairs[p.name] for p in poses]))
             return replace(sub, q=q, pose_id=ids, time=None, temp=None, excluded=None)
         T = self.base.fitted.predict(q)
-        from ...identify.transforms import R_to_rpy
-
         return Measurements(q=q, pos=T[:, :3, 3], rpy=R_to_rpy(T[:, :3, :3]), pose_id=ids)
 
     def _here(self, state: JournalState) -> F:
@@ -301,7 +300,7 @@ class CheckSequence:
         return meas
 
     def next_pose(self, state: JournalState) -> PlanPose | None:
-        from ..planning.planner import joint_leg_ok
+        from ..planning.planner import joint_leg_ok  # python-fcl, loaded with the sequence
 
         meas = self.update(state)
         why = self.run.stop_reason()
@@ -330,7 +329,7 @@ class CheckSequence:
         return None if last is None else self.plan.poses[last - 1]
 
     def finish(self, state: JournalState) -> tuple[F, Leg] | None:
-        from ..planning.planner import joint_leg_ok
+        from ..planning.planner import joint_leg_ok  # python-fcl, loaded with the sequence
 
         home = self.plan.home
         if home is None:

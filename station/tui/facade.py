@@ -44,6 +44,7 @@ from ..planning.planfile import Plan, plan_from_dict, plan_to_dict
 from ..planning.planner import plan_loop
 from ..run import RunSettings, ur_station
 from ..run import Station as Hardware
+from ..services.checking import load_baseline, quick_check
 from ..services.fitting import write_fit
 from ..services.options import TUI_THRESHOLD_MM, FitOptions
 from ..verdict import HealthVerdict, Judgement, Threshold, ThresholdFigure
@@ -598,8 +599,6 @@ class Station:
         """The quick check of this robot against its archived baseline (the arm moves): the
         check's summary lines; recorded in the archive as a check, not as a run
         (:func:`~quickhealth.station.services.checking.quick_check`)."""
-        from ..services.checking import load_baseline, quick_check
-
         if self.cell is None or self.plan is None or self.cell_spec is None:
             raise InputError("no station attached: start with --sim or --robot-ip")
         try:
