@@ -127,6 +127,31 @@ class RunRecord:
         return {k: getattr(self, k) for k in META_KEYS}
 
 
+@dataclass(frozen=True)
+class CheckRecord:
+    """One archived quick check (``quickhealth check``): not an assessment, so it has no
+    figures and never becomes a baseline; the trend lists it apart from the runs."""
+
+    robot: str
+    check_id: str
+    time_utc: str  # ISO 8601
+    path: str  # relative to the archive root
+    baseline_run_id: str
+    verdict: str  # "unchanged" | "changed"
+    decided: bool
+    poses: int
+    robot_time_s: float
+    full_loop_robot_time_s: float
+    changes: str  # the named changes in words ("" when none)
+    plan_hash: str = ""
+    root: str = ""  # the archive root (not stored)
+
+    @property
+    def t_s(self) -> float:
+        """Unix time of the check (s)."""
+        return _parse_time(self.time_utc).timestamp()
+
+
 def _parse_time(s: str) -> datetime:
     try:
         t = datetime.fromisoformat(str(s).replace("Z", "+00:00"))
@@ -441,6 +466,23 @@ class Archive:
             sa.Column("robot", sa.String(100), primary_key=True),
             sa.Column("baseline_run_id", sa.String(100), nullable=True),
         )
+        # quick checks: a verdict against the baseline, never an assessment (no figures)
+        self.t_checks = sa.Table(
+            "checks",
+            md,
+            sa.Column("robot", sa.String(100), primary_key=True),
+            sa.Column("check_id", sa.String(100), primary_key=True),
+            sa.Column("time_utc", sa.String(32), nullable=False),
+            sa.Column("path", sa.String(300), nullable=False),
+            sa.Column("baseline_run_id", sa.String(100), nullable=False, default=""),
+            sa.Column("verdict", sa.String(20), nullable=False),
+            sa.Column("decided", sa.Boolean, nullable=False),
+            sa.Column("poses", sa.Integer, nullable=False),
+            sa.Column("robot_time_s", sa.Float),
+            sa.Column("full_loop_robot_time_s", sa.Float),
+            sa.Column("changes", sa.String(1000), nullable=False, default=""),
+            sa.Column("plan_hash", sa.String(200), nullable=False, default=""),
+        )
         # the index's identity: which run folders this index put into the archive folder
         self.t_meta = sa.Table(
             "qh_meta",
@@ -546,7 +588,7 @@ class Archive:
         with self._read() as con:
             ins = self._sa.inspect(con)
             names = set(ins.get_table_names())
-            for t in (self.t_runs, self.t_robots, self.t_meta):
+            for t in (self.t_runs, self.t_robots, self.t_meta, self.t_checks):
                 if t.name not in names:
                     continue
                 cols = {c["name"] for c in ins.get_columns(t.name)}
@@ -558,7 +600,7 @@ class Archive:
                     )
             if not names & {"runs", "robots"}:
                 return "empty"
-            if not {"runs", "robots", "qh_meta"} <= names:
+            if not {"runs", "robots", "qh_meta", "checks"} <= names:
                 return "old"
             have = {ix["name"] for ix in ins.get_indexes("runs")}
             if not all(ix.name in have for ix in self.t_runs.indexes):
@@ -838,6 +880,122 @@ class Archive:
                 .values(healthy=healthy)
             )
 
+    # ---- quick checks
+    def check_path(self, robot: str, check_id: str) -> Path:
+        """Folder of a quick check; never outside the archive root."""
+        p = (
+            self.root / "checks" / safe_name(robot, "robot") / safe_name(check_id, "check id")
+        ).resolve()
+        if not p.is_relative_to(self.root):
+            raise InputError(f"check {robot}/{check_id} would lie outside the archive {self.root}")
+        return p
+
+    def add_check(
+        self, robot: str, check_dir: str | Path, *, check_id: str | None = None
+    ) -> CheckRecord:
+        """Copy a quick check's folder (``quickhealth check``) into the archive and index it
+        as a check of ``robot``: listed by :meth:`checks` and the trend, never a run.
+
+        The folder is copied into a staging folder first and renamed into place inside the
+        transaction that inserts its row (as :meth:`add_prepared` does for a run); a check
+        made in its archive folder (:meth:`check_path`, the TUI's) is indexed in place.
+
+        Raises
+        ------
+        InputError
+            No check.json (or one that is not a check's), a name that is not plain, a check
+            id already archived, a link or special file in the folder.
+        """
+        robot = safe_name(robot, "robot")
+        src = Path(check_dir)
+        cp = src / "check.json"
+        if not cp.is_file():
+            raise InputError(f"{src}: no check.json (not a quick check's folder)")
+        doc = _read_json(cp)
+        if doc.get("schema") != "quickhealth.check/1" or doc.get("verdict") not in (
+            "unchanged",
+            "changed",
+        ):
+            raise InputError(f"{cp}: not a quick check's result (schema quickhealth.check/1)")
+        plain_tree(src)  # links and special files refused up front
+        cid = safe_name(check_id or str(doc.get("run_id") or src.resolve().name), "check id")
+        when = str(doc.get("started_utc") or "")
+        t_iso = (
+            _iso(_parse_time(when))
+            if when
+            else _iso(datetime.fromtimestamp(cp.stat().st_mtime, UTC))
+        )
+        words = "; ".join(
+            f"{c.get('words', '')} {float(c.get('size', 0.0)):.3g} {c.get('size_unit', '')}"
+            for c in doc.get("changes", [])
+        )[:1000]
+        dst = self.check_path(robot, cid)
+        in_place = dst.exists() and src.resolve() == dst  # checked into its archive folder
+        row = {
+            "robot": robot,
+            "check_id": cid,
+            "time_utc": t_iso,
+            "path": str(dst.relative_to(self.root)),
+            "baseline_run_id": str((doc.get("baseline") or {}).get("run_id", ""))[:100],
+            "verdict": str(doc["verdict"]),
+            "decided": bool(doc.get("decided", False)),
+            "poses": int(doc.get("poses", 0)),
+            "robot_time_s": _finite_or_none(doc.get("robot_time_s")),
+            "full_loop_robot_time_s": _finite_or_none(doc.get("full_loop_robot_time_s")),
+            "changes": words,
+            "plan_hash": str(doc.get("plan_hash", ""))[:200],
+        }
+        sa = self._sa
+        t = self.t_checks
+        if in_place:  # the TUI checks straight into the archive: its row, its mark
+            with self._write() as con:
+                try:
+                    con.execute(sa.insert(t).values(**row))
+                except sa.exc.IntegrityError:
+                    raise InputError(
+                        f"check {robot}/{cid} is already archived (use another check id)"
+                    ) from None
+                write_atomic(dst / MARKER, self._mark(robot, cid))
+            return self._check_record(row)
+        make_dirs(dst.parent)
+        try:
+            stage = Path(tempfile.mkdtemp(prefix=f".incoming-{cid}-", dir=dst.parent))
+        except OSError as exc:
+            raise write_error(dst.parent, exc) from None
+        try:
+            copy_plain_tree(src, stage / "check")
+            write_atomic(stage / "check" / MARKER, self._mark(robot, cid))
+            with self._write() as con:
+                try:
+                    con.execute(sa.insert(t).values(**row))
+                except sa.exc.IntegrityError:
+                    raise InputError(
+                        f"check {robot}/{cid} is already archived (use another check id)"
+                    ) from None
+                if dst.exists() or dst.is_symlink():
+                    raise InputError(f"{dst}: already exists: refusing to replace it")
+                (stage / "check").rename(dst)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
+        return self._check_record(row)
+
+    def _check_record(self, r: Mapping[str, Any]) -> CheckRecord:
+        d = dict(r)
+        for k in ("robot_time_s", "full_loop_robot_time_s"):
+            d[k] = math.nan if d.get(k) is None else float(d[k])
+        return CheckRecord(**d, root=str(self.root))
+
+    def checks(self, robot: str) -> list[CheckRecord]:
+        """The robot's quick checks in time order (empty when it has none)."""
+        sa = self._sa
+        t = self.t_checks
+        robot = safe_name(robot, "robot")
+        with self._read() as con:
+            rows = con.execute(
+                sa.select(t).where(t.c.robot == robot).order_by(t.c.time_utc, t.c.check_id)
+            ).mappings()
+            return [self._check_record(r) for r in rows]
+
     # ---- reading
     def robots(self) -> list[str]:
         """Every robot in the archive, sorted."""
@@ -1031,6 +1189,14 @@ class Archive:
         return model_arrays(_read_json(cache), str(cache))
 
 
+def _finite_or_none(v: object) -> float | None:
+    try:
+        f = float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
 def _software_version() -> str:
 
     return software_version()
@@ -1078,6 +1244,24 @@ def missing_words(arch: Archive, missing: list[RunRecord]) -> list[str]:
         "left out of the trend"
         for r in missing
     ]
+
+
+def check_lines(checks: list[CheckRecord]) -> list[str]:
+    """A robot's quick checks, one line each (not assessments: no figures)."""
+    if not checks:
+        return []
+    out = [f"quick checks ({len(checks)}; not assessments):"]
+    for c in checks:
+        frac = (
+            c.robot_time_s / c.full_loop_robot_time_s if c.full_loop_robot_time_s else float("nan")
+        )
+        out.append(
+            f"  {c.check_id:<23} {c.time_utc:<21} {c.verdict.upper() if c.verdict == 'changed' else c.verdict}"
+            f"{'' if c.decided else ' (undecided)'} after {c.poses} poses, {c.robot_time_s:.0f} s "
+            f"({100 * frac:.0f} % of the loop) vs baseline {c.baseline_run_id}"
+            + (f": {c.changes}" if c.changes else "")
+        )
+    return out
 
 
 def trend_for(arch: Archive, robot: str, **kwargs: Any) -> TrendResult:

@@ -241,7 +241,7 @@ def refuse_outputs_inside(
 #: The files each kind of result folder holds (names or glob patterns).
 RESULT_FILES: Mapping[str, tuple[str, ...]] = {
     "plan": ("plan.json", "loop.script", "fig6_joints.png", "fig6_targets.png"),
-    "run": ("journal.jsonl", "run.json", "measurements.csv", "images", "run.log"),
+    "run": ("journal.jsonl", "run.json", "measurements.csv", "images", "run.log", "check.json"),
     "fit": (
         "model.json",
         "report.json",

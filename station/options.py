@@ -85,3 +85,8 @@ NOISE_POS_MM = Bounded(float, 0.0, 100.0, "a position noise in mm")
 NOISE_ROT_MRAD = Bounded(float, 0.0, 100.0, "an orientation noise in mrad")
 DURATION_S = Bounded(float, 0.0, 1e7, "a duration in s", lo_open=True)
 TEMP_RISE_K = Bounded(float, -50.0, 50.0, "a temperature change in K")
+
+# -- the quick check
+FALSE_ALARM = Bounded(float, 1e-6, 0.2, "a false-alarm probability")
+POWER = Bounded(float, 0.5, 0.999999, "a power", lo_open=True)
+DETECT_MM = Bounded(float, 1e-4, 10.0, "a TCP change in mm")

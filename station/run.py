@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import cv2
 import numpy as np
@@ -253,6 +253,62 @@ class RunResult:
     def complete(self) -> bool:
         """Every pose has a record."""
         return self.stopped is None
+
+
+class PoseSequence(Protocol):
+    """Which pose a run visits next: the plan's loop order, or a choice made as the data come
+    in (the quick check, :mod:`.services.checking`).
+
+    ``order`` is how measurements.csv orders the poses: ``"plan"`` (plan index) or
+    ``"capture"`` (the order they were captured in: the execution order of a sequence that
+    chooses).  With ``wait_for_measurements`` every pose's 7D measurement is journalled
+    before :meth:`next_pose` is asked.
+    """
+
+    order: str
+    wait_for_measurements: bool
+
+    def next_pose(self, state: JournalState) -> PlanPose | None:
+        """The next pose (its ``leg`` says how to move there), or None: the run is done."""
+        ...
+
+    def resume_pose(self, state: JournalState) -> PlanPose | None:
+        """The pose to re-approach (joint leg) before resuming, so every joint approaches the
+        next pose from the side it would have in an uninterrupted run; None: nowhere."""
+        ...
+
+    def finish(self, state: JournalState) -> tuple[F, Leg] | None:
+        """Where the arm goes after the last pose, and how (None: it stays)."""
+        ...
+
+
+class PlanOrder:
+    """The plan's fixed loop: every pose with no record, in plan order, then back home."""
+
+    order = "plan"
+    wait_for_measurements = False
+
+    def __init__(self, plan: Plan, done: set[int]) -> None:
+        self.plan = plan
+        self.todo = [p for p in plan.poses if p.index not in done]
+        self.first = self.todo[0].index if self.todo else None
+        self.pos = 0
+
+    def next_pose(self, state: JournalState) -> PlanPose | None:
+        if self.pos >= len(self.todo):
+            return None
+        self.pos += 1
+        return self.todo[self.pos - 1]
+
+    def resume_pose(self, state: JournalState) -> PlanPose | None:
+        if self.first is None:
+            return None
+        before = [p for p in self.plan.poses if p.index < self.first]
+        return before[-1] if before else None
+
+    def finish(self, state: JournalState) -> tuple[F, Leg] | None:
+        home = getattr(self.plan, "home", None)
+        return None if home is None else (home, Leg(self.plan.return_leg))
 
 
 # ---------------------------------------------------------------------------------------
@@ -582,9 +638,10 @@ class _Runner:
         images = [f"images/{pose.index:04d}_{pose.name}_{side}.png" for side in "LR"]
         t_capture = time.time() - (time.monotonic() - frame.time) - self.t_epoch
         search = search_boxes(s.camera.rig, T_pred, s.target)
+        timing = {"move": t1 - t0, "settle": t2 - t1, "pan": t3 - t2, "capture": td - t3}
         self.append(Captured(
             pose.index, pose.name, q_read, pan, t_capture, tuple(images),
-            q_cmd=pose.q, attempts=attempt, markers=counts, search=search,
+            q_cmd=pose.q, attempts=attempt, markers=counts, search=search, timing=timing,
         ))  # fmt: skip
         te = time.monotonic()
         self.tick("journal_s", te - td)
@@ -687,6 +744,9 @@ def run_plan(
     settings: RunSettings = RunSettings(),
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
+    sequence: PoseSequence | None = None,
+    start_extra: dict[str, object] | None = None,
+    check_resume: Callable[[JournalState], None] | None = None,
 ) -> RunResult:
     """Execute ``plan`` on ``station`` into ``run_dir`` (see the module docstring).
 
@@ -703,6 +763,13 @@ def run_plan(
         Called with a :class:`Progress` for every step (from the run's threads).
     cancel : threading.Event, optional
         Set it to stop after the current pose (the run can be resumed).
+    sequence : PoseSequence, optional
+        Which pose comes next (default :class:`PlanOrder`: the plan's loop).
+    start_extra : dict, optional
+        More keys for the journal's start record (e.g. what kind of run it is).
+    check_resume : callable, optional
+        Called with the interrupted run's journal before resuming; raises InputError when
+        the folder holds another kind of run.
 
     Returns
     -------
@@ -732,6 +799,8 @@ def run_plan(
                 f"{jpath}: the interrupted run used plan {state.start.get('plan_hash', '?')[:19]}…, "
                 f"not {plan.hash[:19]}…: resume with the same plan.json"
             )
+        if check_resume is not None:
+            check_resume(state)
     else:
         if jpath.exists():
             raise InputError(
@@ -752,6 +821,7 @@ def run_plan(
     done = imaged | set(state.failed)
     unmeasured = sorted(i for i in imaged if i not in state.measured)
     todo = [p for p in plan.poses if p.index not in done]
+    seq: PoseSequence = sequence if sequence is not None else PlanOrder(plan, done)
     lines = preflight(station, plan, run_dir, len(todo), settings, resume=resume)
     for ln in lines:
         r.emit(ProgressKind.PREFLIGHT, status="ok", message=ln)
@@ -773,24 +843,29 @@ def run_plan(
                 "robot": station.robot_name or station.robot.model.name, "n_poses": r.n,
                 "started_utc": _utc(), "epoch": r.t_epoch, "software": f"quickhealth {software_version()}",
                 "instrument": station.instrument,
+                **(start_extra or {}),
             })  # fmt: skip
         r.selfcheck("start" if not resume else "resume")
         if resume and todo:
-            done_before = [p for p in plan.poses if p.index < todo[0].index]
-            if done_before:  # re-approach the last completed pose: same approach directions
-                last = done_before[-1]
+            last = seq.resume_pose(read_journal(jpath))
+            if last is not None:  # re-approach the last completed pose: same approach directions
                 mo = plan.motion
                 station.robot.move(last.q, Leg.JOINT, speed=mo.joint_speed, accel=mo.joint_accel)
-        for pose in todo:
+        while True:
             if r.cancel.is_set():
                 stopped = "cancelled by the operator; rerun with --resume to continue"
+                break
+            if seq.wait_for_measurements:
+                r.drain()
+            pose = seq.next_pose(read_journal(jpath) if seq.wait_for_measurements else state)
+            if pose is None:
                 break
             r.do_pose(pose)
             if r.worker_error is not None:
                 r.drain()
-        home = getattr(plan, "home", None)
-        if stopped is None and home is not None:  # close the loop: back to the start
-            leg = Leg(plan.return_leg)
+        end = seq.finish(read_journal(jpath)) if stopped is None else None
+        if end is not None:  # close the loop: back to the start
+            target, leg = end
             mo = plan.motion
             speed, accel = (
                 (mo.joint_speed, mo.joint_accel)
@@ -798,7 +873,7 @@ def run_plan(
                 else (mo.linear_speed, mo.linear_accel)
             )
             r.emit(ProgressKind.MOVE, message="return to home")
-            station.robot.move(home, leg, speed=speed, accel=accel)
+            station.robot.move(target, leg, speed=speed, accel=accel)
     except HardwareError as exc:
         stopped = str(exc)
         try:
@@ -820,7 +895,7 @@ def run_plan(
         r.emit(ProgressKind.STOP, message=stopped)
     r.journal.close()
     final = read_journal(jpath)
-    meas_path = write_outputs(run_dir, final, plan, station, drift, settings)
+    meas_path = write_outputs(run_dir, final, plan, station, drift, settings, order=seq.order)
     res = RunResult(
         run_dir=run_dir,
         n_poses=r.n,
@@ -859,10 +934,17 @@ def _utc() -> str:
 
 
 def journal_measurements(
-    state: JournalState, plan: Plan | None, meta: dict[str, str]
+    state: JournalState, plan: Plan | None, meta: dict[str, str], *, order: str = "plan"
 ) -> Measurements | None:
-    """The measured poses of a journal as :class:`Measurements`, in execution (plan) order."""
-    idx = sorted(i for i, m in state.measured.items() if m.ok and i in state.captured)
+    """The measured poses of a journal as :class:`Measurements`, in execution order: plan
+    order (a run of the loop), or with ``order="capture"`` the order the journal recorded
+    the captures in (a run whose sequence chose its poses, :class:`PoseSequence`)."""
+    ok = [i for i, m in state.measured.items() if m.ok and i in state.captured]
+    if order == "capture":
+        rank = {i: k for k, i in enumerate(state.captured)}
+        idx = sorted(ok, key=rank.__getitem__)
+    else:
+        idx = sorted(ok)
     if not idx:
         return None
     cap = [state.captured[i] for i in idx]
@@ -887,8 +969,11 @@ def write_outputs(
     station: Station,
     drift: tuple[float, float] | None,
     settings: RunSettings,
+    *,
+    order: str = "plan",
 ) -> Path | None:
-    """measurements.csv and run.json from the journal (atomic writes)."""
+    """measurements.csv and run.json from the journal (atomic writes); ``order`` as
+    :func:`journal_measurements`."""
     start = state.start or {}
     meta = {
         "run_id": str(start.get("run_id", run_dir.name)),
@@ -902,7 +987,7 @@ def write_outputs(
     if drift is not None:
         meta["selfcheck_drift_mm"] = f"{drift[0]:.4f}"
         meta["selfcheck_drift_deg"] = f"{drift[1]:.5f}"
-    meas = journal_measurements(state, plan, meta)
+    meas = journal_measurements(state, plan, meta, order=order)
     path = None
     if meas is not None:
         path = run_dir / "measurements.csv"
@@ -990,6 +1075,8 @@ def ur_station(
 
 # Keep R_to_rpy/inv_T importable for callers that post-process journals.
 __all__ = [
+    "PlanOrder",
+    "PoseSequence",
     "Progress",
     "RunResult",
     "RunSettings",

@@ -20,6 +20,7 @@ SERIAL_MODULES = frozenset(
         "test_run_sim.py",  # the simulated cell with the real client, kill -9 and --resume
         "test_ur10e_sim.py",  # a UR10e end to end on its simulated cell (500 Hz stream)
         "test_run_cli.py",  # two runs at once, the run lock
+        "test_check.py",  # the quick check on the simulated cell, kill -9 and --resume
         "test_tui_sim_cell.py",  # the TUI on the simulated cell, a controller restart
         "test_archive_fleet.py",  # stations killed mid-write
         "test_workers_end.py",  # signals to commands while their workers run

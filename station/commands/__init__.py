@@ -13,6 +13,7 @@ when it runs, each import saying why, so ``quickhealth --help`` stays fast.
 #: a fit does not need); ``quickhealth --help`` and unknown commands import them all.
 #: tests/station/test_cli_identify.py checks the table against the modules.
 COMMAND_MODULES: dict[str, str] = {
+    "check": "check",
     "demo": "demo",
     "diagnose": "diagnose",
     "twin": "diagnose",

@@ -75,7 +75,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     b.add_argument("--clear", action="store_true", help="back to the first healthy run")
     add_archive_options(b)
     b.set_defaults(func=_archive_baseline)
-    ls = sub.add_parser("list", help="robots, or one robot's runs")
+    c = sub.add_parser(
+        "add-check", help="record a quick check's folder (quickhealth check) as a check"
+    )
+    c.add_argument("check_dir")
+    c.add_argument("--robot", required=True, help="robot name (letters, digits, . _ -)")
+    c.add_argument("--check-id", default=None, help="default: the check's run id or folder name")
+    add_archive_options(c)
+    c.set_defaults(func=_archive_add_check)
+    ls = sub.add_parser("list", help="robots, or one robot's runs (and its quick checks)")
     ls.add_argument("robot", nargs="?")
     add_archive_options(ls)
     ls.set_defaults(func=_archive_list)
@@ -115,6 +123,16 @@ def _archive_add(args: argparse.Namespace) -> int:
     return 0
 
 
+def _archive_add_check(args: argparse.Namespace) -> int:
+    arch = open_archive(args, create=False)  # a check needs the robot's baseline run there
+    arch.runs(args.robot)  # unknown robot: one line
+    rec = arch.add_check(args.robot, args.check_dir, check_id=args.check_id)
+    print(
+        f"archived check {rec.robot}/{rec.check_id} ({rec.time_utc}, {rec.verdict}) in {rec.path}"
+    )
+    return 0
+
+
 def _archive_baseline(args: argparse.Namespace) -> int:
     arch = open_archive(args)
     if args.clear == (args.run_id is not None):
@@ -140,4 +158,8 @@ def _archive_list(args: argparse.Namespace) -> int:
             f"{mark}{x.run_id:<23} {x.time_utc:<21} {x.mean_mm:7.3f} {x.std_mm:7.3f} "
             f"{x.max_mm:7.3f}  {x.plan_hash[:12]} / {x.cell} / {x.calibration_id}"
         )
+    from ..archive import check_lines
+
+    for line in check_lines(arch.checks(args.robot)):
+        print(line)
     return 0

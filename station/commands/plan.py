@@ -1,12 +1,20 @@
 """quickhealth plan — generate the fixed measurement loop (paper Sec. 3, Fig. 3).
 
-    quickhealth plan --cell CELL --n N [--seed S] --out DIR
+    quickhealth plan --cell CELL --n N [--seed S] [--optimal K] --out DIR
+    quickhealth plan select CANDIDATES.csv --robot ROBOT --n N --out CHOSEN.csv
 
 CELL is a cell file (TOML, docs/plan.md) or the built-in name ``reference`` (a UR5 on an
 optical table, the stereo camera about 2 m in front).  Writes DIR/plan.json (poses with joint
 targets and leg types, every dropped candidate with its reason, the summary and a content
 hash), DIR/loop.script (URScript of the loop) and the Fig. 6 plots DIR/fig6_joints.png and
 DIR/fig6_targets.png.  Nothing is written when the input is refused (exit status 2).
+--optimal K keeps K of the feasible targets, chosen by an I-optimal design (the predicted
+workspace TCP error band of the model fitted later; docs/plan.md), then orders them and
+checks their legs as for any plan.
+
+``plan select`` picks N rows of a file of candidate joint configurations (CSV v1 joint
+columns q1 … qN, deg; every other column is carried along, never read) by the same
+criterion, and writes them with all their columns to CHOSEN.csv.
 """
 
 from __future__ import annotations
@@ -15,9 +23,15 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from ...identify.design import Criterion, DesignSettings
 from ...identify.errors import InputError
+from ...identify.linearize import InstrumentNoise
+from ...identify.transforms import make_T
 from .. import lock, options
-from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs
+from ..formats import load_robot
+from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs, write_atomic
 from ..planning.cell import load_cell
 
 
@@ -29,21 +43,64 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--cell", required=True, help="cell file (TOML) or built-in name 'reference'")
+    # required without a sub-command (checked in run: `plan select` has its own)
+    p.add_argument("--cell", help="cell file (TOML) or built-in name 'reference' (required)")
     p.add_argument(
-        "--n",
-        required=True,
-        type=options.PLAN_POSES,
-        help="number of random target poses (paper: 150)",
+        "--n", type=options.PLAN_POSES, help="number of random target poses (paper: 150; required)"
     )
     p.add_argument("--seed", type=options.SEED, default=0, help="random seed (default 0)")
-    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--out", type=Path, help="output folder (required)")
+    p.add_argument(
+        "--optimal",
+        type=options.PLAN_POSES,
+        default=None,
+        metavar="K",
+        help="keep K of the feasible targets, chosen by an I-optimal design",
+    )
     p.add_argument(
         "--force",
         action="store_true",
         help="write into --out even if it holds another plan, a run or a fit",
     )
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, plan_parser=p)
+    sub = p.add_subparsers(dest="plan_command", metavar="SUBCOMMAND")
+    s = sub.add_parser(
+        "select",
+        help="choose N rows of candidate joint configurations by an optimal design",
+        description=(
+            "Choose N rows of CANDIDATES.csv (CSV v1 joint columns q1 ... qN, deg; other "
+            "columns carried along, never read) that minimise the predicted workspace TCP "
+            "error band of the model fitted later (I-optimal; or D-optimal), over the error "
+            "model's coefficients with a stated prior for the orders (docs/plan.md)."
+        ),
+    )
+    s.add_argument("candidates", type=Path, help="CSV of candidate joint configurations")
+    s.add_argument("--robot", required=True, help="built-in robot name or description file")
+    s.add_argument("--n", required=True, type=options.PLAN_POSES, help="rows to choose")
+    s.add_argument("--out", required=True, type=Path, help="CHOSEN.csv")
+    s.add_argument(
+        "--criterion", choices=("I", "D"), default="I", help="I-optimal (default) or D-optimal"
+    )
+    s.add_argument(
+        "--position-only",
+        action="store_true",
+        help="the instrument measures positions only (a laser tracker); default: full pose",
+    )
+    s.add_argument(
+        "--tool-mm",
+        default="0,0,100",
+        help="the measured point on the flange, x,y,z mm (default 0,0,100)",
+    )
+    s.add_argument(
+        "--sigma-pos-mm", type=options.SIGMA_POS_MM, default=0.03, help="instrument noise (0.03)"
+    )
+    s.add_argument(
+        "--sigma-rot-mrad",
+        type=options.SIGMA_ROT_MRAD,
+        default=0.1,
+        help="instrument orientation noise (0.1)",
+    )
+    s.set_defaults(func=run_select)
 
 
 @lock.holds_outputs("plan", lambda a: [a.out])
@@ -52,6 +109,11 @@ def run(args: argparse.Namespace) -> int:
     (:func:`~quickhealth.station.services.planning.plan_folder`)."""
     from ..services.planning import PLAN_FILES, plan_folder  # the planner: the collision library
 
+    missing = [
+        o for o, v in (("--cell", args.cell), ("--n", args.n), ("--out", args.out)) if v is None
+    ]
+    if missing:
+        args.plan_parser.error(f"the following arguments are required: {', '.join(missing)}")
     out: Path = args.out
     if out.exists() and not out.is_dir():
         raise InputError(f"--out: {out} exists and is not a folder")
@@ -69,11 +131,44 @@ def run(args: argparse.Namespace) -> int:
             sys.stderr.write(f"{stage}: {done}/{total}{end}")
             sys.stderr.flush()
 
-    res = plan_folder(cell, args.n, args.seed, out, force=args.force, progress=progress)
+    res = plan_folder(
+        cell, args.n, args.seed, out, force=args.force, progress=progress, optimal=args.optimal
+    )
     if res.replacing:
         print(res.replacing, file=sys.stderr)
     for line in res.result.summary():
         print(line)
     print(f"plan {res.plan.hash}")
     print("wrote " + ", ".join(str(f) for f in res.paths))
+    return 0
+
+
+@lock.holds_outputs("plan select", lambda a: [a.out])
+def run_select(args: argparse.Namespace) -> int:
+    """``plan select``: the rows an optimal design chooses, written with all their columns."""
+    from ..services.planning import select_rows  # the planner's module: the collision library
+
+    refuse_overwriting_inputs([("--out", args.out)], [args.candidates])
+    try:
+        tool = np.array([float(v) for v in args.tool_mm.split(",")]) * 1e-3
+    except ValueError:
+        raise InputError(f"--tool-mm {args.tool_mm!r}: expected x,y,z in mm") from None
+    if tool.shape != (3,) or not np.all(np.isfinite(tool)) or np.linalg.norm(tool) > 2.0:
+        raise InputError(f"--tool-mm {args.tool_mm!r}: expected x,y,z in mm, within 2000 mm")
+    robot = load_robot(args.robot)
+    settings = DesignSettings(
+        criterion=Criterion(args.criterion),
+        orientation=not args.position_only,
+        noise=InstrumentNoise(args.sigma_pos_mm * 1e-3, args.sigma_rot_mrad * 1e-3),
+        T_flange_target=make_T(np.eye(3), tool),
+    )
+    sel = select_rows(args.candidates, robot, args.n, settings)
+    write_atomic(args.out, sel.text)
+    r = sel.result
+    print(
+        f"chose {len(sel.rows)} of {r.n_candidates} rows ({args.criterion}-optimal, "
+        f"{r.n_params} coefficients): predicted workspace TCP band {r.band_mm:.4f} mm rms "
+        f"(median of 20 random choices of {len(sel.rows)}: {r.random_band_mm:.4f} mm)"
+    )
+    print(f"wrote {args.out}")
     return 0

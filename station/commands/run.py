@@ -44,8 +44,9 @@ from ..services.fitting import fit_folder
 from ..sim.process import add_arguments as add_sim_arguments
 from ..sim.process import run_from_args
 
-if TYPE_CHECKING:  # the type only: the planner loads the collision library
+if TYPE_CHECKING:  # the types only: the planner loads the collision library, run the drivers
     from ..planning.planfile import Plan
+    from ..run import Station
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -59,9 +60,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--cell", required=True, help="cell file (TOML) or built-in name 'reference'")
     p.add_argument("--plan", required=True, type=Path, help="plan.json from 'quickhealth plan'")
     p.add_argument("--out", required=True, type=Path, help="run folder")
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--sim", action="store_true", help="the built-in simulated cell")
-    src.add_argument("--robot-ip", help="address of the UR controller")
     p.add_argument(
         "--unattended",
         action="store_true",
@@ -82,6 +80,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument(
         "--robot-name", default=None, help="robot name for the journal and archive (plain name)"
     )
+    add_station_arguments(p)
+    p.set_defaults(func=run)
+
+    s = subparsers.add_parser(
+        "sim-controller",
+        help="run the UR controller simulator on 127.0.0.1 (RTDE, dashboard, script ports)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_sim_arguments(s)
+    s.set_defaults(func=sim_controller)
+
+
+def add_station_arguments(p: argparse.ArgumentParser) -> None:
+    """The cell's hardware options, shared by ``run`` and ``check``: the simulated cell
+    (``--sim`` and its settings) or a real one (``--robot-ip``, motor, cameras, calibration)."""
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--sim", action="store_true", help="the built-in simulated cell")
+    src.add_argument("--robot-ip", help="address of the UR controller")
     p.add_argument("--motor-port", default="/dev/ttyUSB0", help="pan motor serial port (real cell)")
     p.add_argument(
         "--cameras", default="0,1", help="left,right OpenCV camera indices or paths (real cell)"
@@ -97,16 +114,52 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=None,
         help="--sim only: change the simulated robot's true errors, e.g. j2.ex.c0=5e-4 (m or rad)",
     )
-    p.set_defaults(func=run)
 
-    s = subparsers.add_parser(
-        "sim-controller",
-        help="run the UR controller simulator on 127.0.0.1 (RTDE, dashboard, script ports)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+
+def check_station_arguments(args: argparse.Namespace) -> None:
+    """Settle and check :func:`add_station_arguments`' options before anything runs."""
+    args.sim_image_scale = _sim_setting(
+        args.sim_image_scale, "--sim-image-scale", SIM_IMAGE_SCALE_ENV, 0.5, (0.05, 1.0)
     )
-    add_sim_arguments(s)
-    s.set_defaults(func=sim_controller)
+    args.sim_speed_factor = _sim_setting(
+        args.sim_speed_factor, "--sim-speed-factor", SIM_SPEED_FACTOR_ENV, 1.0, (0.1, 100.0)
+    )
+    if not args.sim and args.calibration is None:
+        raise InputError("--robot-ip needs --calibration CAL.json (quickhealth vision calibrate)")
+    if args.sim_degrade is not None and not args.sim:
+        raise InputError("--sim-degrade changes the simulated robot: it needs --sim")
+
+
+def open_station(args: argparse.Namespace, robot_name: str | None) -> Station:
+    """The station of :func:`add_station_arguments`' options (simulated or real)."""
+    if args.sim:
+        from ..sim.cell import sim_station  # the simulation (and the twin), only under --sim
+        from ..sim.world import parse_degradation  # (the same)
+
+        station, _ = sim_station(
+            args.cell,
+            twin_seed=args.twin_seed,
+            image_scale=args.sim_image_scale,
+            speed_factor=args.sim_speed_factor,
+            degrade=parse_degradation(args.sim_degrade),
+        )
+        if robot_name:
+            station.robot_name = robot_name
+        return station
+    from ..run import ur_station  # the drivers: ur-rtde, OpenCV
+
+    cams = tuple(c if not c.isdigit() else int(c) for c in args.cameras.split(","))
+    if len(cams) != 2:
+        raise InputError("--cameras needs two entries: left,right")
+    station = ur_station(
+        args.cell,
+        args.robot_ip,
+        motor_port=args.motor_port,
+        cameras=cams,
+        calibration=args.calibration,
+    )
+    station.robot_name = robot_name or f"ur-{args.robot_ip}"
+    return station
 
 
 def sim_controller(args: argparse.Namespace) -> int:
@@ -136,12 +189,7 @@ def run(args: argparse.Namespace) -> int:
         [("--out", out / n) for n in ("measurements.csv", "run.json", "journal.jsonl", "run.log")],
         [p for p in (args.cell, args.plan, args.calibration) if p and Path(p).is_file()],
     )
-    args.sim_image_scale = _sim_setting(
-        args.sim_image_scale, "--sim-image-scale", SIM_IMAGE_SCALE_ENV, 0.5, (0.05, 1.0)
-    )
-    args.sim_speed_factor = _sim_setting(
-        args.sim_speed_factor, "--sim-speed-factor", SIM_SPEED_FACTOR_ENV, 1.0, (0.1, 100.0)
-    )
+    check_station_arguments(args)
     cell = load_cell(args.cell)
     plan = load_plan(args.plan)
     if plan.cell_sha256 != cell.sha256:
@@ -150,8 +198,6 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.archive is not None and args.robot_name is None:
         raise InputError("--archive needs --robot-name (the robot's name in the archive)")
-    if not args.sim and args.calibration is None:
-        raise InputError("--robot-ip needs --calibration CAL.json (quickhealth vision calibrate)")
     lock = RunLock.acquire(out)
     try:
         return _run_locked(args, plan, out)
@@ -190,7 +236,7 @@ def _sim_setting(
 
 
 def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
-    from ..run import Progress, run_plan, ur_station  # the drivers: ur-rtde, OpenCV
+    from ..run import Progress, run_plan  # the drivers: ur-rtde, OpenCV
 
     make_dirs(out)  # an unwritable --out is one line, exit 2
     log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115
@@ -206,31 +252,8 @@ def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
                 print(line, flush=True)
 
     try:
-        if args.sim:
-            from ..sim.cell import sim_station  # the simulation (and the twin), only under --sim
-            from ..sim.world import parse_degradation  # (the same)
-
-            station, _ = sim_station(
-                args.cell,
-                twin_seed=args.twin_seed,
-                image_scale=args.sim_image_scale,
-                speed_factor=args.sim_speed_factor,
-                degrade=parse_degradation(args.sim_degrade),
-            )
-            if args.robot_name:
-                station.robot_name = args.robot_name
-        else:
-            cams = tuple(c if not c.isdigit() else int(c) for c in args.cameras.split(","))
-            if len(cams) != 2:
-                raise InputError("--cameras needs two entries: left,right")
-            station = ur_station(
-                args.cell,
-                args.robot_ip,
-                motor_port=args.motor_port,
-                cameras=cams,
-                calibration=args.calibration,
-            )
-            station.robot_name = args.robot_name or f"ur-{args.robot_ip}"
+        station = open_station(args, args.robot_name)
+        if not args.sim:
             if not args.unattended and sys.stdin.isatty():
                 input(
                     f"The arm will move through {len(plan.poses)} poses. Clear the cell, then press Enter (Ctrl-C aborts). "

@@ -88,6 +88,7 @@ def _trend(args: argparse.Namespace) -> int:
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be in (0, 1), got {args.alpha}")
     from ..archive import (  # the archive and the trend: SQLAlchemy, scipy.stats
+        check_lines,
         missing_words,
         trend_for,
         trend_runs,
@@ -142,8 +143,21 @@ def _trend(args: argparse.Namespace) -> int:
         print(f"  - {line}")
     for p in res.prognoses.values():
         print(f"prognosis: {p.words()}")
+    # quick checks are listed apart: a verdict against the baseline, not an assessment
+    checks = [c for c in arch.checks(args.robot) if c.time_utc >= recs[res.baseline_index].time_utc]
+    for line in check_lines(checks):
+        print(line)
+    if checks and checks[-1].verdict == "changed" and checks[-1].time_utc > latest.time_utc:
+        print(
+            f"latest quick check {checks[-1].check_id} (after the latest run) says CHANGED: "
+            "run a full assessment"
+        )
     if args.json:
-        write_text_atomic(args.json, json.dumps(json_plain(trend_to_json(res)), indent=1) + "\n")
+        doc = json_plain(trend_to_json(res))
+        doc["checks"] = [
+            {k: v for k, v in c.__dict__.items() if k not in ("root", "path")} for c in checks
+        ]
+        write_text_atomic(args.json, json.dumps(json_plain(doc), indent=1) + "\n")
     if args.plot:
         from ..report_html import trend_figure  # matplotlib: only for --plot
 

@@ -66,7 +66,11 @@ class SelfCheck:
 class Captured:
     """A pose reached and imaged: the settled joint reading ``q`` and the command ``q_cmd``
     (rad), the pan angle (rad), the capture time (s since the run's epoch), the two image files
-    (relative to the run folder), the captures it took and the markers seen (left, right)."""
+    (relative to the run folder), the captures it took and the markers seen (left, right).
+
+    ``timing`` (s, absent in older journals): where the robot's time at the pose went,
+    ``move`` (the leg, wall clock), ``settle`` (until the joint stream showed rest), ``pan``
+    (the motor's remaining turn), ``capture`` (every capture and its detection check)."""
 
     index: int
     name: str
@@ -78,6 +82,7 @@ class Captured:
     attempts: int = 1
     markers: tuple[int, ...] = ()
     search: tuple[Box, Box] | None = None
+    timing: dict[str, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,6 +161,7 @@ def encode(rec: Record) -> dict[str, Any]:
             "attempts": rec.attempts,
             "markers": list(rec.markers),
             **({} if rec.search is None else {"search_px": [list(b) for b in rec.search]}),
+            **({} if rec.timing is None else {"timing_s": dict(rec.timing)}),
         }
     if isinstance(rec, Measured):
         out = {
@@ -207,6 +213,18 @@ def _boxes(v: object) -> tuple[Box, Box] | None:
     return l, r  # type: ignore[return-value]
 
 
+def _timing(v: object) -> dict[str, float] | None:
+    """A capture's ``timing_s`` object (s per part), or None when not recorded."""
+    if v is None:
+        return None
+    if not isinstance(v, Mapping):
+        raise ValueError("timing_s must be an object of seconds")
+    out = {str(k): float(x) for k, x in v.items()}
+    if not all(np.isfinite(x) and x >= 0 for x in out.values()):
+        raise ValueError("timing_s: every part must be a finite, non-negative number of seconds")
+    return out
+
+
 def decode(obj: Mapping[str, Any]) -> Record:
     """The typed record of a journal line's JSON object (SI); ``start``, ``resume``, ``stop``
     and ``end`` stay objects.
@@ -243,6 +261,7 @@ def decode(obj: Mapping[str, Any]) -> Record:
             attempts=int(obj.get("attempts", 1)),
             markers=tuple(int(m) for m in obj.get("markers", ())),
             search=_boxes(obj.get("search_px")),
+            timing=_timing(obj.get("timing_s")),
         )
     if kind is RecordKind.MEASURED:
         if not obj["ok"]:

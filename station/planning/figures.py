@@ -65,7 +65,16 @@ def write_figures(res: PlanResult, out_dir: Path) -> list[Path]:
     colours = dict(
         zip(
             DropReason,
-            ("tab:gray", "tab:brown", "tab:orange", "tab:pink", "tab:purple", "tab:red", "black"),
+            (
+                "tab:gray",
+                "tab:brown",
+                "tab:orange",
+                "tab:pink",
+                "tab:purple",
+                "tab:red",
+                "black",
+                "tab:olive",
+            ),
             strict=True,
         )
     )

@@ -195,6 +195,7 @@ def plan_to_dict(res: PlanResult) -> dict[str, Any]:
                 "feasible_max_deg": _r(np.degrees(c.feasible_max), 3),
                 "coverage_of_feasible_extremes": _r(c.coverage_full, 4),
             },
+            **({} if res.design is None else {"design": res.design}),
         },
     }
     doc["hash"] = content_hash(doc)

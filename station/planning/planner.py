@@ -86,6 +86,7 @@ class DropReason(StrEnum):
     OCCLUDED = "occluded"
     COLLISION = "collision"
     NO_FEASIBLE_LEG = "no-feasible-leg"
+    NOT_SELECTED = "not-selected"  # feasible, but plan --optimal kept others
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,6 +145,7 @@ class PlanResult:
     return_leg_time_s: float
     coverage: JointCoverage
     home: F | None = None  # (6,) rad; the first pose's leg_time_s is then the move from home
+    design: dict[str, object] | None = None  # plan --optimal: the design's figures
 
     @property
     def dropped_by_reason(self) -> dict[str, int]:
@@ -179,10 +181,25 @@ class PlanResult:
             f"joint coverage of usable range (j1..j6): {cov}"
             f" (of the untrimmed feasible extremes: {full})",
             f"joint evenness (normalised entropy, {c.bins} bins; 1 = uniform): {ev}",
-        ]
+        ] + (
+            []
+            if self.design is None
+            else [
+                f"optimal design: {self.design['chosen']} of {self.design['candidates']} feasible "
+                f"configurations, predicted TCP band {self.design['predicted_band_mm']:.4f} mm "
+                f"(random: {self.design['random_band_mm']:.4f} mm)"
+            ]
+        )
 
 
-def plan_loop(cell: Cell, n: int, seed: int = 0, progress: Progress | None = None) -> PlanResult:
+def plan_loop(
+    cell: Cell,
+    n: int,
+    seed: int = 0,
+    progress: Progress | None = None,
+    *,
+    optimal: int | None = None,
+) -> PlanResult:
     """Plan a fixed measurement loop of up to ``n`` poses in ``cell`` (steps 1–6).
 
     Parameters
@@ -193,6 +210,9 @@ def plan_loop(cell: Cell, n: int, seed: int = 0, progress: Progress | None = Non
     seed : int
         Seed of the random generator; the plan is a pure function of (cell, n, seed).
     progress : callable(stage, done, total), optional
+    optimal : int, optional
+        Keep only this many of the feasible targets, chosen by the optimal design of
+        :mod:`.optimal` (``plan --optimal K``); the others are dropped as ``not-selected``.
 
     Returns
     -------
@@ -212,7 +232,7 @@ def plan_loop(cell: Cell, n: int, seed: int = 0, progress: Progress | None = Non
     _check_camera_view(cell, world)
     rng = np.random.default_rng(seed)
     T_wt = sample_targets(cell, n, rng)
-    return _plan(cell, world, T_wt, seed, progress or (lambda s, i, k: None))
+    return _plan(cell, world, T_wt, seed, progress or (lambda s, i, k: None), optimal)
 
 
 def sample_targets(cell: Cell, n: int, rng: np.random.Generator) -> F:
@@ -283,7 +303,14 @@ def _check_camera_view(cell: Cell, world: CollisionWorld) -> None:
             )
 
 
-def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progress) -> PlanResult:
+def _plan(
+    cell: Cell,
+    world: CollisionWorld,
+    T_wt: F,
+    seed: int,
+    progress: Progress,
+    optimal: int | None = None,
+) -> PlanResult:
     robot = cell.robot
     n = len(T_wt)
     T_bw = inv_T(cell.T_world_base)
@@ -308,18 +335,42 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
 
     q_feas = Q[alive][feasible[alive]]
     usable_min, usable_max = usable_range(q_feas)
+    design = None
+    if optimal is None:
+        kept, ret = _order_and_legs(cell, world, Q, feasible, alive, T_bt, T_wt,
+                                    (usable_min, usable_max), dropped, progress)  # fmt: skip
+    else:  # plan --optimal K: an optimal design among the feasible, topped up for lost legs
+        from .optimal import choose
 
-    # step 3: order
-    order = order_tour(cell, Q[alive], feasible[alive])
-    tour = [int(alive[k]) for k in order]
-    first_k: int | None = None
-    first_t = 0.0
-    if cell.home is not None:
-        tour, first_k, first_t = _start_from_home(cell, world, Q, feasible, tour)
-
-    # steps 4-5: legs and configurations; the return leg closes the loop
-    walker = _Walker(cell, world, Q, feasible, T_bt, usable_min, usable_max)
-    kept, ret = _legs(walker, tour, (first_k, first_t), T_wt, dropped, progress)
+        out: list[int] = []  # chosen targets that had no feasible leg: not chosen again
+        for _ in range(3):
+            progress("optimal design", 0, 1)
+            pool = feasible.copy()
+            pool[out] = False
+            pick = choose(cell, Q, pool, optimal)
+            progress("optimal design", 1, 1)
+            # the chosen targets, each with the configuration the design chose and, should
+            # no leg reach that one, its other feasible configurations
+            chosen = np.zeros_like(feasible)
+            for i, _k in pick.pairs:
+                chosen[i] = pool[i]
+            prefer = dict(pick.pairs)
+            trial: list[DroppedTarget] = []
+            kept, ret = _order_and_legs(cell, world, Q, chosen, np.flatnonzero(chosen.any(1)),
+                                        T_bt, T_wt, (usable_min, usable_max), trial, progress,
+                                        prefer)  # fmt: skip
+            lost = [d.candidate for d in trial]
+            if len(kept) >= min(optimal, len(pick.pairs)) or not lost:
+                break
+            out += lost
+        design = {**pick.as_dict(), "kept": len(kept)}
+        taken = {i for i, _ in pick.pairs}
+        dropped += trial
+        dropped += [
+            DroppedTarget(int(i), DropReason.NOT_SELECTED,
+                          "feasible, not chosen by the optimal design", T_wt[i])
+            for i in alive if int(i) not in taken
+        ]  # fmt: skip
     poses = []
     for j, (i, k, leg, t) in enumerate(kept):
         poses.append(
@@ -354,7 +405,34 @@ def _plan(cell: Cell, world: CollisionWorld, T_wt: F, seed: int, progress: Progr
             q_feas.max(0),
         ),
         home=cell.home,
+        design=design,
     )
+
+
+def _order_and_legs(
+    cell: Cell,
+    world: CollisionWorld,
+    Q: F,
+    feasible: NDArray[np.bool_],
+    alive: NDArray[np.intp],
+    T_bt: F,
+    T_wt: F,
+    usable: tuple[F, F],
+    dropped: list[DroppedTarget],
+    progress: Progress,
+    prefer: dict[int, int] | None = None,
+) -> tuple[list[tuple[int, int, Leg, float]], tuple[Leg, float]]:
+    """Steps 3–5: order the ``alive`` targets, then their legs and configurations
+    (``prefer``: a configuration per target tried before the others, plan --optimal's)."""
+    order = order_tour(cell, Q[alive], feasible[alive])
+    tour = [int(alive[k]) for k in order]
+    first_k: int | None = None
+    first_t = 0.0
+    if cell.home is not None:
+        tour, first_k, first_t = _start_from_home(cell, world, Q, feasible, tour)
+    walker = _Walker(cell, world, Q, feasible, T_bt, usable[0], usable[1])
+    walker.prefer = prefer or {}
+    return _legs(walker, tour, (first_k, first_t), T_wt, dropped, progress)
 
 
 def usable_range(q_feasible: F, tail: float = USABLE_TAIL) -> tuple[F, F]:
@@ -504,6 +582,7 @@ class _Walker:
         self.k = 0
         self.T_target_flange = inv_T(cell.T_flange_target)
         self.members: list[tuple[int, int]] = []
+        self.prefer: dict[int, int] = {}  # target -> configuration tried first (plan --optimal)
 
     def _bins(self, q: F) -> NDArray[np.intp]:
         u = (q - self.lo) / np.maximum(self.hi - self.lo, 1e-9)
@@ -534,6 +613,13 @@ class _Walker:
         self, i: int, prev: tuple[int, int, Leg, float] | None
     ) -> tuple[int, int, Leg, float] | None:
         ks = np.flatnonzero(self.feas[i])
+        k0 = self.prefer.get(i)
+        if k0 is not None and prev is not None:  # the design's configuration, if a leg reaches it
+            leg = self.leg(prev, i, k0)
+            if leg is not None:
+                return (i, k0, leg[0], leg[1])
+        if k0 is not None and prev is None:
+            return (i, k0, Leg.JOINT, 0.0)
         if prev is None:
             pen = [self.penalty(self.Q[i, k]) for k in ks]
             return (i, int(ks[int(np.argmin(pen))]), Leg.JOINT, 0.0)

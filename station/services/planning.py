@@ -8,6 +8,9 @@ SYNOPSIS::
 
     res = plan_folder(load_cell("reference"), 150, 0, Path("plan"))
     res.result.summary(), res.plan.hash
+
+:func:`select_rows` is ``quickhealth plan select``: the rows of a file of candidate joint
+configurations an optimal design chooses (:mod:`quickhealth.identify.design`).
 """
 
 from __future__ import annotations
@@ -17,6 +20,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ...identify.design import DesignResult, DesignSettings, select_poses
+from ...identify.errors import InputError
+from ...identify.robot import RobotModel
 from ..fsio import claim_output_folder, foreign_results, make_dirs, replacing_line, write_atomic
 from ..planning.cell import Cell
 from ..planning.figures import write_figures
@@ -47,8 +53,12 @@ def plan_folder(
     *,
     force: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
+    optimal: int | None = None,
 ) -> PlanFiles:
     """Plan ``cell`` from ``n_candidates`` random targets (``seed``) and write the plan to ``out``.
+
+    ``optimal``: keep this many of the feasible targets by the optimal design
+    (``plan --optimal K``, :mod:`quickhealth.station.planning.optimal`).
 
     Raises
     ------
@@ -58,7 +68,7 @@ def plan_folder(
     """
     foreign = foreign_results(out, "plan")
     claim_output_folder(out, foreign, force=force)  # before the planning work
-    res = plan_loop(cell, n_candidates, seed, progress)
+    res = plan_loop(cell, n_candidates, seed, progress, optimal=optimal)
     doc = plan_to_dict(res)
     plan = plan_from_dict(doc, "plan.json")  # the program is made from the validated document
     script = render_urscript(plan)
@@ -85,3 +95,54 @@ def _other_plan(path: Path, new_hash: str) -> list[str]:
     if old == new_hash:
         return []
     return [f"another plan ({path.name} {str(old)[:19]}..., this one {new_hash[:19]}...)"]
+
+
+# --------------------------------------------------------------------------- plan select
+
+
+@dataclass(frozen=True)
+class Selection:
+    """What :func:`select_rows` chose: the rows (0-based, in the file's order), the file's
+    lines to write, and the design's figures."""
+
+    rows: tuple[int, ...]
+    text: str
+    result: DesignResult
+
+
+def select_rows(
+    candidates: Path,
+    robot: RobotModel,
+    n: int,
+    settings: DesignSettings,
+) -> Selection:
+    """Choose ``n`` rows of a joint table (CSV v1 ``q1 … qN`` columns, deg) by the design's
+    criterion (:func:`~quickhealth.identify.design.select_poses`); only the joint columns are
+    read, every row chosen is written back as it was (all its columns, the file's comments
+    and header first), in the file's order.
+
+    Raises
+    ------
+    InputError
+        A file that is not a joint table (one line, file:line:column), ``n`` out of range.
+    """
+    from ..formats.common import read_text_limited
+    from ..formats.measurements import parse_measurements
+
+    text = read_text_limited(candidates, "candidates")
+    meas = parse_measurements(text, str(candidates), robot.n_joints, joints_only=True)
+    res = select_poses(robot, meas.q, n, settings)
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    head = [ln for ln in lines if ln.strip().startswith("#")]
+    body = [ln for ln in lines if not ln.strip().startswith("#")]
+    header, data = body[0], body[1:]
+    if len(data) != meas.n_poses:  # pragma: no cover - the parser read the same lines
+        raise InputError(f"{candidates}: {len(data)} rows, the parser read {meas.n_poses}")
+    rows = tuple(sorted(int(i) for i in res.indices))
+    note = (
+        f"# selected: {n} of {meas.n_poses} rows by the {settings.criterion.value}-optimal "
+        f"design (quickhealth plan select); predicted TCP band {res.band_mm:.4f} mm rms, "
+        f"random {n}: {res.random_band_mm:.4f} mm"
+    )
+    out = "\n".join([*head, note, header, *(data[i] for i in rows)]) + "\n"
+    return Selection(rows, out, res)

@@ -323,6 +323,22 @@ class CellControl:
         emit(final)
         return final
 
+    def exclusive(self, work: Callable[[Hardware, threading.Event], object]) -> object:
+        """Run ``work(station, cancel)`` with the devices to itself (a quick check): refused
+        while the run goes; ``abort`` stops the robot and sets ``cancel``."""
+        with self._lock:
+            if self.running:
+                raise HardwareError("the run is going: the devices are the run's")
+            self.running, self._abort = True, False
+            self._cancel.clear()
+            self.state = CellState.RUNNING
+        try:
+            return work(self.station, self._cancel)
+        finally:
+            with self._lock:
+                self.running = False
+                self.state = CellState.ABORTED if self._abort else CellState.IDLE
+
     def pause(self) -> None:
         """Stop after the current pose and wait (the journal keeps everything)."""
         with self._lock:

@@ -35,7 +35,7 @@ from ...identify.fit import FittedModel
 from ...identify.measurements import Measurements
 from ...identify.robot import RobotModel
 from ...identify.trend import assess_trend
-from ..archive import Archive
+from ..archive import Archive, check_lines
 from ..formats import format_measurements, load_robot, read_measurements
 from ..hardware.legs import Leg
 from ..planning import load_cell, load_plan
@@ -44,6 +44,7 @@ from ..planning.planfile import Plan, plan_from_dict, plan_to_dict
 from ..planning.planner import plan_loop
 from ..run import RunSettings, ur_station
 from ..run import Station as Hardware
+from ..services.checking import load_baseline, quick_check
 from ..services.fitting import write_fit
 from ..services.options import TUI_THRESHOLD_MM, FitOptions
 from ..verdict import HealthVerdict, Judgement, Threshold, ThresholdFigure
@@ -289,8 +290,10 @@ class Station:
         plan_path: Path | None = None,
         run_settings: RunSettings | None = None,
         max_order: int = FitOptions.max_order,
+        cell_spec: Cell | None = None,
     ) -> None:
         self.robot = robot
+        self.cell_spec = cell_spec  # the cell's geometry (a quick check's collision checks)
         self.robot_name = robot_name
         self.archive = Archive.open(archive_root)
         self.run_id = run_id
@@ -363,6 +366,7 @@ class Station:
             hardware=hw,
             plan=the_plan,
             plan_path=plan,
+            cell_spec=c,
         )
 
     @classmethod
@@ -592,6 +596,42 @@ class Station:
             raise InputError("no measurements yet: run the plan first")
         return self.analysis.add_effect(effect, on_step)
 
+    # ----- quick check -----------------------------------------------------------------------
+    def quick_check(self, on_line: Callable[[str], None] | None = None) -> list[str]:
+        """The quick check of this robot against its archived baseline (the arm moves): the
+        check's summary lines; recorded in the archive as a check, not as a run
+        (:func:`~quickhealth.station.services.checking.quick_check`)."""
+        if self.cell is None or self.plan is None or self.cell_spec is None:
+            raise InputError("no station attached: start with --sim or --robot-ip")
+        try:
+            rec = self.archive.baseline(self.robot_name)
+        except InputError:
+            rec = None
+        if rec is None:
+            raise InputError(
+                f"robot {self.robot_name} has no baseline run in the archive: run and fit the "
+                "full loop first (3, then 4)"
+            )
+        baseline = load_baseline(self.archive.folder(rec))
+        check_id = f"check-{new_run_id()}"
+        out = self.archive.check_path(self.robot_name, check_id)
+        tell = on_line or (lambda line: None)
+
+        def progress(p: object) -> None:
+            kind = getattr(p, "kind", "")
+            if kind in ("pose", "stop", "done"):
+                tell(f"{kind}: {getattr(p, 'name', '')} {getattr(p, 'status', '')}".rstrip())
+
+        def work(hw: Hardware, cancel: threading.Event) -> object:
+            return quick_check(
+                hw, self.plan, self.cell_spec, baseline, out, run_settings=self.cell.settings,
+                progress=progress, cancel=cancel, say=tell,
+            )  # fmt: skip
+
+        res = self.cell.exclusive(work)
+        self.archive.add_check(self.robot_name, out, check_id=check_id)
+        return res.summary()  # type: ignore[attr-defined, no-any-return]
+
     # ----- history ---------------------------------------------------------------------------
     def history(self) -> History:
         """This robot's archived runs, oldest first, and the trend of the main figures."""
@@ -624,7 +664,10 @@ class Station:
         if prog is not None and len(recs) > 2:
             words += "; " + prog.words()
         png = offload(jobs.trend_png_job, rows, self.threshold_mm, str(self.run_dir / "trend.png"))
-        return History(self.robot_name, rows, words, flagged=result.flagged, pngs=(png,))
+        checks = tuple(check_lines(self.archive.checks(self.robot_name)))
+        return History(
+            self.robot_name, rows, words, flagged=result.flagged, pngs=(png,), checks=checks
+        )
 
     # ----- run -------------------------------------------------------------------------------
     @property

@@ -61,6 +61,7 @@ def open_simulated(
         hardware=hw,
         plan=the_plan,
         plan_path=plan,
+        cell_spec=c,
     )
     station.simcell = simcell  # the simulated cell's handles (controller, emulator)
     return station
@@ -124,5 +125,6 @@ def in_process(
         hardware=hw,
         plan=plan,
         run_settings=RunSettings(settle_window_s=0.03 * time_scale),
+        cell_spec=cell,
         **({} if max_order is None else {"max_order": max_order}),
     )

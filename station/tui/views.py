@@ -268,3 +268,4 @@ class History:
     trend: str  # the trend in words (e.g. "mean error rising 0.02 mm/run; crosses 0.5 mm in ~30 d")
     flagged: bool = False
     pngs: tuple[str, ...] = ()
+    checks: tuple[str, ...] = ()  # the robot's quick checks, one line each (not assessments)

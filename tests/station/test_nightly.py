@@ -48,7 +48,7 @@ def test_systemd_units_verify(tmp_path):
 
 STUB = """#!/bin/sh
 echo "$*" >> "$STUB_LOG"
-case "$1" in run) exit ${STUB_RUN:-0};; trend) exit ${STUB_TREND:-0};; esac
+case "$1" in run) exit ${STUB_RUN:-0};; trend) exit ${STUB_TREND:-0};; check) exit ${STUB_CHECK:-0};; esac
 exit 0
 """
 
@@ -95,6 +95,22 @@ def test_nightly_script_steps_and_exit_status(tmp_path):
     assert r.stderr.strip().splitlines() == [
         "quickhealth-nightly: error: not set: QH_ROBOT_IP (see nightly.env.example)"
     ]
+
+
+def test_nightly_quick_check_runs_the_full_loop_only_when_changed(tmp_path):
+    r, calls = _nightly(tmp_path, QH_MODE="check")  # unchanged: the check alone
+    assert r.returncode == 0, r.stderr
+    assert [c.split()[0] for c in calls] == ["check"]
+    assert "--robot ur5-cell3" in calls[0] and "--unattended" in calls[0]
+    assert f"--archive {tmp_path / 'arch'}" in calls[0]
+    r, calls = _nightly(tmp_path, QH_MODE="check", STUB_CHECK="1")  # changed: the full loop
+    assert r.returncode == 0 and [c.split()[0] for c in calls] == [
+        "check", "run", "identify", "archive", "trend"
+    ]  # fmt: skip
+    r, calls = _nightly(tmp_path, QH_MODE="check", STUB_CHECK="3")  # the cell failed
+    assert r.returncode == 3 and len(calls) == 1
+    r, calls = _nightly(tmp_path, QH_MODE="nightly")
+    assert r.returncode == 2 and calls == [] and "QH_MODE" in r.stderr
 
 
 def test_the_documented_cron_line_passes_the_settings_to_the_script(tmp_path):

@@ -57,8 +57,9 @@ class HistoryScreen(Screen[None]):
         if h is None:
             return
         flag = "[b red]FLAGGED[/] " if h.flagged else ""
+        checks = "".join(f"\n{line}" for line in h.checks[-3:])
         self.query_one("#trend", Static).update(
-            f"[b]{h.robot}[/b]: {len(h.rows)} runs · {flag}{h.trend}"
+            f"[b]{h.robot}[/b]: {len(h.rows)} runs · {flag}{h.trend}{checks}"
         )
         runs = self.query_one("#runs", DataTable)
         runs.clear()

@@ -2,7 +2,9 @@
 
 ``r`` starts (after pre-flight and a yes in the motion dialog), ``p`` pauses and resumes,
 ``a`` aborts (the facade stops the robot before anything else), ``c`` reconnects after a
-lost connection or protective stop and continues the run where it stopped.
+lost connection or protective stop and continues the run where it stopped.  ``k`` runs the
+quick check against the robot's archived baseline (after a yes in the motion dialog): a few
+poses, "unchanged" or "changed", recorded in the archive as a check.
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ class RunScreen(Screen[None]):
         Binding("p", "pause", "Pause/resume"),
         Binding("a", "abort", "Abort"),
         Binding("c", "reconnect", "Reconnect"),
+        Binding("k", "quick_check", "Quick check"),
     ]
 
     progress: reactive[RunProgress | None] = reactive(None)
@@ -162,6 +165,53 @@ class RunScreen(Screen[None]):
 
         final = self.app.station.run(on_progress)  # type: ignore[attr-defined]
         self.app.call_from_thread(self.set_progress, final)
+
+    def action_quick_check(self) -> None:
+        """Ask before the arm moves, then the quick check in a worker."""
+        station = self.app.station  # type: ignore[attr-defined]
+        if not station.can_run:
+            self.notify("No station attached: start with --sim or --robot-ip.", severity="error")
+            return
+        if station.running or self._refuse_while_busy("The quick check"):
+            self.notify("The devices are busy: wait for the run to end.", severity="warning")
+            return
+        question = (
+            "Quick check against this robot's baseline: the arm moves through a few poses "
+            "of the plan.\nIs the cell clear and the e-stop in reach?"
+        )
+
+        def answer(yes: bool | None) -> None:
+            if yes:
+                self.busy = "quick check"
+                self.query_one("#run-state", Static).update("[cyan]Quick check[/]  [b]a[/b] abort")
+                self._quick_check()
+
+        self.app.push_screen(ConfirmScreen(question), answer)
+
+    @work(thread=True, exclusive=True, group="run")
+    def _quick_check(self) -> None:
+        current = self.query_one("#run-current", Static)
+
+        def line(text: str) -> None:
+            self.app.call_from_thread(current.update, f"Quick check: {text}")
+
+        try:
+            lines = self.app.station.quick_check(line)  # type: ignore[attr-defined]
+        except Exception as exc:  # noqa: BLE001 - shown to the technician
+            self.app.call_from_thread(self.notify, f"Quick check: {exc}", severity="error")
+            self.app.call_from_thread(
+                self.query_one("#run-state", Static).update, f"[red]Quick check stopped[/]: {exc}"
+            )
+            return
+        finally:
+            self.app.call_from_thread(self._idle)
+        head = lines[0]
+        colour = "red" if head.startswith("CHANGED") else "green"
+        text = f"[b {colour}]{head}[/]" + "".join(f"\n{x}" for x in lines[1:])
+        self.app.call_from_thread(self.query_one("#run-state", Static).update, text)
+        self.app.call_from_thread(
+            self.notify, head, severity="warning" if colour == "red" else "information"
+        )
 
     def action_pause(self) -> None:
         station = self.app.station  # type: ignore[attr-defined]
