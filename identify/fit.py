@@ -744,9 +744,12 @@ class _Problem:
         Jq = joint_angle_jacobian(T, A, scale_z) if self.noise.sigma_q > 0 else None
         return Whitening.of(noise_covariance(self.meas, self.noise, Jq)).W
 
-    def _white(self, X: F) -> F:
+    def _white(self, X: F, *, in_place: bool = False) -> F:
         """``W_i X_i`` for every pose; ``X`` (n, d, ...).  Elementwise when every ``W_i`` is
-        diagonal (no encoder noise, isotropic or per-axis instrument noise): 20× faster."""
+        diagonal (no encoder noise, isotropic or per-axis instrument noise): 20× faster.
+        ``in_place``: ``X`` is a temporary of the caller's and is overwritten where the
+        whitening is elementwise (a new array of its size costs more in page faults than the
+        product itself at thousands of poses)."""
         assert self.W is not None
         if self.W_diag is None:
             off = self.W - np.einsum("nii->ni", self.W)[..., None] * np.eye(self.d)
@@ -756,7 +759,11 @@ class _Problem:
                 return np.matmul(self.W, X[..., None])[..., 0]
             flat = X.reshape(X.shape[0], X.shape[1], -1)
             return np.matmul(self.W, flat).reshape(X.shape)
-        return X * self.W_diag.reshape(self.W_diag.shape + (1,) * (X.ndim - 2))
+        w = self.W_diag.reshape(self.W_diag.shape + (1,) * (X.ndim - 2))
+        if in_place:
+            X *= w
+            return X
+        return X * w
 
     def _loop(self, p: F) -> tuple[F, list[F], Perturbation, F, F, F, F]:
         """One forward pass at ``p``: coefficients, effect parameters, perturbation, ``T``,
@@ -789,7 +796,7 @@ class _Problem:
         Jraw = np.concatenate(cols, axis=-1) if len(cols) > 1 else Jc
         if d == 6:  # ∂ log(R_meas R_modelᵀ) = −J_r⁻¹(w) ω with J_r⁻¹(w) ≈ I + ½[w]×
             Jraw[:, 3:] = (np.eye(3) + 0.5 * skew(raw[:, 3:])) @ Jraw[:, 3:]
-        J = self._white(Jraw).reshape(n * d, -1)
+        J = self._white(Jraw, in_place=True).reshape(n * d, -1)
         return r, J
 
     def linearisation(self, p: F) -> tuple[F, F, F, F]:
@@ -835,9 +842,12 @@ class _Problem:
         key[:nc] = np.stack([setup_rank, idx[:, 2], idx[:, 0], idx[:, 1]], 1)
         key[nc:] = [3, 0, 0, 0]
         order = np.lexsort((np.arange(nall), key[:, 3], key[:, 2], key[:, 1], key[:, 0]))
-        norms = np.linalg.norm(J, axis=0)
-        Jn = J[:, order] / np.where(norms[order] > 0, norms[order], 1.0)
-        ok_sorted = sequential_independent(Jn, rank_tol) & (norms[order] > 0)
+        # on the Gram matrix, permuted and scaled: a permuted, normalised copy of the tall
+        # J cost more than the product itself
+        G = (J.T @ J)[np.ix_(order, order)]
+        norms = np.sqrt(np.diag(G))
+        scale = np.where(norms > 0, norms, 1.0)
+        ok_sorted = sequential_independent_gram(G / np.outer(scale, scale), rank_tol) & (norms > 0)
         ok = np.zeros(nall, bool)
         ok[order] = ok_sorted
         return ok
@@ -1002,8 +1012,12 @@ def sequential_independent(J: F, rank_tol: float) -> NDArray[np.bool_]:
     factorisation (one BLAS-3 product, then ``O(p²)`` vector work per kept column).  ``J``
     should have unit-norm columns (``rank_tol`` is relative to the column norm).
     """
-    p = J.shape[1]
-    G = J.T @ J
+    return sequential_independent_gram(J.T @ J, rank_tol)
+
+
+def sequential_independent_gram(G: F, rank_tol: float) -> NDArray[np.bool_]:
+    """:func:`sequential_independent` of the columns whose Gram matrix is ``G`` (JᵀJ)."""
+    p = G.shape[0]
     resid = np.diag(G).copy()  # squared norm of each column outside the kept span
     L = np.zeros((p, p))  # L[:, k]: coordinates of all columns on the k-th kept direction
     keep = np.zeros(p, bool)
