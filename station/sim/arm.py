@@ -264,7 +264,42 @@ def linear_path_dls(
     return Path(_snap_goal(np.stack(path), q_goal), D, "dls")
 
 
-def _track_analytic(robot: RobotModel, q0: np.ndarray, Ts: F) -> F | None:
+def refine_batch(robot: RobotModel, Ts: F, Q: F, iters: int = 4) -> tuple[F, NDArray[np.bool_]]:
+    """Newton steps on every sample at once: joints ``Q`` (m, n) whose flange poses under
+    ``robot`` are ``Ts`` (m, 4, 4).  Returns the refined joints and which converged (1e-10).
+
+    For a controller whose calibrated kinematics differ from the nominal UR structure by
+    sub-millimetre link deltas: the nominal analytic solution is a start a few Newton steps
+    from the calibrated one."""
+    Q = np.array(Q, dtype=float)
+    m, n = Q.shape
+    eps = 1e-7
+    eye = np.eye(n) * eps
+    ok = np.zeros(m, dtype=bool)
+    for _ in range(iters + 1):
+        Qe = np.concatenate([Q[:, None, :], Q[:, None, :] + eye[None]], axis=1)  # (m, n+1, n)
+        T = robot.fk(Qe.reshape(-1, n)).reshape(m, n + 1, 4, 4)
+        err = _pose_errors(Ts, T[:, 0])  # (m, 6)
+        ok = np.einsum("mi,mi->m", err, err) < REFINE_TOL**2
+        if np.all(ok):
+            break
+        J = np.stack([_pose_errors(T[:, k + 1], T[:, 0]) for k in range(n)], axis=-1) / eps
+        JJt = J @ np.swapaxes(J, 1, 2) + 1e-12 * np.eye(6)
+        dq = np.einsum("mji,mj->mi", J, np.linalg.solve(JJt, err[..., None])[..., 0])
+        Q = np.where(ok[:, None], Q, Q + dq)
+    return Q, ok
+
+
+def _pose_errors(T_goal: F, T: F) -> F:
+    """:func:`_pose_error` of stacks of transforms, shape (m, 6)."""
+    dp = T_goal[:, :3, 3] - T[:, :3, 3]
+    R = T_goal[:, :3, :3] @ np.swapaxes(T[:, :3, :3], 1, 2)
+    return np.concatenate([dp, log_so3(R)], axis=-1)
+
+
+def _track_analytic(
+    robot: RobotModel, q0: np.ndarray, Ts: F, ik_model: RobotModel | None = None
+) -> F | None:
     """Joint samples for flange poses ``Ts`` continuing from ``q0``, or None if not analytic.
 
     All eight solutions of every sample come from one vectorised call; each branch is made
@@ -273,7 +308,7 @@ def _track_analytic(robot: RobotModel, q0: np.ndarray, Ts: F) -> F | None:
     (what sample-to-sample DLS converges to), else None.
     """
     try:
-        Q, valid = ik_ur(robot, Ts)  # (m, 8, 6), (m, 8)
+        Q, valid = ik_ur(ik_model or robot, Ts)  # (m, 8, 6), (m, 8)
     except InputError:
         return None
     if not np.all(np.any(valid, axis=1)):
@@ -296,13 +331,16 @@ def _track_analytic(robot: RobotModel, q0: np.ndarray, Ts: F) -> F | None:
     dist = np.where(valid, np.max(np.abs(_wrap(Q - prev[:, None])), axis=-1), np.inf)
     if not np.all(np.argmin(dist, axis=1) == k):
         return None  # another branch is nearer somewhere: near a singularity
-    # Residual check; a few DLS steps where the closed form is not exact enough.
+    # Residual check; Newton steps where the closed form is not exact enough (the nominal
+    # solution of a calibrated controller, a sample near a singularity).
     T = robot.fk(path)
     dp = np.linalg.norm(T[:, :3, 3] - Ts[:, :3, 3], axis=-1)
     dR = np.linalg.norm(T[:, :3, :3] - Ts[:, :3, :3], axis=(-2, -1))
-    for i in np.flatnonzero((dp > REFINE_TOL) | (dR > REFINE_TOL)):
-        path[i], ok = ik_dls(robot, Ts[i], path[i], iters=5)
-        if not ok:
+    bad = np.flatnonzero((dp > REFINE_TOL) | (dR > REFINE_TOL))
+    if bad.size:
+        path = path.copy()
+        path[bad], ok = refine_batch(robot, Ts[bad], path[bad], iters=5)
+        if not np.all(ok):
             return None
     return path
 
@@ -313,28 +351,34 @@ def linear_path(
     q0: np.ndarray,
     T_goal: np.ndarray,
     q_goal: np.ndarray | None = None,
+    ik_model: RobotModel | None = None,
 ) -> Path:
     """The straight TCP line from joints ``q0`` to the TCP pose ``T_goal`` (base frame).
 
     ``q_goal`` (moveL_FK): the joints the move must end at (the same TCP pose).  Analytic IK
     for all samples at once; DLS from sample to sample where that is not possible.
+    ``ik_model``: the nominal UR model whose closed form seeds a calibrated ``robot``.
     """
     q0 = np.asarray(q0, dtype=float)
     Ts, D = linear_targets(robot, tcp, q0, T_goal)
-    track = _track_analytic(robot, q0, Ts)
+    track = _track_analytic(robot, q0, Ts, ik_model)
     if track is None:
         return linear_path_dls(robot, tcp, q0, T_goal, q_goal)
     return Path(_snap_goal(np.concatenate([q0[None], track]), q_goal), D, "analytic")
 
 
 def ik_near(
-    robot: RobotModel, tcp: np.ndarray, T_tcp: np.ndarray, q_ref: np.ndarray
+    robot: RobotModel,
+    tcp: np.ndarray,
+    T_tcp: np.ndarray,
+    q_ref: np.ndarray,
+    ik_model: RobotModel | None = None,
 ) -> tuple[F, bool]:
     """Joints reaching TCP pose ``T_tcp`` nearest ``q_ref`` (moveJ_IK); returns (q, found)."""
     q_ref = np.asarray(q_ref, dtype=float)
     T = T_tcp @ np.linalg.inv(tcp)
     try:
-        Q, valid = ik_ur(robot, T)
+        Q, valid = ik_ur(ik_model or robot, T)
     except InputError:
         return ik_dls(robot, T, q_ref)
     if not np.any(valid):
@@ -342,7 +386,7 @@ def ik_near(
     cand = q_ref + _wrap(np.where(valid[:, None], Q, 0.0) - q_ref)
     cost = np.where(valid, np.max(np.abs(cand - q_ref), axis=-1), np.inf)
     q = cand[int(np.argmin(cost))]
-    return ik_dls(robot, T, q, iters=5)
+    return ik_dls(robot, T, q, iters=8)
 
 
 def ik_ur(robot: RobotModel, T: F) -> tuple[F, NDArray[np.bool_]]:
@@ -368,8 +412,15 @@ class Arm:
     RING_FREQ = 8.0  # Hz
     NOISE = 1e-6  # rad
 
-    def __init__(self, robot: RobotModel, q0: np.ndarray, truth: Truth | None = None) -> None:
-        self.robot = robot
+    def __init__(
+        self,
+        robot: RobotModel,
+        q0: np.ndarray,
+        truth: Truth | None = None,
+        ik_model: RobotModel | None = None,
+    ) -> None:
+        self.robot = robot  # the kinematics the controller computes with (its calibration)
+        self.ik_model = ik_model  # the nominal UR model whose closed-form IK seeds it
         self.truth = truth
         self.q_cmd = np.array(q0, dtype=float)
         self.motion: Motion | None = None
@@ -418,6 +469,18 @@ class Arm:
             )
         return q + self.rng.normal(0.0, self.NOISE, 6)
 
+    def derivatives(self, now: float, h: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+        """Commanded joint velocity and acceleration now (rad/s, rad/s²) from the timed motion
+        (central differences over ±``h``; zeros at rest).  No side effects."""
+        with self.lock:
+            m = self.motion
+        if m is None:
+            return np.zeros(self.q_cmd.shape), np.zeros(self.q_cmd.shape)
+        qa, _ = m.q_at(now - h)
+        qb, _ = m.q_at(now)
+        qc, _ = m.q_at(now + h)
+        return (qc - qa) / (2.0 * h), (qc - 2.0 * qb + qa) / (h * h)
+
     def moving(self, now: float) -> bool:
         """True while a motion runs."""
         return not self.target(now)[1]
@@ -459,7 +522,8 @@ class Arm:
         controller simulator does not use this: it plans in its planner thread.
         """
         q0 = self.hold(now)
-        m = Motion.timed(linear_path(self.robot, self.tcp, q0, T_goal, q_goal), speed, accel, now)
+        path = linear_path(self.robot, self.tcp, q0, T_goal, q_goal, self.ik_model)
+        m = Motion.timed(path, speed, accel, now)
         self.start(m)
         return m
 

@@ -21,7 +21,9 @@ import numpy as np
 
 from .arm import HOME_Q_DEG, Arm
 from .controller import Controller, close_socket
+from .primary import PRIMARY_PORT, SECONDARY_PORT
 from .servers import serve, shutdown
+from .states import Delays
 from .wire import (
     CB3_VERSION,
     CONTROL_PORT,
@@ -39,6 +41,10 @@ PORT_LOCK = "/tmp/quickhealth-ur-ports-{host}.lock"
 # need two addresses: every address of 127.0.0.0/8 is loopback on Linux.  A simulator started
 # without an address takes the first free one of these.
 LOOPBACK_POOL = tuple(f"127.0.0.{n}" for n in range(1, 255))
+# The smart target on the flange (plate, pan motor, bracket): the real arm's payload, which
+# the controller is not told about unless a program calls set_payload.  An estimate.
+SMART_TARGET_KG = 0.6
+SMART_TARGET_COM = (0.0, 0.0, 0.05)
 
 
 class SimControllerHandle:
@@ -172,7 +178,7 @@ def _take_address(
 
 def ports_free(host: str = HOST) -> bool:
     """True when the fixed UR ports are free on ``host``."""
-    for port in (RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT):
+    for port in (RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT, PRIMARY_PORT, SECONDARY_PORT):
         s = socket.socket()
         try:
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -197,6 +203,11 @@ def start_sim_controller(
     degrade: dict[str, float] | None = None,
     controller_version: str | None = None,
     host: str | None = None,
+    calibration: str | None = None,
+    delays: str | None = None,
+    powered_off: bool = False,
+    programs: str | None = None,
+    payload_kg: float | None = None,
 ) -> SimControllerHandle:
     """Start the simulator as a separate process and wait until it answers.
 
@@ -207,7 +218,11 @@ def start_sim_controller(
     meet.  Connect the client to :attr:`SimControllerHandle.host`.  With ``host`` given,
     wait up to ``wait_s`` seconds for that address to become free.
     ``controller_version`` (``"5.11.1"``) makes it report an e-Series controller, which
-    streams at 500 Hz; the default is a CB3 (3.15.7, 125 Hz).
+    streams at 500 Hz; the default is a CB3 (3.15.7, 125 Hz).  ``calibration``: the
+    controller's kinematics (``--calibration``: ``factory``, ``factory:SEED``, ``nominal``
+    or a UR calibration YAML); ``delays``: its state-machine delays (``--delays``, e.g.
+    ``boot=0.2,brake_release=0.2,unlock_after=0.3``); ``powered_off``: start with the arm
+    off; ``programs``: the folder ``load`` finds programs in; ``payload_kg``: the real payload.
 
     Raises
     ------
@@ -239,6 +254,17 @@ def start_sim_controller(
         args += ["--degrade", ",".join(f"{k}={v:.12g}" for k, v in degrade.items())]
     if controller_version is not None:
         args += ["--controller-version", controller_version]
+    if calibration is not None:
+        args += ["--calibration", calibration]
+    if delays is not None:
+        Delays.parse(delays)  # ValueError before anything starts
+        args += ["--delays", delays]
+    if powered_off:
+        args.append("--powered-off")
+    if programs is not None:
+        args += ["--programs", programs]
+    if payload_kg is not None:
+        args += ["--payload-kg", f"{payload_kg:.9g}"]
     if verbose:
         args.append("--verbose")
     tried: set[str] = set()
@@ -278,18 +304,55 @@ def build_controller(
     degrade: dict[str, float] | None = None,
     version: tuple[int, int, int, int] = CB3_VERSION,
     host: str = HOST,
+    calibration: str = "factory",
+    delays: Delays | None = None,
+    payload_kg: float = SMART_TARGET_KG,
 ) -> Controller:
     """A controller whose arm is the digital twin of ``twin_seed`` placed in ``cell``.
 
-    The arm's kinematics are the twin's nominal robot (``world.twin.robot``: the cell's
-    UR5 with its planning limits), which is what the controller reports and plans with.
+    The controller plans and reports with its own kinematics: the twin's nominal robot
+    (``world.twin.robot``, the cell's arm) under a factory calibration (``calibration``:
+    ``factory`` seeded by the twin seed, ``factory:SEED``, ``nominal`` for none, or a UR
+    calibration YAML), different from nominal and from the twin's true arm.  The arm
+    carries ``payload_kg`` (the smart target) the controller is not told about.
+
+    Raises
+    ------
+    InputError
+        A calibration that is none of these, or a YAML file that cannot be read.
     """
+    from quickhealth.identify.errors import InputError
     from quickhealth.station.sim.world import build_world
 
+    from .kinematics import calibration_from_yaml, factory_calibration
+
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
+    nominal = world.twin.robot
+    if calibration == "nominal":
+        model = nominal
+    elif calibration == "factory" or calibration.startswith("factory:"):
+        seed_text = calibration.partition(":")[2] or str(twin_seed)
+        try:
+            seed = int(seed_text)
+        except ValueError:
+            raise InputError(
+                f"--calibration factory:SEED needs an integer seed, got {seed_text!r}"
+            ) from None
+        model = factory_calibration(nominal, seed)
+    else:
+        model = calibration_from_yaml(nominal, calibration)
     q0 = np.radians(q0_deg if q0_deg is not None else HOME_Q_DEG)
-    arm = Arm(world.twin.robot, q0, truth=world.T_instr_target0)
-    ctrl = Controller(arm, control_port=control_port, verbose=verbose, version=version, host=host)
+    arm = Arm(model, q0, truth=world.T_instr_target0, ik_model=nominal)
+    ctrl = Controller(
+        arm,
+        control_port=control_port,
+        verbose=verbose,
+        version=version,
+        host=host,
+        delays=delays,
+        payload_kg=payload_kg,
+        payload_com=SMART_TARGET_COM,
+    )
     ctrl.world = world
     return ctrl
 
@@ -339,6 +402,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=".".join(map(str, CB3_VERSION[:3])),
         help="controller software version reported to clients; major 3 = CB3 (RTDE at "
         "125 Hz), 5 = e-Series (500 Hz), e.g. 5.11.1 (default %(default)s)",
+    )
+    p.add_argument(
+        "--calibration",
+        default="factory",
+        help="the controller's kinematics: factory (a simulated factory calibration seeded by "
+        "the twin seed), factory:SEED, nominal (the published DH table) or a UR calibration "
+        "YAML file (default %(default)s)",
+    )
+    p.add_argument(
+        "--delays",
+        default=None,
+        help="state-machine delays in s, e.g. boot=3,power_on=1.5,brake_release=2,"
+        f"unlock_after=5 (default: {Delays().spec()})",
+    )
+    p.add_argument(
+        "--powered-off",
+        action="store_true",
+        help="start with the arm powered off (dashboard: power on, brake release)",
+    )
+    p.add_argument("--programs", default=None, help="folder the dashboard's load finds programs in")
+    p.add_argument(
+        "--payload-kg",
+        type=float,
+        default=SMART_TARGET_KG,
+        help="the arm's real payload, kg (the controller's model has none until set_payload; "
+        "default %(default)s, the smart target)",
     )
     p.add_argument("--verbose", action="store_true", help="log controller events to stderr")
     p.add_argument(
@@ -395,6 +484,15 @@ def run_from_args(args: argparse.Namespace) -> int:
     from quickhealth.station.sim.world import parse_degradation
 
     try:
+        delays = Delays.parse(getattr(args, "delays", None))
+    except ValueError as exc:
+        sys.stderr.write(f"quickhealth: error: --delays: {exc}\n")
+        return 2
+    payload = float(getattr(args, "payload_kg", SMART_TARGET_KG))
+    if not (math.isfinite(payload) and 0.0 <= payload <= 100.0):
+        sys.stderr.write("quickhealth: error: --payload-kg must be in 0..100\n")
+        return 2
+    try:
         degrade = parse_degradation(getattr(args, "degrade", None))
         ctrl = build_controller(
             control_port=args.control_port,
@@ -405,11 +503,17 @@ def run_from_args(args: argparse.Namespace) -> int:
             degrade=degrade,
             version=version,
             host=host,
+            calibration=getattr(args, "calibration", "factory"),
+            delays=delays,
+            payload_kg=payload,
         )
     except InputError as exc:
         sys.stderr.write(f"quickhealth: error: {exc}\n")
         return 2
     ctrl.speed_factor = float(args.speed_factor)
+    ctrl.programs_dir = getattr(args, "programs", None)
+    if getattr(args, "powered_off", False):
+        ctrl.power.power_off()
     # The stream threads wake every 2-8 ms; let them take the GIL from the planner quickly.
     sys.setswitchinterval(0.0005)
     ctrl.say(

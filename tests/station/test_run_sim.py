@@ -27,6 +27,7 @@ from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_plan
 from quickhealth.station.run import RunSettings, run_plan
 from quickhealth.station.sim.cell import sim_station
+from quickhealth.station.sim.states import TESTING
 from quickhealth.station.sim.world import build_world
 
 pytestmark = [pytest.mark.slow]
@@ -181,7 +182,9 @@ def _sub(plan_path: Path, k: int):
 )
 def test_fault_mid_run_stops_cleanly_keeps_everything(plan20, tmp_path, kind, words, recover):
     plan = _sub(plan20, 5)
-    station, cell = sim_station("reference", image_scale=0.25, speed_factor=8.0)
+    station, cell = sim_station(
+        "reference", image_scale=0.25, speed_factor=8.0, sim_options={"delays": TESTING.spec()}
+    )
     out = tmp_path / "run"
     try:
         cell.controller.fault(kind, after_moves=3)  # the third move of the run
