@@ -82,6 +82,10 @@ CMD_IK_HAS_SOLUTION_DEFAULT = 60
 CMD_IK_HAS_SOLUTION_ARGS = 61
 CMD_STOP_SCRIPT = 255
 MOVES = frozenset({CMD_MOVEJ, CMD_MOVEJ_IK, CMD_MOVEL, CMD_MOVEL_FK})
+# Commands the script processes every cycle while they stand in the register, signalling
+# "ready" each time; the client does not wait for them (servo, speed, force mode, and the
+# queries get_joint_torques, get_steptime, the flange pose …: ur-rtde 1.6's script).
+REALTIME = frozenset({6, 9, 10, 11, 24, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71})
 PLANNED = frozenset({CMD_MOVEJ_IK, CMD_MOVEL, CMD_MOVEL_FK})  # planned in the planner thread
 
 FAULT_KINDS = (
@@ -260,7 +264,7 @@ class Controller:
     def cycle_time(self, t: float) -> float:
         """Controller time at the start of the cycle ``t`` falls in: timestamps advance in
         whole controller steps, as a real controller's do."""
-        k = math.floor(t / self.step_s + 1e-9)
+        k = math.floor(t / self.step_s + 1e-6)
         return k * self.step_s
 
     @property
@@ -313,7 +317,7 @@ class Controller:
         running = 2 if self.runtime_state == RuntimeState.PLAYING else 0
         return power | running
 
-    def snapshot(self) -> dict[str, Any]:
+    def snapshot(self, t_cycle: float | None = None) -> dict[str, Any]:
         """Every output field's current value (the frozen copy while the stream is frozen).
 
         The lock is held only to advance the emulated script by one cycle (never planning)
@@ -322,7 +326,7 @@ class Controller:
         with self.lock:
             if self.frozen is not None:
                 return self.frozen
-            t = self.cycle_time(self.now())
+            t = self.cycle_time(self.now() if t_cycle is None else t_cycle)
             self._step(t)
             s = self._copy_state(t)
         return self._complete(s)
@@ -445,6 +449,12 @@ class Controller:
         ):
             return
         cmd = int(self.inputs.get("input_int_register_0", 0))
+        if cmd in REALTIME:
+            d = [float(self.inputs.get(f"input_double_register_{i}", 0.0)) for i in range(14)]
+            self._query(cmd, d)
+            self.executing = False
+            self.outputs["output_int_register_0"] = 1
+            return
         if self.executing:
             if self.sync_motion is not None:
                 if not self.arm.moving(t) and self.arm.motion is None:

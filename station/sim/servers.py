@@ -25,6 +25,7 @@ dropped after 1 MB of backlog), and nothing it waits on ever plans a path.
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import struct
@@ -193,6 +194,13 @@ class RtdeSession:
                 rid = self.next_input_id
                 self.next_input_id += 1
                 self.inputs[rid] = Recipe(rid, names, types)
+            else:
+                bad = [
+                    f"{n} {t}"
+                    for n, t in zip(names, types, strict=True)
+                    if t in ("NOT_FOUND", "IN_USE")
+                ]
+                self.ctrl.say(f"input setup refused: {bad}")
             self.send(ptype, bytes([rid]) + ",".join(types).encode())
         elif ptype == P_START:
             ok = bool(self.outputs) or bool(self.inputs)
@@ -239,9 +247,12 @@ class Streamer:
     def run(self) -> None:
         ctrl = self.ctrl
         period = 1.0 / ctrl.stream_hz
-        deadline = time.monotonic()
+        # The grid of the controller's cycles since it started: each packet carries the time
+        # of its cycle (a whole number of steps), as a real controller's timestamp does.
+        n0 = math.ceil((time.monotonic() - ctrl.t_start) / period)
         k = 0
         while not ctrl.stop_event.is_set():
+            deadline = ctrl.t_start + (n0 + k) * period  # no drift: from the cycle number
             with ctrl.lock:
                 sessions = list(ctrl.sessions)
             due = [
@@ -251,24 +262,24 @@ class Streamer:
             ]
             if due:
                 lag = time.monotonic() - deadline
-                state = ctrl.snapshot()  # the lock only while copying
+                state = ctrl.snapshot((n0 + k) * period)  # the lock only while copying
                 for r in due:
                     r.push(
                         b"".join(packet(P_DATA, rec.pack(state, r.protocol)) for rec in r.outputs)
                     )
                     r.packets += 1
                     r.max_lag = max(r.max_lag, lag)
+            elif k % 4 == 0:  # no client: the controller still runs (heat, faults, programs)
+                ctrl.snapshot((n0 + k) * period)
             k += 1
             self.cycles += 1
-            deadline += period
-            delay = deadline - time.monotonic()
+            delay = ctrl.t_start + (n0 + k) * period - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             else:  # late: skip the missed cycles, keep the grid
                 missed = int(-delay / period)
                 self.missed += missed
                 k += missed
-                deadline += period * missed
 
 
 def control(ctrl: Controller, conn: socket.socket) -> None:
