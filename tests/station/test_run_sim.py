@@ -211,3 +211,75 @@ def test_fault_mid_run_stops_cleanly_keeps_everything(plan20, tmp_path, kind, wo
     finally:
         cell.controller.fault("clear")
         station.close()
+
+
+def _dash(host: str, *lines: str) -> list[str]:
+    with socket.create_connection((host, 29999), timeout=5) as s:
+        f = s.makefile("rwb", buffering=0)
+        f.readline()
+        out = []
+        for line in lines:
+            f.write(line.encode() + b"\n")
+            out.append(f.readline().decode().strip())
+        return out
+
+
+def _until(host: str, line: str, want: str) -> None:
+    t0 = time.monotonic()
+    while not _dash(host, line)[0].startswith(want):
+        assert time.monotonic() - t0 < 5, f"{line!r} never answered {want!r}"
+        time.sleep(0.05)
+
+
+@pytest.mark.timeout(180)
+def test_controller_faults_stop_the_run_in_one_line_and_resume_loses_nothing(plan20, tmp_path):
+    """The faults of a real controller (issue 25): the arm powered off, the program paused
+    from the dashboard, a command the controller does not know (compile error), a move
+    beyond the joint speed limits (protective stop).  Each ends the run with one line that
+    says what to do and --resume; the technician's recovery, then --resume, finishes the
+    run with every pose measured once."""
+    plan = _sub(plan20, 6)
+    station, cell = sim_station(
+        "reference", image_scale=0.25, speed_factor=8.0, sim_options={"delays": TESTING.spec()}
+    )
+    sim, host = cell.controller, cell.controller.host
+    out = tmp_path / "run"
+
+    def power_back() -> None:
+        _dash(host, "power on")
+        _until(host, "robotmode", "Robotmode: IDLE")
+        _dash(host, "brake release")
+        _until(host, "robotmode", "Robotmode: RUNNING")
+
+    def unlock() -> None:
+        sim.fault("joint_speed_limit", scale=1.0)  # the safety limits put back
+        _until(host, "unlock protective stop", "Protective stop releasing")
+
+    steps = [
+        ("power_off", {}, "powered off", power_back),
+        ("pause", {}, "paused", lambda: None),
+        ("unknown_command", {}, "control program stopped", lambda: None),
+        ("joint_speed_limit", {"scale": 0.02}, "protective stop", unlock),
+    ]
+    try:
+        resume = False
+        for kind, kw, words, recover in steps:
+            sim.fault(kind, after_moves=2, **kw)
+            res = run_plan(
+                station, plan, out, resume=resume, settings=RunSettings(capture_attempts=2)
+            )
+            assert res.stopped and words in res.stopped and "--resume" in res.stopped, res.stopped
+            assert "\n" not in res.stopped
+            recover()
+            t0 = time.monotonic()
+            while not station.robot.status().ready and time.monotonic() - t0 < 3:
+                time.sleep(0.02)
+            resume = True
+        res = run_plan(station, plan, out, resume=True, settings=RunSettings(capture_attempts=2))
+        assert res.complete and res.n_measured == 6
+        assert _rows(out) == [f"P{i:03d}" for i in range(1, 7)]  # each pose once
+        st = read_journal(out / JOURNAL)
+        assert len(st.stops) == 4 and sorted(st.measured) == list(range(1, 7))
+    finally:
+        sim.fault("clear")
+        station.close()
