@@ -66,12 +66,14 @@ class JointLimits:
 
 
 def factory_calibration(robot: RobotModel, seed: int) -> RobotModel:
-    """``robot`` with a simulated factory calibration: every link transform moved by a small
-    random rigid delta (σ 0.4 mm, 0.4 mrad), reproducible from ``seed``.  The TCP it
-    computes differs from nominal by about a millimetre over the workspace."""
+    """``robot`` with a simulated factory calibration: the base and each joint's origin moved
+    by a small random rigid delta (σ 0.4 mm, 0.4 mrad), reproducible from ``seed``.  The TCP
+    it computes differs from nominal by about a millimetre over the workspace.  The flange
+    stays on the last joint as nominal, so the UR ROS driver's calibration YAML (six joint
+    origins) describes the calibration exactly."""
     rng = np.random.default_rng(int(seed) + 7919)
     links = np.array(robot.links, dtype=float)
-    for i in range(1, links.shape[0]):
+    for i in range(links.shape[0] - 1):
         dT = make_T(
             exp_so3(rng.normal(0.0, CALIBRATION_SIGMA_RAD, 3)),
             rng.normal(0.0, CALIBRATION_SIGMA_M, 3),
