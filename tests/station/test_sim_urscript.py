@@ -35,17 +35,20 @@ SPEED = 20.0  # the arm and the program's sleeps run this many times faster than
 
 @pytest.fixture(scope="module")
 def plan_dir(tmp_path_factory):
+    """The reference plan (150 candidates, seed 0: 74 poses) and a short one (14 poses)."""
     d = tmp_path_factory.mktemp("loop")
-    assert (
-        main(["plan", "--cell", "reference", "--n", "150", "--seed", "0", "--out", str(d / "plan")])
-        == 0
-    )
+    for name, n in (("plan", "150"), ("short", "30")):
+        args = ["plan", "--cell", "reference", "--n", n, "--seed", "0", "--out", str(d / name)]
+        assert main(args) == 0
     return d
 
 
 @pytest.fixture(scope="module")
 def sim():
-    h = start_sim_controller(control_port=30099, speed_factor=SPEED, delays=TESTING.spec())
+    # An e-Series controller: its 2 ms cycle makes each pose's handshake quicker.
+    h = start_sim_controller(
+        control_port=30099, speed_factor=SPEED, delays=TESTING.spec(), controller_version="5.11.1"
+    )
     try:
         yield h
     finally:
@@ -121,16 +124,19 @@ def test_plan_loop_script_visits_every_planned_pose(sim, plan_dir):
 
 def test_a_compensated_program_runs_and_reaches_its_targets(sim, plan_dir, tmp_path):
     from quickhealth.identify.robot import ur5
+    from quickhealth.station.planning import load_plan
 
+    # A model fitted to measurements over the cell's joint ranges, the loop's poses among them.
     robot = ur5()
-    meas = make_twin(robot, seed=5, geometric_pos=3e-5, geometric_rot=5e-5).measure(
-        random_joints(robot, 150, seed=6)
-    )
+    short = load_plan(plan_dir / "short" / "plan.json")
+    q = np.vstack([np.stack([p.q for p in short.poses]), random_joints(robot, 120, seed=6)])
+    q = np.vstack([q, np.stack([p.q for p in load_plan(plan_dir / "plan" / "plan.json").poses])])
+    meas = make_twin(robot, seed=5, geometric_pos=3e-5, geometric_rot=5e-5).measure(q)
     formats.write_measurements(tmp_path / "meas.csv", meas)
     assert main(["identify", "fit", str(tmp_path / "meas.csv"), "--robot", "ur5", "--out",
                  str(tmp_path / "fit"), "--max-order", "1", "--quiet"]) == 0  # fmt: skip
     out = tmp_path / "comp.script"
-    src = plan_dir / "plan" / "loop.script"
+    src = plan_dir / "short" / "loop.script"
     code = main(["compensate", str(tmp_path / "fit" / "model.json"), str(src), "--out", str(out)])
     assert code in (0, 1) and out.is_file()
     text = out.read_text()
@@ -138,7 +144,7 @@ def test_a_compensated_program_runs_and_reaches_its_targets(sim, plan_dir, tmp_p
     assert not np.allclose(targets.q, joint_targets(src.read_text(), 6).q)  # it did rewrite
     from quickhealth.station.planning import load_plan
 
-    plan = load_plan(plan_dir / "plan" / "plan.json")
+    plan = load_plan(plan_dir / "short" / "plan.json")
     seen, qs, _ = run_loop(sim, text, plan.motion.handshake_register)
     assert seen == [p.index for p in plan.poses]
     # the arm stands at the compensated joint targets (first pose: movej, then one per pose)
@@ -147,7 +153,7 @@ def test_a_compensated_program_runs_and_reaches_its_targets(sim, plan_dir, tmp_p
 
 def test_loop_script_refuses_to_start_away_from_home(sim, plan_dir):
     """The program's own check (textmsg, halt): it ends without moving."""
-    text = Path(plan_dir / "plan" / "loop.script").read_text()
+    text = Path(plan_dir / "short" / "loop.script").read_text()
     q = np.radians([30.0, -90.0, 90.0, -90.0, -90.0, 0.0])
     sim.request("set_q", q=q.tolist())
     with socket.create_connection((sim.host, 30002), timeout=5) as s:
