@@ -59,7 +59,7 @@ def _mode_name(mode: RobotMode) -> str:
 def _program_label(ctrl: Controller) -> str:
     if ctrl.runtime_state != RuntimeState.STOPPED or ctrl.loaded is None:
         return ctrl.program_name if ctrl.program_kind is not None else "<unnamed>"
-    return ctrl.loaded
+    return os.path.basename(ctrl.loaded)
 
 
 def _state_name(state: RuntimeState) -> str:
@@ -86,7 +86,7 @@ def _load(ctrl: Controller, arg: str) -> str:
         if ctrl.runtime_state != RuntimeState.STOPPED:
             ctrl.stop_program()
         ctrl.loaded = path
-    return f"Loading program: {path}"
+    return f"Loading program: {arg}"
 
 
 def _play(ctrl: Controller, _: str) -> str:
