@@ -18,9 +18,9 @@ After every stop the actual joints ring with a small damped oscillation (amplitu
 time constant 60 ms) plus encoder noise (1 µrad), so settle detection on the joint stream has
 something real to detect.
 
-The arm's ``robot`` is the nominal model (a real controller only knows its nominal
-kinematics, so its TCP report uses it); ``truth`` (the digital twin) says where the target
-really is.
+The arm's ``robot`` is the kinematics the controller computes with: its factory calibration
+(:mod:`.kinematics`), which differs from nominal; ``ik_model`` is the nominal UR model whose
+closed-form IK seeds it; ``truth`` (the digital twin) says where the target really is.
 """
 
 from __future__ import annotations
@@ -537,5 +537,5 @@ class Arm:
             self.q_cmd = q
 
     def tcp_pose(self, q: np.ndarray) -> list[float]:
-        """The controller's TCP report: nominal kinematics of the actual joints."""
+        """The controller's TCP report: its kinematics (``robot``) of the joints ``q``."""
         return self._pose_fk(q, self.tcp)

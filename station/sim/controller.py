@@ -868,7 +868,7 @@ class Controller:
             self.arm.q_cmd = np.array(q, dtype=float)
 
     def tcp_pose_now(self) -> list[float]:
-        """The controller's TCP report now (nominal kinematics)."""
+        """The controller's TCP report now (its calibrated kinematics)."""
         with self.lock:
             q = self.arm.actual(self.now())
         return pose_from_T(self.arm.robot.fk(q) @ self.arm.tcp)
