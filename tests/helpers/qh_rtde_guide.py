@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import socket
 import struct
+import time
 from typing import Any
 
 GUIDE_FORMATS = {
@@ -150,3 +151,48 @@ class RtdeGuideClient:
             out[n] = vals[:k] if k > 1 else vals[0]
             vals = vals[k:]
         return out
+
+
+def run_loop(
+    sim: Any, text: str, reg: int, home: Any, timeout: float = 120.0
+) -> tuple[list[int], Any, Any]:
+    """Play the station for a fixed-loop program (``quickhealth plan``'s ``loop.script``).
+
+    Puts the simulated arm at ``home``, sends ``text`` to the secondary interface (30002),
+    and watches ``output_int_register_<reg>`` over RTDE: each pose index announced is
+    acknowledged in ``input_int_register_<reg>``, with the actual joints and the reported TCP
+    pose of that moment kept.  Returns (indices, joints (n, 6), TCP poses (n, 6)) once the
+    program has stopped.
+    """
+    import numpy as np
+
+    sim.request("set_q", q=[float(v) for v in home])
+    seen: list[int] = []
+    qs, tcps = [], []
+    with RtdeGuideClient(sim.host) as g:
+        if not g.request_protocol_version(2):
+            raise RuntimeError("the controller refused RTDE protocol version 2")
+        rid, types = g.setup_inputs([f"input_int_register_{reg}"])
+        if not rid:
+            raise RuntimeError(f"input register {reg} refused: {types}")
+        names = ["timestamp", f"output_int_register_{reg}", "actual_q", "actual_TCP_pose"]
+        g.setup_outputs([*names, "runtime_state"], 500.0)
+        g.write(rid, {f"input_int_register_{reg}": 0})
+        if not g.start():
+            raise RuntimeError("the controller refused to start the RTDE stream")
+        with socket.create_connection((sim.host, 30002), timeout=5) as s:
+            s.sendall(text.encode())
+        t0 = time.monotonic()
+        started = False
+        while time.monotonic() - t0 < timeout:
+            d = g.read()
+            started |= d["runtime_state"] == 2  # PLAYING
+            k = d[f"output_int_register_{reg}"]
+            if k > 0 and (not seen or seen[-1] != k):
+                seen.append(k)
+                qs.append(d["actual_q"])
+                tcps.append(d["actual_TCP_pose"])
+                g.write(rid, {f"input_int_register_{reg}": k})
+            if started and d["runtime_state"] == 1:  # STOPPED
+                break
+    return seen, np.asarray(qs), np.asarray(tcps)
