@@ -14,6 +14,13 @@ freeze_stream       restart the controller's stream; reconnect, resume
 restart             the controller reboots (away ~1 s); reconnect until it answers, resume
 serial_garbage      line noise before the pan motor's next replies; the run goes on (or resumes)
 abort               the operator aborts during a move; resume
+bad_move            the controller's joint speed limits drop (a safety-configuration change):
+                    the next move is beyond them and ends in a protective stop; the limits
+                    are put back, the stop unlocked on the dashboard, resume
+power_off           the arm is powered off; dashboard ``power on``, ``brake release``, resume
+pause               the program is paused from the dashboard; resume (the program restarts)
+unknown_command     the controller stops the program with a compile error at the next
+                    command (a command it does not know); resume
 kill9               ``kill -9`` of the run's process; ``--resume`` in a new process
 ==================  ========================================================================
 
@@ -52,10 +59,16 @@ IN_RUN = (
     "restart",
     "serial_garbage",
     "abort",
+    "bad_move",
+    "power_off",
+    "pause",
+    "unknown_command",
 )
 KINDS = (*IN_RUN, "kill9")
 SPEED = 5.0  # the simulated arm moves this many times faster than life
 IMAGE_SCALE = 0.25
+# The controller's state machine a little faster than life, as the arm is.
+DELAYS = "boot=0.6,power_on=0.3,brake_release=0.4,unlock_after=1.0"
 
 
 def _plan_path(work: Path) -> Path:
@@ -95,8 +108,35 @@ def _inject(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
         except ValueError:  # a simulator without restarts: a long link drop is the same to us
             sim.fault("drop_connection")
             threading.Timer(1.0, sim.fault, args=("clear",)).start()
+    elif kind == "bad_move":
+        sim.fault("joint_speed_limit", scale=0.02)
+    elif kind == "pause":
+        _dashboard(sim.host, "pause")
     else:
         sim.fault(kind)
+
+
+def _dashboard(host: str, *lines: str) -> list[str]:
+    """Send dashboard commands as a technician would; returns the replies."""
+    import socket
+
+    with socket.create_connection((host, 29999), timeout=5.0) as s:
+        f = s.makefile("rwb", buffering=0)
+        f.readline()
+        out = []
+        for line in lines:
+            f.write(line.encode() + b"\n")
+            out.append(f.readline().decode().strip())
+        return out
+
+
+def _until(host: str, line: str, want: str, timeout: float = 20.0) -> None:
+    """Repeat a dashboard query until its reply starts with ``want``."""
+    deadline = time.monotonic() + timeout
+    while not _dashboard(host, line)[0].startswith(want):
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"dashboard {line!r} never answered {want!r}")
+        time.sleep(0.1)
 
 
 def _recover(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
@@ -109,7 +149,17 @@ def _recover(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
     elif kind == "drop_connection":
         time.sleep(0.3)
         sim.fault("clear")
+    elif kind == "bad_move":  # the safety limits put back, the stop unlocked (if it came)
+        sim.fault("joint_speed_limit", scale=1.0)
+        if _dashboard(sim.host, "safetystatus")[0].endswith("PROTECTIVE_STOP"):
+            _until(sim.host, "unlock protective stop", "Protective stop releasing")
+    elif kind == "power_off":
+        _dashboard(sim.host, "power on")
+        _until(sim.host, "robotmode", "Robotmode: IDLE")
+        _dashboard(sim.host, "brake release")
+        _until(sim.host, "robotmode", "Robotmode: RUNNING")
     link = kind in ("drop_connection", "freeze_stream", "restart")
+    technician = kind in ("bad_move", "power_off", "pause", "unknown_command")
     deadline = time.monotonic() + 30.0
     while True:  # reconnect until the controller answers (a restart takes a moment)
         try:
@@ -118,7 +168,8 @@ def _recover(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
             station.robot.reconnect() if link else station.robot.connect()
             if station.robot.status().ready:
                 return
-            sim.fault("clear")
+            if not technician:  # the new faults are recovered as above, never cleared
+                sim.fault("clear")
         except Exception:  # noqa: BLE001 - the controller is still away: try again
             if time.monotonic() > deadline:
                 raise
@@ -140,7 +191,9 @@ def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
 
     rng = random.Random(seed)
     plan = load_plan(plan_path)
-    station, cell = sim_station("reference", image_scale=IMAGE_SCALE, speed_factor=SPEED)
+    station, cell = sim_station(
+        "reference", image_scale=IMAGE_SCALE, speed_factor=SPEED, sim_options={"delays": DELAYS}
+    )
     faults = 0
     try:
         while True:

@@ -16,6 +16,8 @@ SERIAL_MODULES = frozenset(
         "test_robot_ur.py",  # the real ur-rtde client: freeze detection, stop latency
         "test_sim_stream.py",  # 125/500 Hz streams, gaps
         "test_simcontroller.py",
+        "test_sim_conformance.py",  # the simulator against UR's documents: streams, delays
+        "test_sim_urscript.py",  # the plan's loop program run on the simulator, handshakes
         "test_run.py",  # faults mid-run on the in-process cell
         "test_run_sim.py",  # the simulated cell with the real client, kill -9 and --resume
         "test_ur10e_sim.py",  # a UR10e end to end on its simulated cell (500 Hz stream)

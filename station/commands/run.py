@@ -15,9 +15,12 @@ in the archive, so a nightly cron line is one command.  Exit status: 0 all poses
 failure (the run stopped cleanly: everything captured is kept; the message says what to do).
 
     quickhealth sim-controller [--control-port PORT] [--twin-seed N] [--cell CELL]
+                               [--controller-version V] [--calibration factory|nominal|FILE]
+                               [--delays SPEC] [--powered-off] [--programs DIR]
 
 Runs the UR controller simulator in the foreground on 127.0.0.1 (RTDE 30004, dashboard 29999,
-script 30003, JSON control port 30090) until interrupted.  See docs/station.md.
+primary 30001, secondary 30002, realtime 30003, JSON control port 30090) until interrupted.
+See docs/station.md.
 """
 
 from __future__ import annotations

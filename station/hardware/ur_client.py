@@ -388,16 +388,29 @@ class Client:
         if s.safety_mode not in (SafetyMode.NORMAL, SafetyMode.REDUCED):
             raise Refused("ProtectiveStop", f"{what}: safety mode {safety}; {RECOVERY_HINT}")
         if s.robot_mode != RobotMode.RUNNING:
+            mode = _name(RobotMode, s.robot_mode)
+            why = {
+                RobotMode.POWER_OFF: "the arm is powered off",
+                RobotMode.IDLE: "the brakes are on",
+                RobotMode.BOOTING: "the arm is still booting",
+                RobotMode.POWER_ON: "the arm is still powering on",
+            }.get(s.robot_mode, "the arm cannot move")
             raise Refused(
                 "HardwareError",
-                f"{what}: robot mode {_name(RobotMode, s.robot_mode)}; "
-                "power on and release the brakes",
+                f"{what}: robot mode {mode} ({why}); power on and release the brakes "
+                "(pendant or dashboard), then rerun with --resume",
+            )
+        if s.runtime_state == RuntimeState.PAUSED:
+            raise Refused(
+                "ProgramStopped",
+                f"{what}: the control program was paused (pause on the pendant or the "
+                "dashboard); rerun with --resume",
             )
         if not s.program_running:
             raise Refused(
                 "ProgramStopped",
-                f"{what}: the control program stopped (stop pressed on the pendant?); "
-                "rerun with --resume",
+                f"{what}: the control program stopped (stop pressed on the pendant, or a "
+                "program error on the controller: see its log); rerun with --resume",
             )
         raise Refused("HardwareError", f"{what}: the controller reports no cause")
 

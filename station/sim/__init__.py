@@ -4,12 +4,20 @@ The unmodified ur-rtde client (``rtde_receive``, ``rtde_control``) connects to t
 controller simulator exactly as to a real controller (``notes/ur-rtde.md``).  Modules, one
 job each:
 
-- ``wire``: RTDE packet format, field types, recipes, ports, controller versions
+- ``wire``: RTDE packet format, the RTDE guide's field names and types, recipes, ports,
+  controller versions, protocol versions
 - ``arm``: the motion model (trapezoids, timed motions, straight-line path planning with
   the analytic UR IK, ringing after stops, encoder noise)
-- ``controller``: modes, the emulated ``rtde_control`` register protocol, the planner
-  thread, fault injection
-- ``servers``: RTDE (30004), dashboard (29999), script (30003) and the JSON control port
+- ``kinematics``: the controller's factory calibration, joint limits, the checks that turn
+  a bad move into a protective stop
+- ``dynamics``: joint torques (Newton-Euler on the arm's link masses), currents, temperatures
+- ``states``: power states (POWER_OFF → BOOTING → POWER_ON → IDLE → RUNNING) and their delays
+- ``controller``: safety and program state, the emulated ``rtde_control`` register
+  protocol, the planner thread, fault injection
+- ``dashboard``: the dashboard command table of CB3 3.x and e-Series 5.x
+- ``primary``: the primary, secondary and realtime interfaces (URScript in, messages out)
+- ``urscript_vm``, ``urscript_program``: the URScript interpreter and a program's thread
+- ``servers``: RTDE (30004), dashboard (29999), 30001-30003 and the JSON control port
   (default 30090), all on 127.0.0.1 only
 - ``process``: :func:`~.process.start_sim_controller`, :class:`~.process.SimControllerHandle`,
   the host-wide port lock and the command line
@@ -26,7 +34,11 @@ Faults (control port ``{"cmd": "fault", "kind": ...}``, now, ``after_s`` or
 ``after_moves``): ``protective_stop``, ``emergency_stop``, ``program_stop``,
 ``freeze_stream``, ``drop_connection``, ``restart`` (every link dropped, connections
 refused for ``down_s`` s, program stopped, registers reset), ``slow_program_start``
-(``delay_s``: an uploaded script runs that long after it arrived) and ``clear``.  The
+(``delay_s``: an uploaded script runs that long after it arrived), ``power_off``,
+``pause``, ``joint_speed_limit`` (``scale``: the next move beyond the lowered limits is a
+protective stop), ``unknown_command`` (the control program stops with a compile error) and
+``clear``.  Beyond these the controller raises faults of its own, as a real one: moves
+beyond the joint limits or out of reach end in a protective stop.  The
 control port's ``state`` lists the stop commands received (``stopj``, ``dashboard`` …) with
 their ``time.monotonic()`` (the host's clock, shared by every process): stop latency.
 

@@ -18,9 +18,9 @@ After every stop the actual joints ring with a small damped oscillation (amplitu
 time constant 60 ms) plus encoder noise (1 µrad), so settle detection on the joint stream has
 something real to detect.
 
-The arm's ``robot`` is the nominal model (a real controller only knows its nominal
-kinematics, so its TCP report uses it); ``truth`` (the digital twin) says where the target
-really is.
+The arm's ``robot`` is the kinematics the controller computes with: its factory calibration
+(:mod:`.kinematics`), which differs from nominal; ``ik_model`` is the nominal UR model whose
+closed-form IK seeds it; ``truth`` (the digital twin) says where the target really is.
 """
 
 from __future__ import annotations
@@ -236,20 +236,6 @@ def speed_cap(path: Path, qd_max: F) -> float:
     return float(caps.min())
 
 
-def limit_violation(robot: RobotModel, q: F) -> str | None:
-    """A one-line reason when any joint of the path samples ``q`` (m, nj) leaves the arm's
-    joint limits, else None (the controller refuses such a move with a protective stop)."""
-    q = np.atleast_2d(q)
-    low = q < robot.q_min - 1e-9
-    high = q > robot.q_max + 1e-9
-    if not (low.any() or high.any()):
-        return None
-    j = int(np.flatnonzero((low | high).any(axis=0))[0])
-    lo, hi = np.degrees(robot.q_min[j]), np.degrees(robot.q_max[j])
-    worst = np.degrees(q[:, j].min() if low[:, j].any() else q[:, j].max())
-    return f"joint {j + 1} limit: {worst:.1f}° outside {lo:.0f}..{hi:.0f}°"
-
-
 def controller_arm(robot: RobotModel) -> RobotModel:
     """The arm as its controller knows it: ``robot``'s kinematics with the arm's own joint
     limits (a built-in arm's, ±360° on a UR; not a cell's planning limits)."""
@@ -312,7 +298,42 @@ def linear_path_dls(
     return Path(_snap_goal(np.stack(path), q_goal), D, "dls")
 
 
-def _track_analytic(robot: RobotModel, q0: np.ndarray, Ts: F) -> F | None:
+def refine_batch(robot: RobotModel, Ts: F, Q: F, iters: int = 4) -> tuple[F, NDArray[np.bool_]]:
+    """Newton steps on every sample at once: joints ``Q`` (m, n) whose flange poses under
+    ``robot`` are ``Ts`` (m, 4, 4).  Returns the refined joints and which converged (1e-10).
+
+    For a controller whose calibrated kinematics differ from the nominal UR structure by
+    sub-millimetre link deltas: the nominal analytic solution is a start a few Newton steps
+    from the calibrated one."""
+    Q = np.array(Q, dtype=float)
+    m, n = Q.shape
+    eps = 1e-7
+    eye = np.eye(n) * eps
+    ok = np.zeros(m, dtype=bool)
+    for _ in range(iters + 1):
+        Qe = np.concatenate([Q[:, None, :], Q[:, None, :] + eye[None]], axis=1)  # (m, n+1, n)
+        T = robot.fk(Qe.reshape(-1, n)).reshape(m, n + 1, 4, 4)
+        err = _pose_errors(Ts, T[:, 0])  # (m, 6)
+        ok = np.einsum("mi,mi->m", err, err) < REFINE_TOL**2
+        if np.all(ok):
+            break
+        J = np.stack([_pose_errors(T[:, k + 1], T[:, 0]) for k in range(n)], axis=-1) / eps
+        JJt = J @ np.swapaxes(J, 1, 2) + 1e-12 * np.eye(6)
+        dq = np.einsum("mji,mj->mi", J, np.linalg.solve(JJt, err[..., None])[..., 0])
+        Q = np.where(ok[:, None], Q, Q + dq)
+    return Q, ok
+
+
+def _pose_errors(T_goal: F, T: F) -> F:
+    """:func:`_pose_error` of stacks of transforms, shape (m, 6)."""
+    dp = T_goal[:, :3, 3] - T[:, :3, 3]
+    R = T_goal[:, :3, :3] @ np.swapaxes(T[:, :3, :3], 1, 2)
+    return np.concatenate([dp, log_so3(R)], axis=-1)
+
+
+def _track_analytic(
+    robot: RobotModel, q0: np.ndarray, Ts: F, ik_model: RobotModel | None = None
+) -> F | None:
     """Joint samples for flange poses ``Ts`` continuing from ``q0``, or None if not analytic.
 
     All eight solutions of every sample come from one vectorised call; each branch is made
@@ -321,7 +342,7 @@ def _track_analytic(robot: RobotModel, q0: np.ndarray, Ts: F) -> F | None:
     (what sample-to-sample DLS converges to), else None.
     """
     try:
-        Q, valid = ik_ur(robot, Ts)  # (m, 8, 6), (m, 8)
+        Q, valid = ik_ur(ik_model or robot, Ts)  # (m, 8, 6), (m, 8)
     except InputError:
         return None
     if not np.all(np.any(valid, axis=1)):
@@ -344,13 +365,16 @@ def _track_analytic(robot: RobotModel, q0: np.ndarray, Ts: F) -> F | None:
     dist = np.where(valid, np.max(np.abs(_wrap(Q - prev[:, None])), axis=-1), np.inf)
     if not np.all(np.argmin(dist, axis=1) == k):
         return None  # another branch is nearer somewhere: near a singularity
-    # Residual check; a few DLS steps where the closed form is not exact enough.
+    # Residual check; Newton steps where the closed form is not exact enough (the nominal
+    # solution of a calibrated controller, a sample near a singularity).
     T = robot.fk(path)
     dp = np.linalg.norm(T[:, :3, 3] - Ts[:, :3, 3], axis=-1)
     dR = np.linalg.norm(T[:, :3, :3] - Ts[:, :3, :3], axis=(-2, -1))
-    for i in np.flatnonzero((dp > REFINE_TOL) | (dR > REFINE_TOL)):
-        path[i], ok = ik_dls(robot, Ts[i], path[i], iters=5)
-        if not ok:
+    bad = np.flatnonzero((dp > REFINE_TOL) | (dR > REFINE_TOL))
+    if bad.size:
+        path = path.copy()
+        path[bad], ok = refine_batch(robot, Ts[bad], path[bad], iters=5)
+        if not np.all(ok):
             return None
     return path
 
@@ -361,28 +385,34 @@ def linear_path(
     q0: np.ndarray,
     T_goal: np.ndarray,
     q_goal: np.ndarray | None = None,
+    ik_model: RobotModel | None = None,
 ) -> Path:
     """The straight TCP line from joints ``q0`` to the TCP pose ``T_goal`` (base frame).
 
     ``q_goal`` (moveL_FK): the joints the move must end at (the same TCP pose).  Analytic IK
     for all samples at once; DLS from sample to sample where that is not possible.
+    ``ik_model``: the nominal UR model whose closed form seeds a calibrated ``robot``.
     """
     q0 = np.asarray(q0, dtype=float)
     Ts, D = linear_targets(robot, tcp, q0, T_goal)
-    track = _track_analytic(robot, q0, Ts)
+    track = _track_analytic(robot, q0, Ts, ik_model)
     if track is None:
         return linear_path_dls(robot, tcp, q0, T_goal, q_goal)
     return Path(_snap_goal(np.concatenate([q0[None], track]), q_goal), D, "analytic")
 
 
 def ik_near(
-    robot: RobotModel, tcp: np.ndarray, T_tcp: np.ndarray, q_ref: np.ndarray
+    robot: RobotModel,
+    tcp: np.ndarray,
+    T_tcp: np.ndarray,
+    q_ref: np.ndarray,
+    ik_model: RobotModel | None = None,
 ) -> tuple[F, bool]:
     """Joints reaching TCP pose ``T_tcp`` nearest ``q_ref`` (moveJ_IK); returns (q, found)."""
     q_ref = np.asarray(q_ref, dtype=float)
     T = T_tcp @ np.linalg.inv(tcp)
     try:
-        Q, valid = ik_ur(robot, T)
+        Q, valid = ik_ur(ik_model or robot, T)
     except InputError:
         return ik_dls(robot, T, q_ref)
     if not np.any(valid):
@@ -390,7 +420,7 @@ def ik_near(
     cand = q_ref + _wrap(np.where(valid[:, None], Q, 0.0) - q_ref)
     cost = np.where(valid, np.max(np.abs(cand - q_ref), axis=-1), np.inf)
     q = cand[int(np.argmin(cost))]
-    return ik_dls(robot, T, q, iters=5)
+    return ik_dls(robot, T, q, iters=8)
 
 
 def ik_ur(robot: RobotModel, T: F) -> tuple[F, NDArray[np.bool_]]:
@@ -416,8 +446,15 @@ class Arm:
     RING_FREQ = 8.0  # Hz
     NOISE = 1e-6  # rad
 
-    def __init__(self, robot: RobotModel, q0: np.ndarray, truth: Truth | None = None) -> None:
-        self.robot = robot
+    def __init__(
+        self,
+        robot: RobotModel,
+        q0: np.ndarray,
+        truth: Truth | None = None,
+        ik_model: RobotModel | None = None,
+    ) -> None:
+        self.robot = robot  # the kinematics the controller computes with (its calibration)
+        self.ik_model = ik_model  # the nominal UR model whose closed-form IK seeds it
         self.truth = truth
         self.q_cmd = np.array(q0, dtype=float)
         self.motion: Motion | None = None
@@ -466,6 +503,18 @@ class Arm:
             )
         return q + self.rng.normal(0.0, self.NOISE, 6)
 
+    def derivatives(self, now: float, h: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+        """Commanded joint velocity and acceleration now (rad/s, rad/s²) from the timed motion
+        (central differences over ±``h``; zeros at rest).  No side effects."""
+        with self.lock:
+            m = self.motion
+        if m is None:
+            return np.zeros(self.q_cmd.shape), np.zeros(self.q_cmd.shape)
+        qa, _ = m.q_at(now - h)
+        qb, _ = m.q_at(now)
+        qc, _ = m.q_at(now + h)
+        return (qc - qa) / (2.0 * h), (qc - 2.0 * qb + qa) / (h * h)
+
     def moving(self, now: float) -> bool:
         """True while a motion runs."""
         return not self.target(now)[1]
@@ -507,7 +556,7 @@ class Arm:
         controller simulator does not use this: it plans in its planner thread.
         """
         q0 = self.hold(now)
-        path = linear_path(self.robot, self.tcp, q0, T_goal, q_goal)
+        path = linear_path(self.robot, self.tcp, q0, T_goal, q_goal, self.ik_model)
         m = Motion.timed(path, speed, accel, now, self.robot.qd_max)
         self.start(m)
         return m
@@ -522,5 +571,5 @@ class Arm:
             self.q_cmd = q
 
     def tcp_pose(self, q: np.ndarray) -> list[float]:
-        """The controller's TCP report: nominal kinematics of the actual joints."""
+        """The controller's TCP report: its kinematics (``robot``) of the joints ``q``."""
         return self._pose_fk(q, self.tcp)

@@ -101,6 +101,7 @@ def start_sim_cell(
     camera_seed: int = 0,
     speed_factor: float = 1.0,
     degrade: dict[str, float] | None = None,
+    sim_options: dict[str, Any] | None = None,
 ) -> SimCell:
     """Start the simulated cell and connect the real drivers to it.
 
@@ -114,6 +115,10 @@ def start_sim_cell(
         Simulated sensor size relative to the reference cameras (1 = 4000×3000 px).
     degrade : dict, optional
         Changes of the twin's true error coefficients (``{"j2.ex.c0": 5e-4}``, m or rad).
+    sim_options : dict, optional
+        More options of the controller simulator (:func:`~.process.start_sim_controller`):
+        ``calibration``, ``delays`` (short ones for tests: ``states.TESTING.spec()``),
+        ``controller_version``, ``powered_off``, ``programs``, ``payload_kg``.
     """
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
     sim = start_sim_controller(
@@ -123,6 +128,7 @@ def start_sim_cell(
         cell=cell,
         speed_factor=speed_factor,
         degrade=degrade,
+        **(sim_options or {}),
     )
     emu = MotorEmulator().start()
     robot = motor = None
@@ -160,6 +166,7 @@ def sim_station(
     speed_factor: float = 1.0,
     degrade: dict[str, float] | None = None,
     camera_seed: int = 0,
+    sim_options: dict[str, Any] | None = None,
 ) -> tuple[Station, SimCell]:
     """A run's :class:`~quickhealth.station.run.Station` on the built-in simulated cell, and
     the :class:`SimCell` behind it.
@@ -178,6 +185,7 @@ def sim_station(
         speed_factor=speed_factor,
         degrade=degrade,
         camera_seed=camera_seed,
+        sim_options=sim_options,
     )
     w = sc.world
     st = station_in_world(

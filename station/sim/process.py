@@ -21,7 +21,9 @@ import numpy as np
 
 from .arm import HOME_Q_DEG, Arm, controller_arm
 from .controller import Controller, close_socket
+from .primary import PRIMARY_PORT, SECONDARY_PORT
 from .servers import serve, shutdown
+from .states import Delays
 from .wire import (
     CB3_VERSION,
     CONTROL_PORT,
@@ -40,6 +42,10 @@ PORT_LOCK = "/tmp/quickhealth-ur-ports-{host}.lock"
 # need two addresses: every address of 127.0.0.0/8 is loopback on Linux.  A simulator started
 # without an address takes the first free one of these.
 LOOPBACK_POOL = tuple(f"127.0.0.{n}" for n in range(1, 255))
+# The smart target on the flange (plate, pan motor, bracket): the real arm's payload, which
+# the controller is not told about unless a program calls set_payload.  An estimate.
+SMART_TARGET_KG = 0.6
+SMART_TARGET_COM = (0.0, 0.0, 0.05)
 
 
 class SimControllerHandle:
@@ -173,7 +179,7 @@ def _take_address(
 
 def ports_free(host: str = HOST) -> bool:
     """True when the fixed UR ports are free on ``host``."""
-    for port in (RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT):
+    for port in (RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT, PRIMARY_PORT, SECONDARY_PORT):
         s = socket.socket()
         try:
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -198,6 +204,11 @@ def start_sim_controller(
     degrade: dict[str, float] | None = None,
     controller_version: str | None = None,
     host: str | None = None,
+    calibration: str | None = None,
+    delays: str | None = None,
+    powered_off: bool = False,
+    programs: str | None = None,
+    payload_kg: float | None = None,
 ) -> SimControllerHandle:
     """Start the simulator as a separate process and wait until it answers.
 
@@ -210,6 +221,11 @@ def start_sim_controller(
     ``controller_version`` (``"5.11.1"``) makes it report that version (major 5: an
     e-Series controller, which streams at 500 Hz); the default is the version of the cell's
     arm: 3.15.7 (125 Hz) for a CB3 arm, 5.11.1 (500 Hz) for an e-Series one.
+    ``calibration``: the controller's kinematics (``--calibration``: ``factory``,
+    ``factory:SEED``, ``nominal`` or a UR calibration YAML); ``delays``: its state-machine
+    delays (``--delays``, e.g. ``boot=0.2,brake_release=0.2,unlock_after=0.3``);
+    ``powered_off``: start with the arm off; ``programs``: the folder ``load`` finds programs
+    in; ``payload_kg``: the real payload (default: the cell's smart target).
 
     Raises
     ------
@@ -241,6 +257,17 @@ def start_sim_controller(
         args += ["--degrade", ",".join(f"{k}={v:.12g}" for k, v in degrade.items())]
     if controller_version is not None:
         args += ["--controller-version", controller_version]
+    if calibration is not None:
+        args += ["--calibration", calibration]
+    if delays is not None:
+        Delays.parse(delays)  # ValueError before anything starts
+        args += ["--delays", delays]
+    if powered_off:
+        args.append("--powered-off")
+    if programs is not None:
+        args += ["--programs", programs]
+    if payload_kg is not None:
+        args += ["--payload-kg", f"{payload_kg:.9g}"]
     if verbose:
         args.append("--verbose")
     tried: set[str] = set()
@@ -280,21 +307,68 @@ def build_controller(
     degrade: dict[str, float] | None = None,
     version: tuple[int, int, int, int] | None = None,
     host: str = HOST,
+    calibration: str = "factory",
+    delays: Delays | None = None,
+    payload_kg: float | None = None,
 ) -> Controller:
     """A controller whose arm is the digital twin of ``twin_seed`` placed in ``cell``.
 
-    The arm is the cell's (:func:`~.arm.controller_arm`): its nominal kinematics, which the
-    controller reports and plans with, its own joint limits and speeds.  ``version``: the
-    software version reported, by default that of the arm's controller generation.
+    The controller plans and reports with its own kinematics: the cell's arm as its
+    controller knows it (:func:`~.arm.controller_arm`: its nominal kinematics, its own joint
+    limits and speeds, no payload) under a factory calibration (``calibration``: ``factory``
+    seeded by the twin seed, ``factory:SEED``, ``nominal`` for none, or a UR calibration
+    YAML), different from nominal and from the twin's true arm.  The arm carries
+    ``payload_kg`` (default: the cell's smart target, ``[target] mass_kg``, else
+    :data:`SMART_TARGET_KG`) that the controller is not told about.  ``version``: the software
+    version reported, by default that of the arm's controller generation.
+
+    Raises
+    ------
+    InputError
+        A calibration that is none of these, or a YAML file that cannot be read.
     """
+    from quickhealth.identify.errors import InputError
     from quickhealth.station.sim.world import build_world
 
+    from ..planning.cell import load_cell
+    from .kinematics import calibration_from_yaml, factory_calibration
+
+    c = load_cell(cell)
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
+    nominal = controller_arm(c.robot)  # the bare arm: the twin's robot carries the target
+    if calibration == "nominal":
+        model = nominal
+    elif calibration == "factory" or calibration.startswith("factory:"):
+        seed_text = calibration.partition(":")[2] or str(twin_seed)
+        try:
+            seed = int(seed_text)
+        except ValueError:
+            raise InputError(
+                f"--calibration factory:SEED needs an integer seed, got {seed_text!r}"
+            ) from None
+        model = factory_calibration(nominal, seed)
+    else:
+        model = calibration_from_yaml(nominal, calibration)
     q0 = np.radians(q0_deg if q0_deg is not None else HOME_Q_DEG)
-    robot = controller_arm(world.twin.robot)
-    version = version_for(robot.controller) if version is None else version
-    arm = Arm(robot, q0, truth=world.T_instr_target0)
-    ctrl = Controller(arm, control_port=control_port, verbose=verbose, version=version, host=host)
+    version = version_for(nominal.controller) if version is None else version
+    if payload_kg is None:
+        payload_kg = c.target_mass if c.target_mass > 0.0 else SMART_TARGET_KG
+    com = (
+        tuple(map(float, c.target_com))
+        if c.target_mass > 0.0 and c.target_com is not None
+        else SMART_TARGET_COM
+    )
+    arm = Arm(model, q0, truth=world.T_instr_target0, ik_model=nominal)
+    ctrl = Controller(
+        arm,
+        control_port=control_port,
+        verbose=verbose,
+        version=version,
+        host=host,
+        delays=delays,
+        payload_kg=payload_kg,
+        payload_com=com,
+    )
     ctrl.world = world
     return ctrl
 
@@ -345,6 +419,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="controller software version reported to clients; major 3 = CB3 (RTDE at "
         "125 Hz), 5 = e-Series (500 Hz), e.g. 5.11.1 (default: the cell's arm's, "
         f"{'.'.join(map(str, CB3_VERSION[:3]))} for a CB3, 5.11.1 for an e-Series)",
+    )
+    p.add_argument(
+        "--calibration",
+        default="factory",
+        help="the controller's kinematics: factory (a simulated factory calibration seeded by "
+        "the twin seed), factory:SEED, nominal (the published DH table) or a UR calibration "
+        "YAML file (default %(default)s)",
+    )
+    p.add_argument(
+        "--delays",
+        default=None,
+        help="state-machine delays in s, e.g. boot=3,power_on=1.5,brake_release=2,"
+        f"unlock_after=5 (default: {Delays().spec()})",
+    )
+    p.add_argument(
+        "--powered-off",
+        action="store_true",
+        help="start with the arm powered off (dashboard: power on, brake release)",
+    )
+    p.add_argument("--programs", default=None, help="folder the dashboard's load finds programs in")
+    p.add_argument(
+        "--payload-kg",
+        type=float,
+        default=None,
+        help="the arm's real payload, kg (the controller's model has none until set_payload; "
+        f"default the cell's smart target, else {SMART_TARGET_KG})",
     )
     p.add_argument("--verbose", action="store_true", help="log controller events to stderr")
     p.add_argument(
@@ -402,6 +502,15 @@ def run_from_args(args: argparse.Namespace) -> int:
     from quickhealth.station.sim.world import parse_degradation
 
     try:
+        delays = Delays.parse(getattr(args, "delays", None))
+    except ValueError as exc:
+        sys.stderr.write(f"quickhealth: error: --delays: {exc}\n")
+        return 2
+    payload = getattr(args, "payload_kg", None)
+    if payload is not None and not (math.isfinite(payload) and 0.0 <= payload <= 100.0):
+        sys.stderr.write("quickhealth: error: --payload-kg must be in 0..100\n")
+        return 2
+    try:
         degrade = parse_degradation(getattr(args, "degrade", None))
         ctrl = build_controller(
             control_port=args.control_port,
@@ -412,11 +521,17 @@ def run_from_args(args: argparse.Namespace) -> int:
             degrade=degrade,
             version=version,
             host=host,
+            calibration=getattr(args, "calibration", "factory"),
+            delays=delays,
+            payload_kg=payload,
         )
     except InputError as exc:
         sys.stderr.write(f"quickhealth: error: {exc}\n")
         return 2
     ctrl.speed_factor = float(args.speed_factor)
+    ctrl.programs_dir = getattr(args, "programs", None)
+    if getattr(args, "powered_off", False):
+        ctrl.power.power_off()
     # The stream threads wake every 2-8 ms; let them take the GIL from the planner quickly.
     sys.setswitchinterval(0.0005)
     ctrl.say(

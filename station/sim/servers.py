@@ -1,12 +1,13 @@
 """The simulated controller's socket servers, all on 127.0.0.1 only.
 
-- 30004 RTDE (:class:`RtdeSession`): protocol v2 handshake, output recipes streamed at the
-  requested rate (at most 125 Hz for a CB3 version, 500 Hz for e-Series), input recipes
-  merged into the controller's register bank.
-- 29999 dashboard: banner, ``PolyscopeVersion``, ``robotmode``, ``safetystatus``, ``stop``,
-  ``play``, ``unlock protective stop``, ``power on``, ``brake release`` …
-- 30003 script: accepts a URScript program (never interpreted: the register protocol of the
-  ``rtde_control`` script is emulated instead) and starts it.
+- 30004 RTDE (:class:`RtdeSession`): protocol versions 1 and 2 of UR's RTDE guide, each
+  with its own framing; output recipes streamed at the requested rate (at most 125 Hz for a
+  CB3 version, 500 Hz for e-Series); input recipes merged into the controller's register
+  bank, each input field owned by one client (another gets ``IN_USE``).
+- 29999 dashboard (:mod:`.dashboard`): the command set of the reported version.
+- 30001 primary, 30002 secondary, 30003 realtime (:mod:`.primary`): URScript programs
+  (``rtde_control`` emulated, anything else interpreted: :mod:`.urscript_program`); robot
+  messages to the primary and secondary clients.
 - the control port (default 30090): JSON lines for tests and the simulated cell (fault
   injection, true target pose, state, shutdown); see :class:`~.process.SimControllerHandle`.
 
@@ -24,6 +25,7 @@ dropped after 1 MB of backlog), and nothing it waits on ever plans a path.
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import struct
@@ -34,9 +36,9 @@ from typing import Any
 
 import numpy as np
 
-from quickhealth.station.hardware.urtypes import RobotMode, RuntimeState, SafetyMode
-
+from . import dashboard as dashboard_server
 from .controller import Controller, close_socket
+from .primary import PRIMARY_PORT, SECONDARY_PORT, Clients, encode, interface
 from .wire import (
     DASHBOARD_PORT,
     P_DATA,
@@ -47,6 +49,7 @@ from .wire import (
     P_SETUP_OUTPUTS,
     P_START,
     P_TEXT_MESSAGE,
+    PROTOCOL_VERSIONS,
     RTDE_PORT,
     SCRIPT_PORT,
     Recipe,
@@ -75,6 +78,7 @@ class RtdeSession:
         self.next_output_id = 1  # output and input recipes are numbered separately:
         self.next_input_id = 1  # the client hard-codes input recipe ids 1, 2, 3 …
         self.freq = 125.0
+        self.protocol = 1  # until the client asks for another (guide: version 1 by default)
         self.streaming = False
         self.send_lock = threading.Lock()
         self.pending = b""  # stream bytes the socket did not take yet
@@ -134,36 +138,75 @@ class RtdeSession:
             with self.ctrl.lock:
                 if self in self.ctrl.sessions:
                     self.ctrl.sessions.remove(self)
+            self.release()
             close_socket(self.conn)
 
     def _handle(self, ptype: int, payload: bytes) -> None:
+        """One client packet (UR's RTDE guide, "Protocol" section: each package type)."""
         if ptype == P_REQUEST_PROTOCOL_VERSION:
-            self.send(ptype, b"\x01")
+            version = struct.unpack(">H", payload[:2])[0] if len(payload) >= 2 else 0
+            ok = version in PROTOCOL_VERSIONS and not self.streaming
+            if ok:
+                self.protocol = version
+            self.send(ptype, b"\x01" if ok else b"\x00")
         elif ptype == P_GET_URCONTROL_VERSION:
             self.send(ptype, struct.pack(">4I", *self.ctrl.version))
         elif ptype == P_SETUP_OUTPUTS:
-            (self.freq,) = struct.unpack(">d", payload[:8])
-            names = [n for n in payload[8:].decode("ascii", "replace").split(",") if n]
-            types = [rtde_type(n) or "NOT_FOUND" for n in names]
-            rid = self.next_output_id
-            self.next_output_id += 1
-            if "NOT_FOUND" not in types:
+            if self.protocol >= 2:
+                if len(payload) < 8:
+                    self.send(ptype, b"\x00")
+                    return
+                (freq,) = struct.unpack(">d", payload[:8])
+                names_raw = payload[8:]
+            else:  # version 1: no frequency, the controller's own rate
+                freq, names_raw = self.ctrl.stream_hz, payload
+            names = [n for n in names_raw.decode("ascii", "replace").split(",") if n]
+            types = [rtde_type(n, "output") or "NOT_FOUND" for n in names]
+            ok = bool(names) and "NOT_FOUND" not in types and not self.streaming
+            if ok and not (1.0 <= freq <= max(self.ctrl.stream_hz, 500.0)):
+                ok = False
+            rid = 0
+            if ok:
+                self.freq = freq
+                if self.protocol < 2:
+                    self.outputs = []  # one output recipe in version 1
+                rid = self.next_output_id
+                self.next_output_id += 1
                 self.outputs.append(Recipe(rid, names, types))
             else:
                 unknown = [n for n, t in zip(names, types, strict=True) if t == "NOT_FOUND"]
-                self.ctrl.say(f"unknown output field(s): {unknown}")
-            self.send(ptype, bytes([rid]) + ",".join(types).encode())
+                self.ctrl.say(f"output setup refused: unknown field(s) {unknown}")
+            body = ",".join(types).encode()
+            self.send(ptype, (bytes([rid]) + body) if self.protocol >= 2 else body)
         elif ptype == P_SETUP_INPUTS:
             names = [n for n in payload.decode("ascii", "replace").split(",") if n]
-            types = [rtde_type(n) or "NOT_FOUND" for n in names]
-            rid = self.next_input_id
-            self.next_input_id += 1
-            if "NOT_FOUND" not in types:
+            types = [rtde_type(n, "input") or "NOT_FOUND" for n in names]
+            with self.ctrl.lock:
+                owners = self.ctrl.input_owners
+                for i, n in enumerate(names):
+                    if types[i] != "NOT_FOUND" and owners.get(n, self) is not self:
+                        types[i] = "IN_USE"  # another client writes this field
+                ok = bool(names) and not ({"NOT_FOUND", "IN_USE"} & set(types))
+                if ok:
+                    for n in names:
+                        owners[n] = self
+            rid = 0
+            if ok:
+                rid = self.next_input_id
+                self.next_input_id += 1
                 self.inputs[rid] = Recipe(rid, names, types)
+            else:
+                bad = [
+                    f"{n} {t}"
+                    for n, t in zip(names, types, strict=True)
+                    if t in ("NOT_FOUND", "IN_USE")
+                ]
+                self.ctrl.say(f"input setup refused: {bad}")
             self.send(ptype, bytes([rid]) + ",".join(types).encode())
         elif ptype == P_START:
-            self.send(ptype, b"\x01")
-            self.streaming = True
+            ok = bool(self.outputs) or bool(self.inputs)
+            self.send(ptype, b"\x01" if ok else b"\x00")
+            self.streaming = ok
         elif ptype == P_PAUSE:
             self.streaming = False
             self.send(ptype, b"\x01")
@@ -173,6 +216,13 @@ class RtdeSession:
                 self.ctrl.set_inputs(recipe.unpack(payload))
         elif ptype == P_TEXT_MESSAGE:
             pass
+
+    def release(self) -> None:
+        """Give up the input fields this client wrote (it disconnected)."""
+        with self.ctrl.lock:
+            owners = self.ctrl.input_owners
+            for n in [n for n, o in owners.items() if o is self]:
+                del owners[n]
 
 
 class Streamer:
@@ -198,9 +248,12 @@ class Streamer:
     def run(self) -> None:
         ctrl = self.ctrl
         period = 1.0 / ctrl.stream_hz
-        deadline = time.monotonic()
+        # The grid of the controller's cycles since it started: each packet carries the time
+        # of its cycle (a whole number of steps), as a real controller's timestamp does.
+        n0 = math.ceil((time.monotonic() - ctrl.t_start) / period)
         k = 0
         while not ctrl.stop_event.is_set():
+            deadline = ctrl.t_start + (n0 + k) * period  # no drift: from the cycle number
             with ctrl.lock:
                 sessions = list(ctrl.sessions)
             due = [
@@ -210,143 +263,24 @@ class Streamer:
             ]
             if due:
                 lag = time.monotonic() - deadline
-                state = ctrl.snapshot()  # the lock only while copying
+                state = ctrl.snapshot((n0 + k) * period)  # the lock only while copying
                 for r in due:
-                    r.push(b"".join(packet(P_DATA, rec.pack(state)) for rec in r.outputs))
+                    r.push(
+                        b"".join(packet(P_DATA, rec.pack(state, r.protocol)) for rec in r.outputs)
+                    )
                     r.packets += 1
                     r.max_lag = max(r.max_lag, lag)
+            elif k % 4 == 0:  # no client: the controller still runs (heat, faults, programs)
+                ctrl.snapshot((n0 + k) * period)
             k += 1
             self.cycles += 1
-            deadline += period
-            delay = deadline - time.monotonic()
+            delay = ctrl.t_start + (n0 + k) * period - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             else:  # late: skip the missed cycles, keep the grid
                 missed = int(-delay / period)
                 self.missed += missed
                 k += missed
-                deadline += period * missed
-
-
-_MODES = {RobotMode.POWER_OFF: "POWER_OFF", RobotMode.IDLE: "IDLE", RobotMode.RUNNING: "RUNNING"}
-_SAFETY = {
-    SafetyMode.NORMAL: "NORMAL",
-    SafetyMode.PROTECTIVE_STOP: "PROTECTIVE_STOP",
-    SafetyMode.ROBOT_EMERGENCY_STOP: "ROBOT_EMERGENCY_STOP",
-}
-
-
-def dashboard(ctrl: Controller, conn: socket.socket) -> None:
-    """The dashboard server's session on one connection (line protocol)."""
-    f = conn.makefile("rwb", buffering=0)
-
-    def reply(text: str) -> None:
-        f.write((text + "\n").encode())
-
-    reply("Connected: Universal Robots Dashboard Server")
-    try:
-        for raw in f:
-            line = raw.decode("ascii", "replace").strip()
-            if len(line) > 1024:
-                reply("could not understand: command too long")
-                continue
-            cmd = line.lower()
-            playing = ctrl.runtime_state == RuntimeState.PLAYING
-            if cmd == "polyscopeversion":
-                v = ctrl.version
-                reply(f"URSoftware {v[0]}.{v[1]}.{v[2]}.{v[3]} (quickhealth simulator)")
-            elif cmd == "get serial number":
-                reply("20185500001")
-            elif cmd == "get robot model":
-                reply(dashboard_model(ctrl.arm.robot.name))
-            elif cmd == "is in remote control":
-                reply("true")
-            elif cmd == "robotmode":
-                reply(f"Robotmode: {_MODES.get(ctrl.robot_mode, 'RUNNING')}")
-            elif cmd in ("safetystatus", "safetymode"):
-                name = "Safetystatus" if cmd == "safetystatus" else "Safetymode"
-                reply(f"{name}: {_SAFETY.get(ctrl.safety_mode, 'FAULT')}")
-            elif cmd == "programstate":
-                reply(f"{'PLAYING' if playing else 'STOPPED'} rtde_control")
-            elif cmd == "running":
-                reply(f"Program running: {str(playing).lower()}")
-            elif cmd == "stop":
-                ctrl.note_stop("dashboard")
-                ctrl.stop_program()
-                reply("Stopped")
-            elif cmd == "pause":
-                ctrl.note_stop("dashboard pause")
-                ctrl.stop_program()
-                reply("Pausing program")
-            elif cmd == "play":
-                ctrl.start_program()
-                ok = ctrl.runtime_state == RuntimeState.PLAYING
-                reply("Starting program" if ok else "Failed to execute: play")
-            elif cmd == "unlock protective stop":
-                ok = ctrl.unlock_protective_stop()
-                reply(
-                    "Protective stop releasing"
-                    if ok
-                    else "Cannot unlock protective stop until 5s after occurrence"
-                )
-            elif cmd == "power on":
-                ctrl.set_robot_mode(RobotMode.IDLE)
-                reply("Powering on")
-            elif cmd == "power off":
-                ctrl.stop_program()
-                ctrl.set_robot_mode(RobotMode.POWER_OFF)
-                reply("Powering off")
-            elif cmd == "brake release":
-                ctrl.set_robot_mode(RobotMode.RUNNING)
-                reply("Brake releasing")
-            elif cmd == "close popup" or cmd == "close safety popup":
-                reply("closing popup")
-            elif cmd == "quit":
-                reply("Disconnected")
-                break
-            else:
-                reply(f"could not understand: '{line[:80]}'")
-    except OSError:
-        pass
-    finally:
-        close_socket(conn)
-
-
-def script(ctrl: Controller, conn: socket.socket) -> None:
-    """Receive URScript programs on one connection (the client reuses it for reuploads).
-
-    A program is complete at a trailing unindented ``end``, a 100 ms idle gap or the socket
-    closing; it is never interpreted: a ``def``/``sec`` program starts the emulated script.
-    """
-    conn.settimeout(0.1)
-    buf = b""
-    closed = False
-    while not closed and not ctrl.stop_event.is_set():
-        complete = False
-        try:
-            chunk = conn.recv(65536)
-            if not chunk:
-                closed = complete = True
-            else:
-                buf += chunk
-                tail = buf.rstrip()
-                complete = tail.endswith(b"\nend") or tail == b"end" or len(buf) > 1_000_000
-        except TimeoutError:
-            complete = bool(buf)
-        except OSError:
-            closed = complete = True
-        if complete and buf.strip():
-            text = buf.decode("utf-8", "replace")
-            first = text.strip().splitlines()[0][:60]
-            ctrl.say(f"script received: {len(buf)} bytes, {first!r}")
-            if text.lstrip().startswith(("def ", "sec ")):
-                delay = ctrl.program_start_delay
-                if delay > 0:  # a slow controller (fault ``slow_program_start``)
-                    ctrl.say(f"program starts in {delay:.1f} s")
-                    time.sleep(delay)
-                ctrl.start_program()
-            buf = b""
-    close_socket(conn)
 
 
 def control(ctrl: Controller, conn: socket.socket) -> None:
@@ -393,13 +327,18 @@ def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
                 "robot_mode": int(ctrl.robot_mode),
                 "safety_mode": int(ctrl.safety_mode),
                 "runtime_state": int(ctrl.runtime_state),
+                "program": ctrl.program_name if ctrl.program_kind else None,
+                "program_error": ctrl.program_error,
+                "loaded": ctrl.loaded,
+                "digital_out": ctrl.digital_out,
+                "messages": ctrl.messages[-20:],
                 "n_moves": ctrl.n_moves,
                 "n_restarts": ctrl.n_restarts,
                 "stops": [{"at_monotonic": t, "via": how} for t, how in ctrl.stops[-20:]],
                 "frozen": ctrl.frozen is not None,
                 "accepting": ctrl.accepting(),
                 "version": list(ctrl.version),
-                "robot": robot_facts(ctrl.arm.robot),
+                "robot": robot_facts(ctrl.arm.ik_model or ctrl.arm.robot),
                 "streams": [
                     {"hz": r.hz(), "packets": r.packets, "max_lag_ms": r.max_lag * 1e3}
                     for r in ctrl.sessions
@@ -472,10 +411,14 @@ Handler = Callable[[Controller, socket.socket], None]
 
 def serve(ctrl: Controller, *, rtde_port: int = RTDE_PORT) -> None:
     """Run all servers until a ``shutdown`` control request (blocks)."""
+    clients = Clients()
+    ctrl.on_message = lambda msg: clients.send(encode(msg))
     handlers: list[tuple[int, Handler, bool]] = [
         (rtde_port, lambda c, s: RtdeSession(c, s).serve(), True),
-        (DASHBOARD_PORT, dashboard, True),
-        (SCRIPT_PORT, script, True),
+        (DASHBOARD_PORT, dashboard_server.session, True),
+        (SCRIPT_PORT, lambda c, s: interface(c, s, "realtime", None), True),
+        (PRIMARY_PORT, lambda c, s: interface(c, s, "primary", clients), True),
+        (SECONDARY_PORT, lambda c, s: interface(c, s, "secondary", clients), True),
         (ctrl.control_port, control, False),  # the test harness: never faulted
     ]
     listeners = []

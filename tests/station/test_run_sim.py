@@ -27,6 +27,7 @@ from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_plan
 from quickhealth.station.run import RunSettings, run_plan
 from quickhealth.station.sim.cell import sim_station
+from quickhealth.station.sim.states import TESTING
 from quickhealth.station.sim.world import build_world
 
 pytestmark = [pytest.mark.slow]
@@ -181,7 +182,9 @@ def _sub(plan_path: Path, k: int):
 )
 def test_fault_mid_run_stops_cleanly_keeps_everything(plan20, tmp_path, kind, words, recover):
     plan = _sub(plan20, 5)
-    station, cell = sim_station("reference", image_scale=0.25, speed_factor=8.0)
+    station, cell = sim_station(
+        "reference", image_scale=0.25, speed_factor=8.0, sim_options={"delays": TESTING.spec()}
+    )
     out = tmp_path / "run"
     try:
         cell.controller.fault(kind, after_moves=3)  # the third move of the run
@@ -192,6 +195,10 @@ def test_fault_mid_run_stops_cleanly_keeps_everything(plan20, tmp_path, kind, wo
         assert st.stops and words in st.stops[-1]["reason"] and not st.ended
         assert _rows(out) == ["P001", "P002"]  # what was captured is kept and measured
         if recover:  # the technician releases the stop; the same run continues
+            # a controller refuses the unlock until unlock_after has passed since the stop
+            # (UR: 5 s; the short test delays: TESTING.unlock_after_s), which a fast run's
+            # stop may not have left behind it yet
+            time.sleep(TESTING.unlock_after_s + 0.2)
             with socket.create_connection((cell.controller.host, 29999), timeout=5) as s:
                 f = s.makefile("rwb", buffering=0)
                 f.readline()
@@ -207,4 +214,76 @@ def test_fault_mid_run_stops_cleanly_keeps_everything(plan20, tmp_path, kind, wo
             assert _rows(out) == ["P001", "P002", "P003", "P004", "P005"]
     finally:
         cell.controller.fault("clear")
+        station.close()
+
+
+def _dash(host: str, *lines: str) -> list[str]:
+    with socket.create_connection((host, 29999), timeout=5) as s:
+        f = s.makefile("rwb", buffering=0)
+        f.readline()
+        out = []
+        for line in lines:
+            f.write(line.encode() + b"\n")
+            out.append(f.readline().decode().strip())
+        return out
+
+
+def _until(host: str, line: str, want: str) -> None:
+    t0 = time.monotonic()
+    while not _dash(host, line)[0].startswith(want):
+        assert time.monotonic() - t0 < 5, f"{line!r} never answered {want!r}"
+        time.sleep(0.05)
+
+
+@pytest.mark.timeout(180)
+def test_controller_faults_stop_the_run_in_one_line_and_resume_loses_nothing(plan20, tmp_path):
+    """The faults of a real controller (issue 25): the arm powered off, the program paused
+    from the dashboard, a command the controller does not know (compile error), a move
+    beyond the joint speed limits (protective stop).  Each ends the run with one line that
+    says what to do and --resume; the technician's recovery, then --resume, finishes the
+    run with every pose measured once."""
+    plan = _sub(plan20, 5)
+    station, cell = sim_station(
+        "reference", image_scale=0.25, speed_factor=8.0, sim_options={"delays": TESTING.spec()}
+    )
+    sim, host = cell.controller, cell.controller.host
+    out = tmp_path / "run"
+
+    def power_back() -> None:
+        _dash(host, "power on")
+        _until(host, "robotmode", "Robotmode: IDLE")
+        _dash(host, "brake release")
+        _until(host, "robotmode", "Robotmode: RUNNING")
+
+    def unlock() -> None:
+        sim.fault("joint_speed_limit", scale=1.0)  # the safety limits put back
+        _until(host, "unlock protective stop", "Protective stop releasing")
+
+    steps = [
+        ("power_off", {}, "powered off", power_back),
+        ("pause", {}, "paused", lambda: None),
+        ("unknown_command", {}, "control program stopped", lambda: None),
+        ("joint_speed_limit", {"scale": 0.02}, "protective stop", unlock),
+    ]
+    try:
+        resume = False
+        for kind, kw, words, recover in steps:
+            sim.fault(kind, after_moves=2, **kw)
+            res = run_plan(
+                station, plan, out, resume=resume, settings=RunSettings(capture_attempts=2)
+            )
+            assert res.stopped and words in res.stopped and "--resume" in res.stopped, res.stopped
+            assert "\n" not in res.stopped
+            recover()
+            t0 = time.monotonic()
+            while not station.robot.status().ready and time.monotonic() - t0 < 3:
+                time.sleep(0.02)
+            resume = True
+        res = run_plan(station, plan, out, resume=True, settings=RunSettings(capture_attempts=2))
+        assert res.complete and res.n_measured == 5
+        assert _rows(out) == [f"P{i:03d}" for i in range(1, 6)]  # each pose once
+        st = read_journal(out / JOURNAL)
+        assert len(st.stops) == 4 and sorted(st.measured) == list(range(1, 6))
+    finally:
+        sim.fault("clear")
         station.close()

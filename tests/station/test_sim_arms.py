@@ -18,6 +18,7 @@ from quickhealth.station.sim.arm import (
 )
 from quickhealth.station.sim.controller import CMD_MOVEJ, CMD_MOVEL, PlanJob, plan_command
 from quickhealth.station.sim.fake_robot import FakeRobot
+from quickhealth.station.sim.kinematics import JointLimits
 from quickhealth.station.sim.process import build_controller
 from quickhealth.station.sim.servers import robot_facts
 from quickhealth.station.sim.wire import dashboard_model, max_stream_hz
@@ -42,7 +43,8 @@ def test_dashboard_names_the_arm_as_ur_does():
 def test_the_controller_is_the_cells_arm(cell, name, model, major, hz):
     ctrl = build_controller(cell=cell)
     try:
-        r = ctrl.arm.robot
+        r = ctrl.arm.ik_model  # its nominal kinematics (ctrl.arm.robot: under its calibration)
+        assert r is not None and ctrl.arm.robot.name == name
         assert r.name == name and ctrl.version[0] == major and ctrl.stream_hz == hz
         assert max_stream_hz(ctrl.version) == hz
         own = builtin_robot(name)  # the arm's own limits, not the cell's planning limits
@@ -86,17 +88,19 @@ def test_a_path_leaving_the_arms_joint_limits_is_refused():
     class _Arm:
         robot = controller_arm(builtin_robot("ur10e"))
         tcp = np.eye(4)
+        ik_model = None
 
+    lim = JointLimits.of(_Arm.robot)  # the UR10e's own: ±360°, not a cell's planning limits
     q0 = (0.0, -1.5, 1.5, -1.5, -1.5, 0.0)
-    far = PlanJob(0, CMD_MOVEJ, (0.0, -1.5, 1.5, -1.5, -1.5, 7.0), 1.0, 1.0, False, q0)
+    far = PlanJob(0, CMD_MOVEJ, (0.0, -1.5, 1.5, -1.5, -1.5, 7.0), 1.0, 1.0, False, q0, lim)
     why = plan_command(_Arm(), far)  # type: ignore[arg-type]
-    assert isinstance(why, str) and why.startswith("moveJ: joint 6 limit: 401.1°")
-    near = PlanJob(0, CMD_MOVEJ, (0.0, -1.5, 1.5, -1.5, -1.5, 6.0), 1.0, 1.0, False, q0)
+    assert isinstance(why, str) and why.startswith("joint position limit: joint 6 target 401.1")
+    near = PlanJob(0, CMD_MOVEJ, (0.0, -1.5, 1.5, -1.5, -1.5, 6.0), 1.0, 1.0, False, q0, lim)
     assert not isinstance(plan_command(_Arm(), near), str)  # inside ±360°
     T = _Arm.robot.fk(np.array(q0))
     from quickhealth.station.sim.arm import pose_from_T
 
-    line = PlanJob(0, CMD_MOVEL, tuple(pose_from_T(T)), 0.1, 1.0, False, q0)
+    line = PlanJob(0, CMD_MOVEL, tuple(pose_from_T(T)), 0.1, 1.0, False, q0, lim)
     assert not isinstance(plan_command(_Arm(), line), str)
 
 

@@ -94,7 +94,7 @@ def test_snapshot_keeps_streaming_while_a_sync_move_l_is_planned(ctrl):
     goal = pose_from_T(ctrl.arm.robot.fk(q0))
     goal[0] += 0.15
     goal[2] -= 0.25
-    _command(ctrl, CMD_MOVEL, goal, 1.0, 4.0, sync=True)
+    _command(ctrl, CMD_MOVEL, goal, 0.5, 4.0, sync=True)  # within every joint speed limit
     assert started.wait(5)
     stamps = []
     for _ in range(5):  # the planner is held: the stream goes on, the move is not done
@@ -116,7 +116,7 @@ def test_snapshot_keeps_streaming_while_a_sync_move_l_is_planned(ctrl):
 def test_async_move_reports_running_at_zero_progress_while_planned(ctrl):
     started, go = _held_planner(ctrl)
     q1 = ctrl.arm.q_cmd + np.radians([10.0, 5.0, -5.0, 0.0, 0.0, 0.0])
-    _command(ctrl, CMD_MOVEL_FK, q1, 1.0, 4.0, sync=False)
+    _command(ctrl, CMD_MOVEL_FK, q1, 0.5, 4.0, sync=False)
     assert started.wait(5)
     s = _snapshot_within(ctrl)
     assert s["output_int_register_0"] == 2  # async: acknowledged at once
@@ -130,7 +130,7 @@ def test_async_move_reports_running_at_zero_progress_while_planned(ctrl):
 def test_stop_during_planning_cancels_the_move(ctrl):
     started, go = _held_planner(ctrl)
     q0 = ctrl.arm.q_cmd.copy()
-    _command(ctrl, CMD_MOVEL_FK, q0 + 0.2, 1.0, 4.0, sync=False)
+    _command(ctrl, CMD_MOVEL_FK, q0 + 0.2, 0.5, 4.0, sync=False)
     assert started.wait(5)
     _command(ctrl, CMD_NONE, [0.0] * 6, 0.0, 0.0, sync=False)
     _command(ctrl, CMD_STOPJ, [2.0] * 6, 0.0, 0.0, sync=False)
@@ -145,7 +145,7 @@ def test_stop_during_planning_cancels_the_move(ctrl):
 def test_a_failed_plan_is_a_protective_stop(ctrl):
     ctrl.plan_fn = lambda arm, job: 1 / 0
     q0 = ctrl.arm.q_cmd.copy()
-    _command(ctrl, CMD_MOVEL_FK, q0 + 0.1, 1.0, 4.0, sync=True)
+    _command(ctrl, CMD_MOVEL_FK, q0 + 0.1, 0.5, 4.0, sync=True)
     _wait(lambda: ctrl.safety_mode == SafetyMode.PROTECTIVE_STOP)
     assert any("path planning failed: ZeroDivisionError" in line for line in ctrl.log)
     assert np.allclose(ctrl.snapshot()["target_q"], q0)

@@ -15,6 +15,7 @@ import pytest
 from quickhealth.station.hardware.urtypes import SafetyMode
 from quickhealth.station.sim import wire
 from quickhealth.station.sim.process import start_sim_controller
+from quickhealth.station.sim.states import TESTING
 
 # The timeout includes waiting for the UR ports (one simulator per host).
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)]
@@ -23,7 +24,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(200)]
 @pytest.fixture(scope="module")
 def sim():
     # start_sim_controller takes the host-wide port lock: simulator tests never overlap
-    h = start_sim_controller(control_port=30091, speed_factor=4.0)
+    h = start_sim_controller(control_port=30091, speed_factor=4.0, delays=TESTING.spec())
     try:
         yield h
     finally:
@@ -56,7 +57,8 @@ def test_dashboard_speaks_the_protocol(sim):
             (b"PolyscopeVersion", rb"URSoftware 3.15.7.106331"),
             (b"robotmode", b"Robotmode: RUNNING"),
             (b"safetystatus", b"Safetystatus: NORMAL"),
-            (b"popup evil'); os.system('x", b"could not understand"),
+            (b"popup evil'); os.system('x", b"showing popup"),  # text shown, never run
+            (b"os.system('x')", b"could not understand: 'os.system('x')'"),
         ):
             f.write(cmd + b"\n")
             assert f.readline().startswith(want)
