@@ -129,6 +129,7 @@ class Client:
         self.stop_outcome: tuple[int, str | Refused] = (-1, "")
         self._busy: tuple[str, float] = ("", 0.0)
         self.rc: Any = None
+        self._closed_receiver: Any = None  # the receive interface once disconnected
 
     # -- output -------------------------------------------------------------------------
     def reply(self, rid: int, value: Any = None, *, error: Refused | None = None) -> None:
@@ -189,6 +190,9 @@ class Client:
             rr.disconnect()
         except RuntimeError:
             pass
+        # Kept past the thread: ur-rtde's destructor takes another 0.5 s (its io threads),
+        # and the process ends with os._exit, which need not wait for it.
+        self._closed_receiver = rr
 
     # -- commander thread: the only caller of RTDEControlInterface -------------------------
     def _cxx(self, what: str, fn: Any, *args: Any) -> Any:
@@ -466,6 +470,9 @@ class Client:
                 self._cxx("stop script", self.rc.stopScript)
         except Refused:
             pass
+        # Nothing more needs the stream: the receiver disconnects at the same time (each of
+        # ur-rtde's disconnects takes 0.5 s, one after the other they made every close 1 s)
+        self.closing.set()
         try:
             self.rc.disconnect()
         except RuntimeError:
