@@ -3,7 +3,7 @@ a short plan, then a healthy robot ("unchanged", after a kill -9 and --resume) a
 whose joint 2 tilted 0.1 mrad ("changed", joint 2 named), each in a fraction of the loop's
 robot time; the archive records the check as a check.
 
-Images are 1/4 of the reference sensor and the arm moves 8× faster than life (robot time is
+Images are 1/4 of the reference sensor and the arm moves 20× faster than life (robot time is
 reported at real speed all the same).  The acceptance figures on the full reference plan are
 docs/monitoring.md's.
 """
@@ -26,7 +26,7 @@ from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 
 pytestmark = [pytest.mark.slow]
 
-SIM = ["--sim", "--sim-image-scale", "0.25", "--sim-speed-factor", "8"]
+SIM = ["--sim", "--sim-image-scale", "0.25", "--sim-speed-factor", "20"]
 
 
 @pytest.fixture(scope="module")

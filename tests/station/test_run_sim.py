@@ -2,7 +2,7 @@
 and rendered stereo images: a 20-pose plan measured within the vision accuracy of the
 digital twin's truth; faults mid-run; kill -9 of the run process then --resume.
 
-Images are 1/4 of the reference sensor (1000×750 px) and the simulated arm moves 8× faster
+Images are 1/4 of the reference sensor (1000×750 px) and the simulated arm moves 20× faster
 than life, to keep the suite short; the accuracy is then ~0.01–0.04 mm per axis.
 """
 
@@ -32,7 +32,7 @@ from quickhealth.station.sim.world import build_world
 
 pytestmark = [pytest.mark.slow]
 
-SIM = ["--sim", "--sim-image-scale", "0.25", "--sim-speed-factor", "8"]
+SIM = ["--sim", "--sim-image-scale", "0.25", "--sim-speed-factor", "20"]
 
 
 @pytest.fixture(scope="module")
@@ -183,7 +183,7 @@ def _sub(plan_path: Path, k: int):
 def test_fault_mid_run_stops_cleanly_keeps_everything(plan20, tmp_path, kind, words, recover):
     plan = _sub(plan20, 5)
     station, cell = sim_station(
-        "reference", image_scale=0.25, speed_factor=8.0, sim_options={"delays": TESTING.spec()}
+        "reference", image_scale=0.25, speed_factor=20.0, sim_options={"delays": TESTING.spec()}
     )
     out = tmp_path / "run"
     try:
@@ -244,7 +244,7 @@ def test_controller_faults_stop_the_run_in_one_line_and_resume_loses_nothing(pla
     run with every pose measured once."""
     plan = _sub(plan20, 5)
     station, cell = sim_station(
-        "reference", image_scale=0.25, speed_factor=8.0, sim_options={"delays": TESTING.spec()}
+        "reference", image_scale=0.25, speed_factor=20.0, sim_options={"delays": TESTING.spec()}
     )
     sim, host = cell.controller, cell.controller.host
     out = tmp_path / "run"

@@ -38,7 +38,7 @@ async def test_whole_loop_with_abort_restart_reconnect_and_continue(tmp_path) ->
         archive=tmp_path / "archive",
         n_poses=20,
         run_id="pilot",
-        speed_factor=4.0,
+        speed_factor=10.0,
         image_scale=0.25,
     )
     n = len(station.plan.poses)
