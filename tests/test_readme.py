@@ -51,7 +51,7 @@ def test_readme_table_lists_the_tutorial_in_order():
     cmds = readme_commands()
     words = [" ".join(shlex.split(c)[1:3]) for c in cmds]
     assert words[:3] == ["plan --cell", "vision calibrate", "run --cell"]
-    assert len(cmds) == 18, cmds
+    assert len(cmds) == 20, cmds
 
 
 @pytest.mark.slow

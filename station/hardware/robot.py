@@ -30,9 +30,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from quickhealth.identify.errors import HardwareError, InputError
-from quickhealth.identify.robot import RobotModel, ur5
-
+from ...identify.errors import HardwareError, InputError
+from ...identify.robot import RobotModel, ur5
 from .legs import Leg
 from .urtypes import RobotMode, SafetyMode
 
@@ -203,7 +202,7 @@ class ReadOnly:
 
 
 def _pose_to_T(p: ArrayLike) -> F:
-    from quickhealth.identify.transforms import exp_so3, make_T
+    from ...identify.transforms import exp_so3, make_T
 
     p = np.asarray(p, dtype=float)
     return make_T(exp_so3(p[3:6]), p[:3])

@@ -34,9 +34,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.robot import RobotModel
-from quickhealth.identify.transforms import exp_so3, log_so3, make_T
+from ...identify.errors import InputError
+from ...identify.robot import BUILTIN_ROBOTS, RobotModel, builtin_robot
+from ...identify.transforms import exp_so3, log_so3, make_T
+from ..planning.ik_ur import ik_ur as _ik_ur
 
 F = NDArray[np.float64]
 
@@ -239,8 +240,6 @@ def speed_cap(path: Path, qd_max: F) -> float:
 def controller_arm(robot: RobotModel) -> RobotModel:
     """The arm as its controller knows it: ``robot``'s kinematics with the arm's own joint
     limits (a built-in arm's, ±360° on a UR; not a cell's planning limits)."""
-    from quickhealth.identify.robot import BUILTIN_ROBOTS, builtin_robot
-
     if robot.name not in BUILTIN_ROBOTS:
         return robot
     own = builtin_robot(robot.name)
@@ -424,9 +423,7 @@ def ik_near(
 
 
 def ik_ur(robot: RobotModel, T: F) -> tuple[F, NDArray[np.bool_]]:
-    """The analytic UR IK (imported on first use: planning is a heavier package)."""
-    from quickhealth.station.planning.ik_ur import ik_ur as _ik_ur
-
+    """The analytic UR IK (:func:`~quickhealth.station.planning.ik_ur.ik_ur`)."""
     return _ik_ur(robot, T)
 
 

@@ -32,14 +32,13 @@ from typing import Any
 
 import numpy as np
 
-from quickhealth.identify.transforms import log_so3
-from quickhealth.station.hardware.urtypes import (
+from ...identify.transforms import log_so3
+from ..hardware.urtypes import (
     RobotMode,
     RuntimeState,
     SafetyMode,
     safety_status_bits,
 )
-
 from .arm import (
     Arm,
     Motion,
@@ -872,14 +871,6 @@ class Controller:
     def set_robot_mode(self, mode: RobotMode) -> None:
         with self.lock:
             self.robot_mode = mode
-
-    # -- URScript programs (primary, secondary and realtime interfaces) ------------------
-    def run_script(self, text: str, source: str) -> None:
-        """A program arrived on an interface: the emulated ``rtde_control`` script of
-        ur-rtde, or a URScript program for the interpreter (:mod:`.urscript_vm`)."""
-        from . import urscript_program
-
-        urscript_program.run(self, text, source)
 
     def set_q(self, q: np.ndarray) -> None:
         """Put the arm at joints ``q`` at rest (tests)."""

@@ -21,8 +21,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from quickhealth.station.hardware.urtypes import RobotMode, RuntimeState, SafetyMode
-
+from ..hardware.urtypes import RobotMode, RuntimeState, SafetyMode
+from . import urscript_program
+from .controller import close_socket
 from .wire import dashboard_model
 
 if TYPE_CHECKING:
@@ -104,7 +105,7 @@ def _play(ctrl: Controller, _: str) -> str:
             text = f.read(1_000_000)
     except OSError:
         return "Failed to execute: play"
-    ctrl.run_script(text, "dashboard")
+    urscript_program.run(ctrl, text, "dashboard")
     return (
         "Starting program"
         if ctrl.runtime_state == RuntimeState.PLAYING
@@ -298,8 +299,6 @@ def answer(ctrl: Controller, line: str) -> str:
 
 def session(ctrl: Controller, conn: socket.socket) -> None:
     """The dashboard server's session on one connection (line protocol)."""
-    from .controller import close_socket
-
     f = conn.makefile("rwb", buffering=0)
     try:
         f.write(b"Connected: Universal Robots Dashboard Server\n")

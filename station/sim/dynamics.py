@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.robot import GRAVITY, RobotModel, with_payload
+from ...identify.robot import GRAVITY, RobotModel, with_payload
 
 F = NDArray[np.float64]
 

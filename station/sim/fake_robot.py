@@ -15,8 +15,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from quickhealth.identify.robot import RobotModel, ur5
-from quickhealth.station.hardware.robot import (
+from ...identify.robot import RobotModel, ur5
+from ..hardware.robot import (
     RECOVERY_HINT,
     ConnectionLost,
     JointSample,
@@ -30,8 +30,7 @@ from quickhealth.station.hardware.robot import (
     StreamFrozen,
     check_move,
 )
-from quickhealth.station.hardware.urtypes import RobotMode, SafetyMode
-
+from ..hardware.urtypes import RobotMode, SafetyMode
 from .arm import HOME_Q_DEG, Arm
 
 F = NDArray[np.float64]

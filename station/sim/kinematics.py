@@ -22,9 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from quickhealth.identify.robot import UR_ARMS, Nominal, RobotModel, with_kinematics
-from quickhealth.identify.transforms import exp_so3, make_T
-
+from ...identify.robot import UR_ARMS, Nominal, RobotModel, with_kinematics
+from ...identify.transforms import exp_so3, make_T, rot_z
 from .arm import MAX_JOINT_STEP, Path
 
 F = NDArray[np.float64]
@@ -80,8 +79,6 @@ def factory_calibration(robot: RobotModel, seed: int) -> RobotModel:
         )
         links[i] = links[i] @ dT
     # Joint offsets folded into the links: the calibrated chain has zero offsets.
-    from quickhealth.identify.transforms import rot_z
-
     for i, off in enumerate(robot.q_offset):
         if off:
             R = np.eye(4)
@@ -99,7 +96,7 @@ def calibration_from_yaml(robot: RobotModel, path: str) -> RobotModel:
     InputError
         The file is not such a YAML (one line naming it).
     """
-    from quickhealth.station.formats import read_ur_calibration
+    from ..formats import read_ur_calibration
 
     kin, sha = read_ur_calibration(path)
     nominal = Nominal(robot.name, calibration=str(path), calibration_sha256=sha)

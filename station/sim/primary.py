@@ -22,6 +22,8 @@ import struct
 import threading
 from typing import TYPE_CHECKING, Any
 
+from . import urscript_program
+
 if TYPE_CHECKING:
     from .controller import Controller
 
@@ -125,7 +127,7 @@ def interface(ctrl: Controller, conn: socket.socket, name: str, clients: Clients
                 text = buf.decode("utf-8", "replace")
                 first = text.strip().splitlines()[0][:60]
                 ctrl.say(f"script received on the {name} interface: {len(buf)} bytes, {first!r}")
-                ctrl.run_script(text, name)
+                urscript_program.run(ctrl, text, name)
                 buf = b""
             elif complete:
                 buf = b""

@@ -8,10 +8,12 @@ process that uses the client (``notes/ur-rtde.md``): :func:`start_sim_controller
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import math
 import os
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -19,8 +21,11 @@ from typing import Any
 
 import numpy as np
 
+from ...identify.errors import HardwareError, InputError
+from ..planning.cell import load_cell
 from .arm import HOME_Q_DEG, Arm, controller_arm
 from .controller import Controller, close_socket
+from .kinematics import calibration_from_yaml, factory_calibration
 from .primary import PRIMARY_PORT, SECONDARY_PORT
 from .servers import serve, shutdown
 from .states import Delays
@@ -135,8 +140,6 @@ class SimControllerHandle:
 def _try_address(host: str) -> int:
     """The lock of ``host``'s UR ports (an open descriptor), or -1 when another simulator
     holds it or something else listens there."""
-    import fcntl
-
     fd = os.open(PORT_LOCK.format(host=host), os.O_RDWR | os.O_CREAT, 0o666)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -155,8 +158,6 @@ def _take_address(
     """A loopback address whose UR ports are free, and its lock (held until the simulator
     stops).  ``host`` given: wait up to ``wait_s`` for that one; else the first free one
     not in ``skip``."""
-    from quickhealth.identify.errors import HardwareError
-
     pool = (
         (check_loopback(host),)
         if host is not None
@@ -233,10 +234,6 @@ def start_sim_controller(
         The ports are taken (another simulator or a controller on this host) or the process
         did not come up within ``timeout`` seconds.
     """
-    import subprocess
-
-    from quickhealth.identify.errors import HardwareError
-
     if controller_version is not None:
         parse_version(controller_version)  # ValueError before anything starts
     args = [
@@ -327,11 +324,7 @@ def build_controller(
     InputError
         A calibration that is none of these, or a YAML file that cannot be read.
     """
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.sim.world import build_world
-
-    from ..planning.cell import load_cell
-    from .kinematics import calibration_from_yaml, factory_calibration
+    from .world import build_world  # the simulated world: OpenCV and the twin, in the child
 
     c = load_cell(cell)
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
@@ -498,8 +491,7 @@ def run_from_args(args: argparse.Namespace) -> int:
     except ValueError as exc:
         sys.stderr.write(f"quickhealth: error: --host: {exc}\n")
         return 2
-    from quickhealth.identify.errors import InputError
-    from quickhealth.station.sim.world import parse_degradation
+    from .world import parse_degradation  # (the same)
 
     try:
         delays = Delays.parse(getattr(args, "delays", None))

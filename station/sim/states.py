@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from quickhealth.station.hardware.urtypes import RobotMode
+from ..hardware.urtypes import RobotMode
 
 
 @dataclass(frozen=True)

@@ -26,9 +26,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from quickhealth.identify.urscript import tokenize
-from quickhealth.station.hardware.urtypes import RuntimeState, SafetyMode
-
+from ...identify.urscript import tokenize
+from ..hardware.urtypes import RuntimeState, SafetyMode
 from .arm import Motion, T_from_pose, joint_path, linear_path, pose_from_T
 from .kinematics import check_joint_move, check_path
 from .urscript_vm import Halt, Interpreter, Pose, ScriptError, Stopped, compile_program

@@ -27,12 +27,12 @@ The interpreter knows nothing of the controller's internals: it calls a :class:`
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol, TypeAlias
 
-from quickhealth.identify.errors import InputError
-from quickhealth.identify.urscript import Token, tokenize
+from ...identify.errors import InputError
+from ...identify.urscript import Token, tokenize
 
 
 class ScriptError(Exception):
@@ -66,10 +66,16 @@ class Pose(list):  # type: ignore[type-arg]
         return "p[" + ", ".join(f"{v:.6g}" for v in self) + "]"
 
 
+#: A URScript value: a number, a boolean, a string, a pose or a list of values.
+Value: TypeAlias = "bool | int | float | str | Pose | list[Value]"
+#: What a syntax node holds in its slots: nodes, names, literal values, lists of them.
+Slot: TypeAlias = "Node | Function | Value | list[Slot] | tuple[Slot, ...] | dict[str, Slot] | None"
+
+
 class Host(Protocol):
     """What a program may ask of the controller."""
 
-    def move(self, kind: str, target: Any, a: float, v: float, t: float, r: float) -> None: ...
+    def move(self, kind: str, target: Value, a: float, v: float, t: float, r: float) -> None: ...
     def sleep(self, seconds: float) -> None: ...
     def sync(self) -> None: ...
     def steptime(self) -> float: ...
@@ -82,7 +88,7 @@ class Host(Protocol):
     def forward_kin(self, q: list[float] | None, tcp: list[float] | None) -> list[float]: ...
     def set_tcp(self, pose: list[float]) -> None: ...
     def set_payload(self, mass: float, cog: list[float] | None) -> None: ...
-    def register(self, kind: str, index: int, value: Any = None) -> Any: ...
+    def register(self, kind: str, index: int, value: Value | None = None) -> Value | None: ...
     def digital_out(self, index: int, value: bool) -> None: ...
     def check(self) -> None: ...
 
@@ -95,9 +101,9 @@ class Node:
     kind: str
     line: int
     col: int
-    a: Any = None
-    b: Any = None
-    c: Any = None
+    a: Slot = None
+    b: Slot = None
+    c: Slot = None
 
 
 @dataclass
@@ -464,7 +470,7 @@ class _Expr:
         t = self.take()
         if t.kind == "number":
             text = t.text
-            v: Any = float(text) if any(c in text for c in ".eE") else int(text)
+            v: Value = float(text) if any(c in text for c in ".eE") else int(text)
             return Node("const", t.line, t.col, v)
         if t.kind == "string":
             return Node("const", t.line, t.col, _unquote(t.text))
@@ -537,7 +543,7 @@ def _collect_functions(body: list[Node], into: dict[str, Function]) -> None:
             into[n.a.name] = n.a
 
 
-def _walk(node: Any) -> Any:
+def _walk(node: Slot) -> Iterator[Node]:
     if isinstance(node, Node):
         yield node
         for part in (node.a, node.b, node.c):
@@ -565,7 +571,7 @@ def _check_names(prog: Program) -> None:
 
 
 class _Return(Exception):
-    def __init__(self, value: Any) -> None:
+    def __init__(self, value: Value) -> None:
         self.value = value
 
 
@@ -585,7 +591,7 @@ class Interpreter:
     def __init__(self, program: Program, host: Host) -> None:
         self.prog = program
         self.host = host
-        self.globals: dict[str, Any] = {}
+        self.globals: dict[str, Value] = {}
         self.depth = 0
         self.line = 0
 
@@ -598,14 +604,14 @@ class Interpreter:
         return ScriptError("runtime", msg, node.line, node.col)
 
     def exec_block(
-        self, body: list[Node], env: dict[str, Any], local: dict[str, Any] | None
+        self, body: list[Node], env: dict[str, Value], local: dict[str, Value] | None
     ) -> None:
         for st in body:
             self.host.check()
             self.line = st.line
             self.exec(st, env, local)
 
-    def exec(self, st: Node, env: dict[str, Any], local: dict[str, Any] | None) -> None:
+    def exec(self, st: Node, env: dict[str, Value], local: dict[str, Value] | None) -> None:
         k = st.kind
         if k == "expr":
             self.eval(st.a, env, local)
@@ -638,13 +644,13 @@ class Interpreter:
         else:  # pragma: no cover - the parser makes no other kinds
             raise self._rt(st, f"cannot run a {k!r} statement")
 
-    def truth(self, node: Node, env: dict[str, Any], local: dict[str, Any] | None) -> bool:
+    def truth(self, node: Node, env: dict[str, Value], local: dict[str, Value] | None) -> bool:
         v = self.eval(node, env, local)
         if not isinstance(v, bool | int | float):
             raise self._rt(node, f"a condition must be a boolean, not {_type(v)}")
         return bool(v)
 
-    def assign(self, st: Node, env: dict[str, Any], local: dict[str, Any] | None) -> None:
+    def assign(self, st: Node, env: dict[str, Value], local: dict[str, Value] | None) -> None:
         target, value, scope = st.a, self.eval(st.b, env, local), st.c
         if isinstance(value, list):
             value = type(value)(value)  # lists are values in URScript
@@ -666,7 +672,7 @@ class Interpreter:
         i = self._index(target, container, idx)
         container[i] = value
 
-    def _index(self, node: Node, container: list[Any], idx: Any) -> int:
+    def _index(self, node: Node, container: list[Value], idx: Value) -> int:
         if isinstance(idx, bool) or not isinstance(idx, int | float) or idx != int(idx):
             raise self._rt(node, f"list index must be an integer, not {_type(idx)}")
         i = int(idx)
@@ -674,7 +680,7 @@ class Interpreter:
             raise self._rt(node, f"index {i} out of range (length {len(container)})")
         return i
 
-    def lookup(self, node: Node, env: dict[str, Any], local: dict[str, Any] | None) -> Any:
+    def lookup(self, node: Node, env: dict[str, Value], local: dict[str, Value] | None) -> Value:
         name = node.a
         if local is not None and name in local:
             return local[name]
@@ -682,7 +688,7 @@ class Interpreter:
             return env[name]
         raise self._rt(node, f"variable '{name}' is not defined")
 
-    def eval(self, n: Node, env: dict[str, Any], local: dict[str, Any] | None) -> Any:
+    def eval(self, n: Node, env: dict[str, Value], local: dict[str, Value] | None) -> Value:
         k = n.kind
         if k == "const":
             return n.a
@@ -719,12 +725,12 @@ class Interpreter:
             return self.call(n, env, local)
         raise self._rt(n, f"cannot evaluate {k!r}")  # pragma: no cover
 
-    def _num(self, n: Node, v: Any) -> float | int:
+    def _num(self, n: Node, v: Value) -> float | int:
         if isinstance(v, bool) or not isinstance(v, int | float):
             raise self._rt(n, f"a number is needed, not {_type(v)}")
         return v
 
-    def binary(self, n: Node, x: Any, y: Any) -> Any:
+    def binary(self, n: Node, x: Value, y: Value) -> Value:
         op = n.a
         if op in ("==", "!="):
             eq = x == y
@@ -748,7 +754,7 @@ class Interpreter:
             )
         return {"<": x < y, "<=": x <= y, ">": x > y, ">=": x >= y}[op]
 
-    def call(self, n: Node, env: dict[str, Any], local: dict[str, Any] | None) -> Any:
+    def call(self, n: Node, env: dict[str, Value], local: dict[str, Value] | None) -> Value:
         args = [self.eval(a, env, local) for a in n.b]
         kwargs = {k: self.eval(v, env, local) for k, v in n.c.items()}
         fn = self.prog.functions.get(n.a)
@@ -769,11 +775,16 @@ class Interpreter:
             raise self._rt(n, f"{n.a}(): {exc}") from None
 
     def call_function(
-        self, n: Node, fn: Function, args: list[Any], kwargs: dict[str, Any], env: dict[str, Any]
-    ) -> Any:
+        self,
+        n: Node,
+        fn: Function,
+        args: list[Value],
+        kwargs: dict[str, Value],
+        env: dict[str, Value],
+    ) -> Value:
         if len(args) > len(fn.params):
             raise self._rt(n, f"{fn.name}() takes {len(fn.params)} arguments, {len(args)} given")
-        local: dict[str, Any] = {}
+        local: dict[str, Value] = {}
         for i, p in enumerate(fn.params):
             if i < len(args):
                 local[p] = args[i]
@@ -797,7 +808,7 @@ class Interpreter:
         return None
 
 
-def _type(v: Any) -> str:
+def _type(v: Value) -> str:
     if isinstance(v, Pose):
         return "a pose"
     if isinstance(v, bool):
@@ -819,13 +830,13 @@ class Builtin:
     """A built-in function: parameter names, their defaults (``REQUIRED`` if none), body."""
 
     params: tuple[str, ...]
-    defaults: tuple[Any, ...]
-    fn: Callable[..., Any]
+    defaults: tuple[Value, ...]
+    fn: Callable[..., Value | None]
 
-    def bind(self, args: list[Any], kwargs: dict[str, Any]) -> dict[str, Any]:
+    def bind(self, args: list[Value], kwargs: dict[str, Value]) -> dict[str, Value]:
         if len(args) > len(self.params):
             raise TypeError(f"takes at most {len(self.params)} arguments, {len(args)} given")
-        out: dict[str, Any] = dict(zip(self.params, args, strict=False))
+        out: dict[str, Value] = dict(zip(self.params, args, strict=False))
         for k, v in kwargs.items():
             if k not in self.params:
                 raise TypeError(f"unknown argument '{k}'")
@@ -843,13 +854,13 @@ class Builtin:
 REQUIRED = object()
 
 
-def _nums(vm: Interpreter, n: Node, v: Any, k: int, what: str) -> list[float]:
+def _nums(vm: Interpreter, n: Node, v: Value, k: int, what: str) -> list[float]:
     if not isinstance(v, list) or len(v) != k:
         raise vm._rt(n, f"{what} must be a list of {k} numbers, not {_type(v)}")
     return [float(vm._num(n, x)) for x in v]
 
 
-def _pos(vm: Interpreter, n: Node, v: Any, what: str) -> float:
+def _pos(vm: Interpreter, n: Node, v: Value, what: str) -> float:
     x = float(vm._num(n, v))
     if not math.isfinite(x) or x < 0:
         raise vm._rt(n, f"{what} must be a finite number >= 0, got {x}")
@@ -858,14 +869,21 @@ def _pos(vm: Interpreter, n: Node, v: Any, what: str) -> float:
 
 def _move(kind: str) -> Callable[..., None]:
     def run(
-        vm: Interpreter, n: Node, *, target: Any, a: Any, v: Any, t: Any = 0.0, r: Any = 0.0
+        vm: Interpreter,
+        n: Node,
+        *,
+        target: Value,
+        a: Value,
+        v: Value,
+        t: Value = 0.0,
+        r: Value = 0.0,
     ) -> None:
         if not isinstance(target, list) or len(target) != 6:
             raise vm._rt(n, f"{n.a}(): the target must be a pose p[...] or 6 joint angles")
         vals = [float(vm._num(n, x)) for x in target]
         if not all(math.isfinite(x) for x in vals):
             raise vm._rt(n, f"{n.a}(): the target is not finite")
-        tgt: Any = Pose(vals) if isinstance(target, Pose) else vals
+        tgt: Value = Pose(vals) if isinstance(target, Pose) else vals
         vm.host.move(
             kind,
             tgt,
@@ -878,11 +896,11 @@ def _move(kind: str) -> Callable[..., None]:
     return run
 
 
-def _textmsg(vm: Interpreter, n: Node, *, s1: Any, s2: Any = "") -> None:
+def _textmsg(vm: Interpreter, n: Node, *, s1: Value, s2: Value = "") -> None:
     vm.host.textmsg(_str(s1) + _str(s2))
 
 
-def _str(v: Any) -> str:
+def _str(v: Value) -> str:
     if isinstance(v, str):
         return v
     if isinstance(v, bool):
@@ -897,23 +915,32 @@ def _str(v: Any) -> str:
 
 
 def _popup(
-    vm: Interpreter, n: Node, *, s: Any, title: Any, warning: Any, error: Any, blocking: Any
+    vm: Interpreter,
+    n: Node,
+    *,
+    s: Value,
+    title: Value,
+    warning: Value,
+    error: Value,
+    blocking: Value,
 ) -> None:
     vm.host.popup(_str(s), _str(title), bool(warning), bool(error), bool(blocking))
 
 
-def _sleep(vm: Interpreter, n: Node, *, t: Any) -> None:
+def _sleep(vm: Interpreter, n: Node, *, t: Value) -> None:
     vm.host.sleep(_pos(vm, n, t, "sleep time"))
 
 
-def _reg(kind: str, write: bool) -> Callable[..., Any]:
-    def run(vm: Interpreter, n: Node, *, address: Any, value: Any = None) -> Any:
+def _reg(kind: str, write: bool) -> Callable[..., Value | None]:
+    def run(
+        vm: Interpreter, n: Node, *, address: Value, value: Value | None = None
+    ) -> Value | None:
         i = vm._num(n, address)
         if i != int(i) or not 0 <= int(i) <= (127 if kind == "bit" else 47):
             raise vm._rt(n, f"{n.a}(): register {i} does not exist")
         if write:
             if kind == "int":
-                val: Any = vm._num(n, value)
+                val: Value = vm._num(n, value)
                 if val != int(val) or not -(2**31) <= int(val) < 2**31:
                     raise vm._rt(n, f"{n.a}(): {val} is not a 32-bit integer")
                 val = int(val)
@@ -928,14 +955,14 @@ def _reg(kind: str, write: bool) -> Callable[..., Any]:
     return run
 
 
-def _norm(vm: Interpreter, n: Node, *, a: Any) -> float:
+def _norm(vm: Interpreter, n: Node, *, a: Value) -> float:
     if isinstance(a, list):
         return math.sqrt(sum(float(vm._num(n, x)) ** 2 for x in a))
     return abs(float(vm._num(n, a)))
 
 
 def _math1(f: Callable[[float], float]) -> Callable[..., float]:
-    def run(vm: Interpreter, n: Node, *, f_: Any) -> float:
+    def run(vm: Interpreter, n: Node, *, f_: Value) -> float:
         try:
             return f(float(vm._num(n, f_)))
         except (ValueError, OverflowError) as exc:
@@ -948,11 +975,11 @@ def _get_inverse_kin(
     vm: Interpreter,
     n: Node,
     *,
-    x: Any,
-    qnear: Any,
-    maxPositionError: Any,
-    maxOrientationError: Any,
-    tcp: Any,
+    x: Value,
+    qnear: Value,
+    maxPositionError: Value,
+    maxOrientationError: Value,
+    tcp: Value,
 ) -> list[float]:
     pose = _nums(vm, n, x, 6, "x")
     near = None if qnear is None else _nums(vm, n, qnear, 6, "qnear")
@@ -962,30 +989,30 @@ def _get_inverse_kin(
     return q
 
 
-def _get_forward_kin(vm: Interpreter, n: Node, *, q: Any, tcp: Any) -> Pose:
+def _get_forward_kin(vm: Interpreter, n: Node, *, q: Value, tcp: Value) -> Pose:
     qq = None if q is None else _nums(vm, n, q, 6, "q")
     tt = None if tcp is None else _nums(vm, n, tcp, 6, "tcp")
     return Pose(vm.host.forward_kin(qq, tt))
 
 
-def _set_tcp(vm: Interpreter, n: Node, *, pose: Any) -> None:
+def _set_tcp(vm: Interpreter, n: Node, *, pose: Value) -> None:
     vm.host.set_tcp(_nums(vm, n, pose, 6, "pose"))
 
 
-def _set_payload(vm: Interpreter, n: Node, *, m: Any, cog: Any) -> None:
+def _set_payload(vm: Interpreter, n: Node, *, m: Value, cog: Value) -> None:
     vm.host.set_payload(
         _pos(vm, n, m, "mass"), None if cog is None else _nums(vm, n, cog, 3, "cog")
     )
 
 
-def _digital_out(vm: Interpreter, n: Node, *, n_: Any, b: Any) -> None:
+def _digital_out(vm: Interpreter, n: Node, *, n_: Value, b: Value) -> None:
     i = vm._num(n, n_)
     if i != int(i) or not 0 <= int(i) <= 7:
         raise vm._rt(n, f"{n.a}(): output {i} does not exist (0..7)")
     vm.host.digital_out(int(i), bool(b))
 
 
-def _b(params: str, defaults: tuple[Any, ...], fn: Callable[..., Any]) -> Builtin:
+def _b(params: str, defaults: tuple[Value, ...], fn: Callable[..., Value | None]) -> Builtin:
     names = tuple(p for p in params.split(",") if p)
     return Builtin(names, defaults, fn)
 
