@@ -50,6 +50,7 @@ from ..identify.fit import fit_model
 from . import formats
 from .formats import load_json_limited
 from .fsio import copy_plain_tree, make_dirs, pid_alive, plain_tree, write_atomic, write_error
+from .indexdb import IndexDB
 from .provenance import software_version
 from .verdict import healthy_of
 
@@ -421,8 +422,6 @@ class Archive:
     ) -> None:
         # SQLAlchemy (~0.3 s) only once an archive is opened, not for importing this module
         import sqlalchemy as sa
-
-        from .indexdb import IndexDB
 
         given = Path(root)
         if given.exists() and not given.is_dir():

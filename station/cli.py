@@ -69,7 +69,7 @@ def _finite_floats(parser: argparse.ArgumentParser) -> None:
     ``--margin nan`` or ``--threshold-mm inf`` would otherwise pass argparse and silently
     change what a comparison means; they are usage errors (exit 2, one line).
     """
-    from .formats import finite_float
+    from .formats import finite_float  # numpy: only once a command parses its numbers
 
     for action in parser._actions:
         if action.type is float:

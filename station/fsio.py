@@ -178,7 +178,7 @@ def write_figure(fig: Any, path: str | os.PathLike[str], *, dpi: int = 100) -> s
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     try:
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # matplotlib (0.5 s) only once a figure is written
 
         if plt.fignum_exists(getattr(fig, "number", -1)):
             plt.close(fig)

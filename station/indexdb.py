@@ -60,7 +60,7 @@ def timeout_s(value: float | None = None) -> float:
 
 def shown(url: str) -> str:
     """The URL as it may be printed: without its password."""
-    import sqlalchemy as sa
+    import sqlalchemy as sa  # SQLAlchemy (~0.3 s) only once an index is used
 
     try:
         return sa.engine.make_url(url).render_as_string(hide_password=True)
@@ -72,7 +72,7 @@ class IndexDB:
     """The engine of one archive index with its time-outs and error translation."""
 
     def __init__(self, url: str, timeout: float | None = None) -> None:
-        import sqlalchemy as sa
+        import sqlalchemy as sa  # SQLAlchemy (~0.3 s) only once an index is used
 
         self._sa = sa
         self.timeout_s = timeout_s(timeout)

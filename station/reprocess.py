@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..identify.assess import MAX_ORDER, WORKSPACE_SAMPLES
-from ..identify.errors import InputError, QuickhealthError
+from ..identify.errors import HardwareError, InputError, QuickhealthError
 from ..identify.measurements import Measurements
 from ..identify.transforms import make_T, rpy_to_R
 from ..vision.boards import TargetDescription
@@ -365,7 +366,6 @@ def reprocess(
         else:
             with Pool(max_workers=w) as ex:
                 futs = {ex.submit(reprocess_run, j): i for i, j in enumerate(jobs)}
-                from concurrent.futures import as_completed
 
                 for k, f in enumerate(as_completed(futs), 1):
                     done(futs[f], f.result(), k)
@@ -376,7 +376,7 @@ def check_scheduler(address: str) -> None:
     """Refuse (one line, exit 2) a ``--scheduler`` that is not a Dask address, before any
     work starts.  A well-formed address whose host does not resolve or answer is a runtime
     failure, reported when connecting (exit 3)."""
-    from distributed.comm import resolve_address
+    from distributed.comm import resolve_address  # Dask (optional) only with --scheduler
 
     try:
         resolve_address(address)
@@ -392,10 +392,8 @@ def check_scheduler(address: str) -> None:
 def _run_dask(
     jobs: list[ReprocessJob], scheduler: Any, done: Callable[..., None], timeout_s: float
 ) -> None:
-    from distributed import Client, as_completed
+    from distributed import Client, as_completed  # Dask (optional) only with --scheduler
     from distributed.scheduler import KilledWorker
-
-    from ..identify.errors import HardwareError
 
     own = not isinstance(scheduler, Client)
     try:

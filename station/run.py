@@ -64,13 +64,15 @@ from ..vision.pose7d import (
 from .formats.common import write_text_atomic
 from .formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
 from .formats.measurements import write_measurements
+from .formats.vision import read_rig, rig_to_json
 from .fsio import fsync_dir, remove_stale_temp_files
-from .hardware.cameras import StereoCamera, StereoFrame
-from .hardware.motor import PanMotor
+from .hardware.cameras import OpenCvStereoCamera, StereoCamera, StereoFrame
+from .hardware.motor import PanMotor, SerialPanMotor
 from .hardware.owner import DeviceOwner, owned
-from .hardware.robot import Leg, Robot, RobotReader
-from .hardware.target import T_target_plate, target0_from_plate
+from .hardware.robot import Leg, Robot, RobotReader, UrRobot
+from .hardware.target import T_target_plate, reference_board, reference_target, target0_from_plate
 from .journal import JOURNAL, SCHEMA, Journal, JournalState, read_journal, write_bytes_atomic
+from .planning.cell import load_cell
 from .provenance import software_version
 
 if TYPE_CHECKING:  # types only: the planner loads the collision library, a run needs none of it
@@ -725,8 +727,6 @@ def write_calibration(station: Station, run_dir: Path) -> None:
     its images (the simulated cell's scaled cameras too), so ``quickhealth vision measure
     RUN`` measures the stored images again with the cameras that took them.  A folder that
     already has one (a resumed run) keeps it."""
-    from .formats.vision import rig_to_json
-
     cal = run_dir / CALIBRATION
     rig = getattr(station.camera, "rig", None)
     if rig is None or cal.exists():
@@ -1034,12 +1034,6 @@ def ur_station(
     calibration: str,
 ) -> Station:
     """A :class:`Station` on real hardware: UR robot, serial pan motor, two OpenCV cameras."""
-    from .formats.vision import read_rig
-    from .hardware.cameras import OpenCvStereoCamera
-    from .hardware.motor import SerialPanMotor
-    from .hardware.robot import UrRobot
-    from .planning import load_cell
-
     c = load_cell(cell)
     rig = read_rig(Path(calibration))
     closers: list[Callable[[], None]] = []
@@ -1055,8 +1049,6 @@ def ur_station(
         for f in reversed(closers):
             f()
         raise
-    from .hardware.target import reference_board, reference_target
-
     return Station(
         robot=robot,
         motor=motor,

@@ -30,6 +30,7 @@ SYNOPSIS::
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import os
 import signal
@@ -114,8 +115,6 @@ def _die_with_parent(parent_pid: int) -> None:
     command's process (the parent may be a fork server)."""
     if sys.platform.startswith("linux") and os.getppid() == parent_pid:
         try:
-            import ctypes
-
             libc = ctypes.CDLL(None, use_errno=True)
             libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
         except (OSError, AttributeError):  # pragma: no cover - no prctl: the watcher does it

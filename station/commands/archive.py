@@ -90,7 +90,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _archive_add(args: argparse.Namespace) -> int:
-    from ..archive import prepare_run
+    from ..archive import prepare_run  # numpy and the index: not for --help
 
     meta = {
         k: v
@@ -158,7 +158,7 @@ def _archive_list(args: argparse.Namespace) -> int:
             f"{mark}{x.run_id:<23} {x.time_utc:<21} {x.mean_mm:7.3f} {x.std_mm:7.3f} "
             f"{x.max_mm:7.3f}  {x.plan_hash[:12]} / {x.cell} / {x.calibration_id}"
         )
-    from ..archive import check_lines
+    from ..archive import check_lines  # numpy and the index: not for --help
 
     for line in check_lines(arch.checks(args.robot)):
         print(line)

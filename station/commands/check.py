@@ -161,7 +161,7 @@ def _check_locked(args, plan, cell, baseline, settings, out) -> int:  # type: ig
         for line in res.summary():
             say(line)
         if args.robot is not None:
-            from .archive import open_archive
+            from .archive import open_archive  # the index, only when a robot is named
 
             rec = open_archive(args, create=False).add_check(args.robot, out)
             say(f"recorded as check {rec.check_id} of robot {args.robot} in {rec.root}")

@@ -21,6 +21,7 @@ from ...identify.errors import InputError
 from .. import options
 from ..formats import read_measurements, read_model, write_text_atomic
 from ..fsio import refuse_overwriting_inputs, write_figure
+from ..progress import Progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -68,8 +69,6 @@ def run(args: argparse.Namespace) -> int:
     nj = fitted.robot.n_joints
     train = read_measurements(args.meas, nj)
     held = read_measurements(args.heldout, nj) if args.heldout else None
-    from ..progress import Progress
-
     with Progress(quiet=args.quiet) as say:  # a bar on a terminal, stage lines in a log
         cmp = compare_effect(
             fitted, train, args.effects, heldout=held, folds=args.folds, progress=say

@@ -22,6 +22,7 @@ import numpy as np
 
 from ...identify.errormodel import MOTIONS
 from ...identify.errors import InputError
+from ...identify.robot import Nominal, nominal_of
 from ..provenance import provenance
 from .common import json_plain, load_json_limited, write_text_atomic
 
@@ -249,8 +250,6 @@ def report_of(
 def _nominal(robot: Any) -> dict[str, Any]:
     """Which nominal kinematics the figures are against: the robot as named, and the
     controller calibration file (name, SHA-256) when one replaced its nominal kinematics."""
-    from ...identify.robot import Nominal, nominal_of
-
     nom = robot.nominal if robot.nominal is not None else Nominal(robot.name)
     return {**nom.as_dict(), "description": nominal_of(robot)}
 

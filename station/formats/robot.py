@@ -103,7 +103,7 @@ def read_ur_calibration(path: str | os.PathLike[str]) -> tuple[UrKinematics, str
     (rad) as finite numbers; ``hash`` is optional.  One line, naming the file, for anything
     else.
     """
-    import yaml
+    import yaml  # PyYAML only for a controller calibration file
 
     p = Path(path)
     text = read_text_limited(p, "robot")  # size, regular file, UTF-8 before YAML sees it

@@ -462,7 +462,7 @@ def parse_tracker(text: str, name: str, layout: TrackerLayout) -> Measurements:
         ang_file = np.stack([numbers(k) for k in akeys], axis=1)
         _check_angle_unit(ang_file, units["angle"], [cols[k] for k in akeys], rows, name)
         ang = ang_file * ANGLE_UNITS[units["angle"]]
-        from scipy.spatial.transform import Rotation
+        from scipy.spatial.transform import Rotation  # scipy (0.1 s): tracker files only
 
         rot = Rotation.from_euler(layout.euler, ang).as_matrix()
         if layout.sigma_orientation is not None:
@@ -745,7 +745,7 @@ def euler_rate_matrix(seq: str, angles: F) -> F:
         target; ``ω`` is the angular velocity in the instrument frame (``Ṙ Rᵀ = [ω]×``).
         Defined everywhere, also at gimbal lock (where two columns become parallel).
     """
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation  # scipy (0.1 s): tracker files only
 
     angles = np.atleast_2d(np.asarray(angles, dtype=float))
     seq = check_euler(seq)

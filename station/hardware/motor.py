@@ -179,7 +179,7 @@ class SerialPanMotor:
         move_timeout: float = 5.0,
     ) -> None:
         try:
-            import serial
+            import serial  # pyserial only on a real station: the simulator needs none
         except ImportError as exc:  # pragma: no cover - pyserial is a dependency
             raise HardwareError(f"pyserial is not installed ({exc})") from None
         self.port = port

@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
-from typing import Any
+from typing import Any, Generic, TypeVar, cast
 
 from ...identify.errors import HardwareError
 
@@ -49,7 +49,10 @@ class _Job:
         self.started = threading.Event()
 
 
-class DeviceOwner:
+D = TypeVar("D")
+
+
+class DeviceOwner(Generic[D]):
     """Owns ``device``: its methods run on one worker thread, one call at a time.
 
     Parameters
@@ -70,7 +73,7 @@ class DeviceOwner:
 
     def __init__(
         self,
-        device: Any,
+        device: D,
         name: str,
         *,
         urgent: tuple[str, ...] = ("stop",),
@@ -95,7 +98,7 @@ class DeviceOwner:
         self._thread.start()
 
     @property
-    def device(self) -> Any:
+    def device(self) -> D:
         """The owned driver (for tests and introspection; do not call it directly)."""
         return self._device
 
@@ -215,15 +218,18 @@ class DeviceOwner:
             return value
         return lambda *a, **k: self.call(name, *a, **k)
 
-    def __enter__(self) -> DeviceOwner:
+    def __enter__(self) -> DeviceOwner[D]:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-def owned(device: Any, name: str) -> Any:
-    """``device`` behind a :class:`DeviceOwner` (unchanged when it already has one)."""
+def owned(device: D, name: str) -> D:
+    """``device`` behind a :class:`DeviceOwner` (unchanged when it already has one).
+
+    Typed as the device: the owner answers every method of the device's interface (each
+    call runs in the owner's thread), so callers keep the device's protocol type."""
     if device is None or isinstance(device, DeviceOwner):
         return device
-    return DeviceOwner(device, name)
+    return cast(D, DeviceOwner(device, name))

@@ -22,6 +22,10 @@ from __future__ import annotations
 
 import json
 import math
+import socket
+import subprocess
+import sys
+import threading
 import time
 from dataclasses import dataclass
 from enum import Enum
@@ -32,7 +36,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from ...identify.errors import HardwareError, InputError
 from ...identify.robot import RobotModel, ur5
+from ...identify.transforms import exp_so3, make_T
 from .legs import Leg
+from .ur_client import FAREWELL_ID
 from .urtypes import RobotMode, SafetyMode
 
 F = NDArray[np.float64]
@@ -202,8 +208,6 @@ class ReadOnly:
 
 
 def _pose_to_T(p: ArrayLike) -> F:
-    from ...identify.transforms import exp_so3, make_T
-
     p = np.asarray(p, dtype=float)
     return make_T(exp_so3(p[3:6]), p[:3])
 
@@ -237,10 +241,6 @@ class _Child:
     """One ur-rtde client process (:mod:`.ur_client`) and the replies it owes us."""
 
     def __init__(self, argv: list[str], connect_timeout: float) -> None:
-        import subprocess
-        import sys
-        import threading
-
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "quickhealth.station.hardware.ur_client", *argv],
             stdin=subprocess.PIPE,
@@ -267,8 +267,6 @@ class _Child:
             raise ConnectionLost(str(hello.get("message", "cannot connect")))
 
     def _read(self) -> None:
-        from .ur_client import FAREWELL_ID
-
         assert self.proc.stdout is not None
         try:
             for line in self.proc.stdout:
@@ -292,8 +290,6 @@ class _Child:
 
     def send(self, op: str, **args: object) -> int:
         """Queue a request; returns its id (wait for the answer with :meth:`wait`)."""
-        import threading
-
         with self._lock:
             if self.dead is not None:
                 raise ConnectionLost(f"{self.dead}; reconnect, then rerun with --resume")
@@ -326,8 +322,6 @@ class _Child:
 
     def kill(self) -> None:
         """End the process now (a stuck C++ call is never disconnected from another thread)."""
-        import threading
-
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait()
@@ -387,8 +381,6 @@ class UrRobot:
         move_timeout: float = 120.0,
         model: RobotModel | None = None,
     ) -> None:
-        import threading
-
         self.model = model or ur5()
         self.host = host
         self.frequency = float(frequency)
@@ -605,8 +597,6 @@ class UrRobot:
 
         One short connection per stop, opened, used and closed by the caller under
         ``_dashboard``: no other thread is ever inside it."""
-        import socket
-
         where = f"the dashboard server at {self.host}:{DASHBOARD_PORT}"
         with self._dashboard:
             try:

@@ -37,6 +37,7 @@ system closes its sockets.
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import json
 import math
@@ -145,7 +146,7 @@ class Client:
 
     # -- receiver thread: the only caller of RTDEReceiveInterface --------------------------
     def receiver(self) -> None:
-        import rtde_receive
+        import rtde_receive  # the C++ client, in this thread only: its one owner
 
         try:
             rr = rtde_receive.RTDEReceiveInterface(self.host, self.frequency)
@@ -208,7 +209,7 @@ class Client:
             self._busy = ("", 0.0)
 
     def commander(self, started: threading.Event) -> None:
-        import rtde_control
+        import rtde_control  # the C++ client, in this thread only: its one owner
 
         try:
             self.rc = rtde_control.RTDEControlInterface(self.host, self.frequency)
@@ -530,8 +531,6 @@ def _name(cls: Any, v: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import argparse
-
     p = argparse.ArgumentParser(prog="python -m quickhealth.station.hardware.ur_client")
     p.add_argument("host")
     p.add_argument("--frequency", type=float, default=125.0)

@@ -23,6 +23,8 @@ from pathlib import Path
 from ...identify.design import DesignResult, DesignSettings, select_poses
 from ...identify.errors import InputError
 from ...identify.robot import RobotModel
+from ..formats.common import read_text_limited
+from ..formats.measurements import parse_measurements
 from ..fsio import claim_output_folder, foreign_results, make_dirs, replacing_line, write_atomic
 from ..planning.cell import Cell
 from ..planning.figures import write_figures
@@ -126,8 +128,6 @@ def select_rows(
     InputError
         A file that is not a joint table (one line, file:line:column), ``n`` out of range.
     """
-    from ..formats.common import read_text_limited
-    from ..formats.measurements import parse_measurements
 
     text = read_text_limited(candidates, "candidates")
     meas = parse_measurements(text, str(candidates), robot.n_joints, joints_only=True)

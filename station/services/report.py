@@ -32,7 +32,7 @@ from ...identify.measurements import Measurements
 from ...identify.trend import TrendResult, assess_trend
 from ...identify.workspace import all_joint_curves, workspace_error
 from .. import report_html as page
-from ..archive import Archive, run_metadata
+from ..archive import Archive, missing_words, run_metadata, trend_runs
 from ..formats import measurements as measurements_file
 from ..formats import model as model_file
 from ..formats import report as report_file
@@ -274,8 +274,6 @@ def _trend(
         return None, [], "run not archived: quickhealth archive add RUN_DIR --robot NAME"
     if rid not in [r.run_id for r in archive.runs(robot)]:
         return None, [], f"run {rid} is not in the archive of robot {robot}"
-    from ..archive import missing_words, trend_runs
-
     try:  # runs whose archive folders are missing are left out, and said so
         recs, missing = trend_runs(archive, robot, upto=rid)
     except InputError as exc:

@@ -82,7 +82,7 @@ class ArmDynamics:
     """Inverse dynamics of one arm with a payload (pinocchio RNEA, ~10 µs a call)."""
 
     def __init__(self, robot: RobotModel, payload_kg: float = 0.0, payload_com: F | None = None):
-        import pinocchio as pin
+        import pinocchio as pin  # pinocchio (0.3 s) only once an arm carries a payload
 
         self._pin = pin
         com = np.zeros(3) if payload_com is None else np.asarray(payload_com, float)

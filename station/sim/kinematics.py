@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from ...identify.robot import UR_ARMS, Nominal, RobotModel, with_kinematics
 from ...identify.transforms import exp_so3, make_T, rot_z
+from ..formats import read_ur_calibration
 from .arm import MAX_JOINT_STEP, Path
 
 F = NDArray[np.float64]
@@ -96,8 +97,6 @@ def calibration_from_yaml(robot: RobotModel, path: str) -> RobotModel:
     InputError
         The file is not such a YAML (one line naming it).
     """
-    from ..formats import read_ur_calibration
-
     kin, sha = read_ur_calibration(path)
     nominal = Nominal(robot.name, calibration=str(path), calibration_sha256=sha)
     return with_kinematics(robot, kin.links(), name=robot.name, nominal=nominal)

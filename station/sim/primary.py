@@ -23,6 +23,7 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 from . import urscript_program
+from .controller import close_socket
 
 if TYPE_CHECKING:
     from .controller import Controller
@@ -96,8 +97,6 @@ class Clients:
 
 def interface(ctrl: Controller, conn: socket.socket, name: str, clients: Clients | None) -> None:
     """Serve one connection of the ``name`` interface (primary, secondary or realtime)."""
-    from .controller import close_socket
-
     if clients is not None:
         try:
             conn.sendall(version_message(ctrl.version, ctrl.now()))

@@ -23,6 +23,7 @@ import numpy as np
 
 from ...identify.errors import HardwareError, InputError
 from ..planning.cell import load_cell
+from . import __doc__ as package_doc
 from .arm import HOME_Q_DEG, Arm, controller_arm
 from .controller import Controller, close_socket
 from .kinematics import calibration_from_yaml, factory_calibration
@@ -368,8 +369,6 @@ def build_controller(
 
 def main(argv: list[str] | None = None) -> int:
     """Command line of the simulator process."""
-    from . import __doc__ as package_doc
-
     p = argparse.ArgumentParser(
         prog="quickhealth sim-controller",
         description=package_doc,

@@ -8,6 +8,7 @@ later one: :data:`FIXED_TYPES` and :func:`rtde_type` follow that table.
 
 from __future__ import annotations
 
+import ipaddress
 import socket
 import struct
 from typing import Any
@@ -18,7 +19,6 @@ HOST = "127.0.0.1"
 def check_loopback(host: str) -> str:
     """``host`` when it is an IPv4 loopback address (127.0.0.0/8); the simulator serves
     nowhere else.  Raises ValueError otherwise."""
-    import ipaddress
 
     try:
         ok = ipaddress.IPv4Address(host).is_loopback
