@@ -27,7 +27,7 @@ from ...identify.effects import parse_effect
 from ...identify.errors import InputError
 from ...identify.robot import RobotModel, ur5
 from ...identify.twin import make_twin, random_joints, schedules
-from .. import options
+from .. import options, workers
 from ..formats import (
     MAX_FIT_ROWS,
     check_joint_limits,
@@ -141,6 +141,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 def run_diagnose(args: argparse.Namespace) -> int:
     """``quickhealth diagnose`` (:func:`~quickhealth.station.services.diagnosis.diagnose_model`)."""
+    workers.keep_freed_memory()  # a batch command: reuse freed arrays (see there)
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be between 0 and 1, got {args.alpha}")
     if args.max_harmonic < 1:

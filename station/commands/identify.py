@@ -172,6 +172,7 @@ def _carrying_target(robot: RobotModel, cell_spec: str) -> RobotModel:
 @workers.owns_workers
 @lock.holds_outputs("identify fit", lambda a: [a.out])
 def _fit(args: argparse.Namespace) -> int:
+    workers.keep_freed_memory()  # a batch command: reuse freed arrays (see there)
     for name in ("sigma_pos_mm", "sigma_rot_deg"):
         if getattr(args, name) is not None:
             _positive(f"--{name.replace('_', '-')}", getattr(args, name))
