@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 from importlib import resources
 
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 
 from quickhealth.identify.errors import InputError
 from quickhealth.identify.robot import BUILTIN_ROBOTS, UR_ARMS, builtin_robot, chain
+from quickhealth.identify.transforms import exp_so3, make_T
 from quickhealth.station.cli import main
 from quickhealth.station.planning.arm_geometry import (
     MESH_ARMS,
@@ -27,7 +29,16 @@ from quickhealth.station.planning.arm_geometry import (
 from quickhealth.station.planning.cell import load_cell, parse_cell
 from quickhealth.station.planning.collision import CollisionWorld
 from quickhealth.station.planning.planfile import plan_from_dict, plan_to_dict
-from quickhealth.station.planning.planner import plan_loop, sweep_reach
+from quickhealth.station.planning.planner import (
+    LINE_JOINT_SPEED_SHARE,
+    line_within_joint_speeds,
+    plan_loop,
+    sweep_reach,
+    track_linear,
+)
+from quickhealth.station.sim.controller import CMD_MOVEJ, CMD_MOVEL_FK, PlanJob, plan_command
+from quickhealth.station.sim.kinematics import JointLimits
+from quickhealth.station.sim.process import build_controller
 
 Q = np.random.default_rng(24).uniform(-np.pi, np.pi, (40, 6))
 
@@ -200,3 +211,64 @@ def test_identify_fit_cell_puts_the_target_on_the_arm(tmp_path, capsys):
     assert main([*base, "--cell", "reference", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "its arm is the ur5, not the ur10e" in err
+
+
+def test_every_leg_of_the_ur10e_plan_runs_on_its_controller():
+    """The UR10e cell's plan (150 candidates, seed 0, as docs/station.md runs it) moved its
+    base at 173 deg/s (limit 120) on one 250 mm/s line past the shoulder, and the simulated
+    controller, like a real one, ended the run there in a protective stop after 24 poses.
+    The planner now checks each line's joint speeds at the plan's linear speed against the
+    arm's limits, sampled as finely as the controller samples the line: that leg goes in
+    joint space, and every leg passes the controller's own checks (its calibrated
+    kinematics, its hardware limits)."""
+    cell = load_cell("ur10e")
+    res = plan_loop(cell, 150, 0)
+    plan = plan_from_dict(json.loads(json.dumps(plan_to_dict(res))), "plan.json")
+    ctrl = build_controller(cell="ur10e", control_port=30131)
+    lim = JointLimits.of(ctrl.arm.robot)
+    m = cell.motion
+    refused, lines, tested = [], 0, 0
+    for a, b in zip(plan.poses[:-1], plan.poses[1:], strict=True):
+        linear = b.leg.value == "linear"
+        lines += linear
+        speed, accel = (
+            (m.linear_speed, m.linear_accel) if linear else (m.joint_speed, m.joint_accel)
+        )
+        job = PlanJob(
+            0,
+            CMD_MOVEL_FK if linear else CMD_MOVEJ,
+            tuple(b.q),
+            speed,
+            accel,
+            True,
+            tuple(a.q),
+            lim,
+        )
+        why = plan_command(ctrl.arm, job)
+        tested += 1
+        if isinstance(why, str):
+            refused.append((b.name, why))
+    assert tested == len(plan.poses) - 1 and lines > 20
+    assert refused == [], refused
+
+
+def test_a_line_that_turns_a_joint_beyond_its_speed_limit_is_not_a_linear_leg():
+    """The UR10e plan's former line P024 -> P025 (targets in the base frame, mm and rotation
+    vectors in degrees, from the plan of the test above before the fix)."""
+
+    def T(p_mm, rv_deg):
+        return make_T(exp_so3(np.radians(rv_deg)), np.asarray(p_mm) / 1e3)
+
+    cell = load_cell("ur10e")
+    T_a = T([294.079819, 658.421535, 819.447175], [29.001317835, 45.664367236, 37.015086129])
+    T_b = T([320.747448, 61.555536, 1040.800698], [66.110845288, 45.072267112, 62.521657519])
+    q_a = np.radians([94.073943946, -179.055721565, 70.217153853, 39.554108433, 39.968457585,
+                      26.134859978])  # fmt: skip
+    pl = cell.planner
+    _, qs = track_linear(cell, T_a, q_a, T_b, pl.leg_step, pl.leg_step_rot)
+    assert not np.isnan(qs).any()  # reachable and continuous: only its speed rules it out
+    assert not line_within_joint_speeds(cell, T_a, q_a, T_b, qs)
+    slow = cell.motion.linear_speed * 0.5 * LINE_JOINT_SPEED_SHARE  # at half the speed it is fine
+    assert line_within_joint_speeds(
+        replace(cell, motion=replace(cell.motion, linear_speed=slow)), T_a, q_a, T_b, qs
+    )
