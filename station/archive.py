@@ -651,11 +651,16 @@ class Archive:
     # ---- paths
     def run_path(self, robot: str, run_id: str) -> Path:
         """Folder of a run; never outside the archive root."""
+        return self._inside("robots", "run", robot, run_id)
+
+    def _inside(self, folder: str, kind: str, robot: str, name: str) -> Path:
+        """``root/folder/robot/name`` (each part checked by :func:`safe_name`), refused in one
+        line should it resolve outside the archive root."""
         p = (
-            self.root / "robots" / safe_name(robot, "robot") / safe_name(run_id, "run id")
+            self.root / folder / safe_name(robot, "robot") / safe_name(name, f"{kind} id")
         ).resolve()
         if not p.is_relative_to(self.root):
-            raise InputError(f"run {robot}/{run_id} would lie outside the archive {self.root}")
+            raise InputError(f"{kind} {robot}/{name} would lie outside the archive {self.root}")
         return p
 
     # ---- writing
@@ -882,12 +887,7 @@ class Archive:
     # ---- quick checks
     def check_path(self, robot: str, check_id: str) -> Path:
         """Folder of a quick check; never outside the archive root."""
-        p = (
-            self.root / "checks" / safe_name(robot, "robot") / safe_name(check_id, "check id")
-        ).resolve()
-        if not p.is_relative_to(self.root):
-            raise InputError(f"check {robot}/{check_id} would lie outside the archive {self.root}")
-        return p
+        return self._inside("checks", "check", robot, check_id)
 
     def add_check(
         self, robot: str, check_dir: str | Path, *, check_id: str | None = None

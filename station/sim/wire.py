@@ -81,6 +81,24 @@ TYPE_FMT = {
     "UINT8": "B",
     "BOOL": "?",
 }
+# Input-only names (the client writes them; an output recipe may read them back).
+INPUT_FIELDS = {
+    "speed_slider_mask": "UINT32",
+    "speed_slider_fraction": "DOUBLE",
+    "standard_digital_output_mask": "UINT8",
+    "standard_digital_output": "UINT8",
+    "configurable_digital_output_mask": "UINT8",
+    "configurable_digital_output": "UINT8",
+    "tool_digital_output_mask": "UINT8",
+    "tool_digital_output": "UINT8",
+    "standard_analog_output_mask": "UINT8",
+    "standard_analog_output_type": "UINT8",
+    "standard_analog_output_0": "DOUBLE",
+    "standard_analog_output_1": "DOUBLE",
+    "input_bit_registers0_to_31": "UINT32",
+    "input_bit_registers32_to_63": "UINT32",
+    "external_force_torque": "VECTOR6D",
+}
 FIXED_TYPES = {
     "timestamp": "DOUBLE",
     "actual_digital_input_bits": "UINT64",
@@ -116,25 +134,13 @@ FIXED_TYPES = {
     "tool_force_scalar": "DOUBLE",
     "output_bit_registers0_to_31": "UINT32",
     "output_bit_registers32_to_63": "UINT32",
-    "input_bit_registers0_to_31": "UINT32",
-    "input_bit_registers32_to_63": "UINT32",
     "payload": "DOUBLE",
     "payload_cog": "VECTOR3D",
     "payload_inertia": "VECTOR6D",
-    "speed_slider_mask": "UINT32",
-    "speed_slider_fraction": "DOUBLE",
-    "standard_digital_output_mask": "UINT8",
-    "standard_digital_output": "UINT8",
-    "configurable_digital_output_mask": "UINT8",
-    "configurable_digital_output": "UINT8",
-    "tool_digital_output_mask": "UINT8",
-    "tool_digital_output": "UINT8",
-    "standard_analog_output_mask": "UINT8",
-    "standard_analog_output_type": "UINT8",
-    "standard_analog_output_0": "DOUBLE",
-    "standard_analog_output_1": "DOUBLE",
     "script_control_line": "UINT32",
     "ft_raw_wrench": "VECTOR6D",
+    # the inputs (an output recipe may read them back); external_force_torque is a VECTOR6D
+    **{n: t for n, t in INPUT_FIELDS.items() if n != "external_force_torque"},
 }
 VECTOR6D_FIELDS = (
     "target_q",
@@ -181,24 +187,6 @@ _GUIDE_OUTPUTS_EXTRA = {
     "joint_position_deviation_ratio": "DOUBLE",
     "collision_detection_ratio": "DOUBLE",
     "time_scale_source": "INT32",
-}
-# Input-only names (the client writes them; an output recipe may read them back).
-INPUT_FIELDS = {
-    "speed_slider_mask": "UINT32",
-    "speed_slider_fraction": "DOUBLE",
-    "standard_digital_output_mask": "UINT8",
-    "standard_digital_output": "UINT8",
-    "configurable_digital_output_mask": "UINT8",
-    "configurable_digital_output": "UINT8",
-    "tool_digital_output_mask": "UINT8",
-    "tool_digital_output": "UINT8",
-    "standard_analog_output_mask": "UINT8",
-    "standard_analog_output_type": "UINT8",
-    "standard_analog_output_0": "DOUBLE",
-    "standard_analog_output_1": "DOUBLE",
-    "input_bit_registers0_to_31": "UINT32",
-    "input_bit_registers32_to_63": "UINT32",
-    "external_force_torque": "VECTOR6D",
 }
 _OUTPUT_ONLY_FIXED = {
     n: t for n, t in FIXED_TYPES.items() if n not in INPUT_FIELDS and n != "tool_force_scalar"
