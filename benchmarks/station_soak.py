@@ -52,6 +52,9 @@ import time
 from collections import Counter
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests" / "helpers"))
+from qh_dashboard import dashboard  # noqa: E402  (a technician's dashboard client)
+
 IN_RUN = (
     "protective_stop",
     "drop_connection",
@@ -111,29 +114,15 @@ def _inject(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
     elif kind == "bad_move":
         sim.fault("joint_speed_limit", scale=0.02)
     elif kind == "pause":
-        _dashboard(sim.host, "pause")
+        dashboard(sim.host, "pause")
     else:
         sim.fault(kind)
-
-
-def _dashboard(host: str, *lines: str) -> list[str]:
-    """Send dashboard commands as a technician would; returns the replies."""
-    import socket
-
-    with socket.create_connection((host, 29999), timeout=5.0) as s:
-        f = s.makefile("rwb", buffering=0)
-        f.readline()
-        out = []
-        for line in lines:
-            f.write(line.encode() + b"\n")
-            out.append(f.readline().decode().strip())
-        return out
 
 
 def _until(host: str, line: str, want: str, timeout: float = 20.0) -> None:
     """Repeat a dashboard query until its reply starts with ``want``."""
     deadline = time.monotonic() + timeout
-    while not _dashboard(host, line)[0].startswith(want):
+    while not dashboard(host, line)[0].startswith(want):
         if time.monotonic() > deadline:
             raise RuntimeError(f"dashboard {line!r} never answered {want!r}")
         time.sleep(0.1)
@@ -151,12 +140,12 @@ def _recover(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
         sim.fault("clear")
     elif kind == "bad_move":  # the safety limits put back, the stop unlocked (if it came)
         sim.fault("joint_speed_limit", scale=1.0)
-        if _dashboard(sim.host, "safetystatus")[0].endswith("PROTECTIVE_STOP"):
+        if dashboard(sim.host, "safetystatus")[0].endswith("PROTECTIVE_STOP"):
             _until(sim.host, "unlock protective stop", "Protective stop releasing")
     elif kind == "power_off":
-        _dashboard(sim.host, "power on")
+        dashboard(sim.host, "power on")
         _until(sim.host, "robotmode", "Robotmode: IDLE")
-        _dashboard(sim.host, "brake release")
+        dashboard(sim.host, "brake release")
         _until(sim.host, "robotmode", "Robotmode: RUNNING")
     link = kind in ("drop_connection", "freeze_stream", "restart")
     technician = kind in ("bad_move", "power_off", "pause", "unknown_command")

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import qh_station_plan as _station_plan
+from qh_dashboard import dashboard
 
 from quickhealth.station.cli import main
 from quickhealth.station.formats import read_measurements
@@ -199,11 +199,8 @@ def test_fault_mid_run_stops_cleanly_keeps_everything(plan20, tmp_path, kind, wo
             # (UR: 5 s; the short test delays: TESTING.unlock_after_s), which a fast run's
             # stop may not have left behind it yet
             time.sleep(TESTING.unlock_after_s + 0.2)
-            with socket.create_connection((cell.controller.host, 29999), timeout=5) as s:
-                f = s.makefile("rwb", buffering=0)
-                f.readline()
-                f.write(b"unlock protective stop\n")
-                assert f.readline().startswith(b"Protective stop releasing")
+            reply = dashboard(cell.controller.host, "unlock protective stop")[0]
+            assert reply.startswith("Protective stop releasing")
             t0 = time.monotonic()
             while not station.robot.status().ready and time.monotonic() - t0 < 2:
                 time.sleep(0.01)  # the stream shows the release a packet later
@@ -217,20 +214,9 @@ def test_fault_mid_run_stops_cleanly_keeps_everything(plan20, tmp_path, kind, wo
         station.close()
 
 
-def _dash(host: str, *lines: str) -> list[str]:
-    with socket.create_connection((host, 29999), timeout=5) as s:
-        f = s.makefile("rwb", buffering=0)
-        f.readline()
-        out = []
-        for line in lines:
-            f.write(line.encode() + b"\n")
-            out.append(f.readline().decode().strip())
-        return out
-
-
 def _until(host: str, line: str, want: str) -> None:
     t0 = time.monotonic()
-    while not _dash(host, line)[0].startswith(want):
+    while not dashboard(host, line)[0].startswith(want):
         assert time.monotonic() - t0 < 5, f"{line!r} never answered {want!r}"
         time.sleep(0.05)
 
@@ -250,9 +236,9 @@ def test_controller_faults_stop_the_run_in_one_line_and_resume_loses_nothing(pla
     out = tmp_path / "run"
 
     def power_back() -> None:
-        _dash(host, "power on")
+        dashboard(host, "power on")
         _until(host, "robotmode", "Robotmode: IDLE")
-        _dash(host, "brake release")
+        dashboard(host, "brake release")
         _until(host, "robotmode", "Robotmode: RUNNING")
 
     def unlock() -> None:

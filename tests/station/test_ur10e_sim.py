@@ -13,11 +13,11 @@ moves 20× faster than life (its loop is 250 s of robot time), as the README tut
 from __future__ import annotations
 
 import json
-import socket
 import time
 
 import numpy as np
 import pytest
+from qh_dashboard import dashboard
 
 from quickhealth.station.cli import main
 from quickhealth.station.planning import load_plan
@@ -28,17 +28,6 @@ pytestmark = [pytest.mark.slow]
 
 #: The hidden compliance of joint 2, rad/(N·m): a stiffness of 1e5 N·m/rad.
 C2 = 1e-5
-
-
-def _dashboard(host: str, *commands: str) -> list[str]:
-    with socket.create_connection((host, 29999), timeout=5) as s:
-        f = s.makefile("rwb", buffering=0)
-        f.readline()  # the banner
-        out = []
-        for c in commands:
-            f.write(c.encode() + b"\n")
-            out.append(f.readline().decode().strip())
-        return out
 
 
 @pytest.mark.timeout(240)
@@ -58,7 +47,7 @@ def test_ur10e_plan_run_fit_diagnose_report_finds_the_hidden_compliance(
         "ur10e", image_scale=0.5, speed_factor=20.0, degrade={"compliance:j2": C2}
     )
     try:
-        assert _dashboard(cell.controller.host, "get robot model", "PolyscopeVersion") == [
+        assert dashboard(cell.controller.host, "get robot model", "PolyscopeVersion") == [
             "UR10",
             "URSoftware 5.11.1.0 (quickhealth simulator)",
         ]
