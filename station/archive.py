@@ -52,7 +52,7 @@ from .formats import load_json_limited
 from .fsio import copy_plain_tree, make_dirs, pid_alive, plain_tree, write_atomic, write_error
 from .indexdb import IndexDB
 from .provenance import software_version
-from .verdict import healthy_of
+from .reporting.verdict import healthy_of
 
 if TYPE_CHECKING:
     from ..identify.trend import RunState, TrendResult

@@ -51,9 +51,9 @@ from .formats.journal import Captured
 from .formats.vision import read_gray, read_rig
 from .hardware.target import T_target_plate, reference_target, target0_from_plate
 from .journal import JOURNAL, read_journal
+from .reporting.verdict import HealthVerdict, Threshold, ThresholdFigure
 from .services import fitting, report
 from .services.options import FitOptions, ReportOptions
-from .verdict import HealthVerdict, Threshold, ThresholdFigure
 from .workers import Pool
 
 F = NDArray[np.float64]

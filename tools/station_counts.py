@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 DISPLAY = (
     "formats/",
     "tui/",
-    "report_html.py",
+    "reporting/page.py",
     "commands/",
     "cli.py",
 )

@@ -2,7 +2,7 @@
 
 quickhealth archive add RUN_DIR --robot NAME [--run-id ID] [--time ISO] [--baseline] ...
     The run's verdict (healthy or not: the baseline is the first healthy run unless one is set)
-    is the one its report.json carries (:func:`quickhealth.station.verdict.healthy_of`), unless
+    is the one its report.json carries (:func:`quickhealth.station.reporting.verdict.healthy_of`), unless
     --healthy or --unhealthy says otherwise.
 quickhealth archive baseline ROBOT RUN_ID | ROBOT --clear
 quickhealth archive list [ROBOT]

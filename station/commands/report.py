@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING
 from ...identify.errors import InputError
 from .. import lock, options
 from ..fsio import refuse_overwriting_inputs
+from ..reporting.verdict import Threshold, ThresholdFigure
 from ..services.options import ReportOptions
-from ..verdict import Threshold, ThresholdFigure
 from .archive import add_archive_options, open_archive
 
 if TYPE_CHECKING:  # the type only: the archive loads SQLAlchemy

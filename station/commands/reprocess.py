@@ -16,7 +16,7 @@ import time
 from ...identify.assess import MAX_ORDER, WORKSPACE_SAMPLES
 from ...identify.errors import InputError
 from .. import options, workers
-from ..verdict import HealthVerdict, Threshold, ThresholdFigure
+from ..reporting.verdict import HealthVerdict, Threshold, ThresholdFigure
 from .archive import add_archive_options, open_archive
 
 

@@ -3,7 +3,7 @@
 quickhealth trend ROBOT [--threshold-mm X] [--figure max] [--tolerance-mm X] [--json OUT] [--plot PNG]
     Workspace error figures, error-curve changes judged against the combined uncertainty,
     EWMA control limits, prognosis and root-cause hints, and the latest run's verdict
-    (:func:`quickhealth.station.verdict.judge`, as its report judges it).  Exit 1 when the
+    (:func:`quickhealth.station.reporting.verdict.judge`, as its report judges it).  Exit 1 when the
     latest run is flagged: above the threshold, outside its control limits, or with an error
     curve that changed beyond the combined uncertainty (--fail-on threshold: only the
     threshold counts).
@@ -19,7 +19,14 @@ from .. import options
 from ..formats.common import json_plain, write_text_atomic
 from ..formats.report import trend_to_json
 from ..fsio import refuse_outputs_inside, refuse_overwriting_inputs, write_figure
-from ..verdict import Figures, HealthVerdict, Threshold, ThresholdFigure, judge, missing_effect_in
+from ..reporting.verdict import (
+    Figures,
+    HealthVerdict,
+    Threshold,
+    ThresholdFigure,
+    judge,
+    missing_effect_in,
+)
 from .archive import add_archive_options, open_archive
 
 
@@ -159,7 +166,7 @@ def _trend(args: argparse.Namespace) -> int:
         ]
         write_text_atomic(args.json, json.dumps(json_plain(doc), indent=1) + "\n")
     if args.plot:
-        from ..report_html import trend_figure  # matplotlib: only for --plot
+        from ..reporting.page import trend_figure  # matplotlib: only for --plot
 
         write_figure(trend_figure(res), args.plot, dpi=100)
     if args.fail_on == "threshold":

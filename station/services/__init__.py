@@ -12,7 +12,7 @@ the data:
   run's measurements, and model.json, report.json, residuals.csv and the figures written
   atomically into its folder;
 - ``report``: :func:`~.report.report_run`: report.html and the report's sections, the one
-  verdict (:func:`quickhealth.station.verdict.judge`) and the ``run`` object in report.json;
+  verdict (:func:`quickhealth.station.reporting.verdict.judge`) and the ``run`` object in report.json;
 - ``compensation``: :func:`~.compensation.compensate`: a robot program's joint targets
   corrected for the model, every refusal named;
 - ``wam``: :func:`~.wam.wam_sign`: the sign of the WAM tracker's offset columns, from the data.

@@ -14,7 +14,7 @@ from ...identify.assess import MAX_ORDER, WORKSPACE_SAMPLES
 from ...identify.errormodel import ErrorModelSpec
 from ...identify.fit import ParameterPrior
 from ...identify.linearize import InstrumentNoise
-from ..verdict import Threshold
+from ..reporting.verdict import Threshold
 
 #: The TUI's threshold of the workspace max TCP error (mm, as the monitoring figures): its
 #: Results screen always judges against one (``report`` and ``trend`` only when given one).

@@ -2,8 +2,8 @@
 
 :func:`build_report` gathers what a run folder and the archive say (the fitted model, the
 data, the plan, the workspace error, the joint curves, the diagnosis, the trend against the
-baseline, ISO 9283 statistics), judges the run (:func:`quickhealth.station.verdict.judge`) and
-lays it out as the page's sections (:mod:`quickhealth.station.report_html`).
+baseline, ISO 9283 statistics), judges the run (:func:`quickhealth.station.reporting.verdict.judge`) and
+lays it out as the page's sections (:mod:`quickhealth.station.reporting.page`).
 :func:`report_run` is the door every producer uses (``quickhealth report``, the TUI's Results
 screen, ``reprocess``): it writes report.html and adds the sections, the verdict and the
 ``run`` object to report.json, keeping its schema.
@@ -31,16 +31,16 @@ from ...identify.fit import FittedModel
 from ...identify.measurements import Measurements
 from ...identify.trend import TrendResult, assess_trend
 from ...identify.workspace import all_joint_curves, workspace_error
-from .. import report_html as page
 from ..archive import Archive, missing_words, run_metadata, trend_runs
 from ..formats import measurements as measurements_file
 from ..formats import model as model_file
 from ..formats import report as report_file
 from ..formats.common import write_text_atomic
 from ..fsio import write_atomic
-from ..iso9283 import run_pose_stats
 from ..planning.planfile import plan_joints
-from ..verdict import Figures, Judgement, MissingEffect, judge
+from ..reporting import page
+from ..reporting.iso9283 import run_pose_stats
+from ..reporting.verdict import Figures, Judgement, MissingEffect, judge
 from .options import ReportOptions
 
 #: The report's sections that report.json keeps (beside the fit's keys).

@@ -42,12 +42,12 @@ from ..planning import load_cell, load_plan
 from ..planning.cell import Cell
 from ..planning.planfile import Plan, plan_from_dict, plan_to_dict
 from ..planning.planner import plan_loop
+from ..reporting.verdict import HealthVerdict, Judgement, Threshold, ThresholdFigure
 from ..run import RunSettings, ur_station
 from ..run import Station as Hardware
 from ..services.checking import load_baseline, quick_check
 from ..services.fitting import write_fit
 from ..services.options import TUI_THRESHOLD_MM, FitOptions
-from ..verdict import HealthVerdict, Judgement, Threshold, ThresholdFigure
 from . import jobs
 from .cell import CellControl
 from .offload import offload, warm_up

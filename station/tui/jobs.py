@@ -23,10 +23,10 @@ from ...identify.robot import RobotModel
 from ...identify.workspace import reference_conditions
 from ..archive import Archive
 from ..fsio import write_figure
+from ..reporting.verdict import Judgement, Threshold
 from ..services import fitting
 from ..services.options import FitOptions, ReportOptions
 from ..services.report import report_run
-from ..verdict import Judgement, Threshold
 from . import figures
 from .views import HistoryRow, JointCurve, Region
 

@@ -13,7 +13,7 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from ..verdict import HealthVerdict, ThresholdFigure
+from ..reporting.verdict import HealthVerdict, ThresholdFigure
 
 F = NDArray[np.float64]
 

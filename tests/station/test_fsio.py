@@ -90,7 +90,7 @@ def _calls(path: Path, names: set[str]) -> list[str]:
 
 def test_every_figure_goes_through_write_figure():
     """savefig only renders into memory (fsio.write_figure, the HTML report's data URIs)."""
-    allowed = {"station/fsio.py", "station/report_html.py"}
+    allowed = {"station/fsio.py", "station/reporting/page.py"}
     calls = [
         c
         for p in sorted((ROOT / "station").rglob("*.py"))
@@ -99,7 +99,7 @@ def test_every_figure_goes_through_write_figure():
     ]
     assert calls == []
     # and there it writes into a BytesIO, never to a path
-    src = (ROOT / "station" / "report_html.py").read_text()
+    src = (ROOT / "station" / "reporting" / "page.py").read_text()
     assert src.count(".savefig(") == 1 and "fig.savefig(buf, format=" in src
 
 

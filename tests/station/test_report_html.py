@@ -13,8 +13,8 @@ import qh_runs as _runs
 
 from quickhealth.station.archive import Archive
 from quickhealth.station.cli import main
-from quickhealth.station.iso9283 import iso9283_pose_stats
-from quickhealth.station.report_html import joint_figure, trend_figure
+from quickhealth.station.reporting.iso9283 import iso9283_pose_stats
+from quickhealth.station.reporting.page import joint_figure, trend_figure
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path("/usr/bin/chromedriver")

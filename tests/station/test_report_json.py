@@ -17,10 +17,10 @@ from quickhealth.station.archive import Archive
 from quickhealth.station.cli import main
 from quickhealth.station.formats import REPORT_SCHEMA as SCHEMA
 from quickhealth.station.formats import check_report, write_measurements
+from quickhealth.station.reporting.verdict import HealthVerdict, Threshold
 from quickhealth.station.reprocess import jobs_for_archive, reprocess
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.facade import Station
-from quickhealth.station.verdict import HealthVerdict, Threshold
 
 MAX_ORDER = 2
 ROBOT, RUN = "ur5-a", "r1"

@@ -1,4 +1,4 @@
-"""The one verdict (station/verdict.py): each of its rules, in the documented order, and the
+"""The one verdict (station/reporting/verdict.py): each of its rules, in the documented order, and the
 verdict a report.json carries back to the archive."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from quickhealth.station.verdict import (
+from quickhealth.station.reporting.verdict import (
     Figures,
     HealthVerdict,
     MissingEffect,

@@ -17,7 +17,7 @@ from textual.widgets import Footer, Static
 from textual_plotext import PlotextPlot
 
 from ....identify.errormodel import MOTIONS
-from ...verdict import HealthVerdict
+from ...reporting.verdict import HealthVerdict
 from ..views import Health
 from ..widgets.nav import NavBar
 from ..widgets.textplot import spark

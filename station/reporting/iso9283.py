@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..identify.errormodel import constant_motions
-from ..identify.fit import FittedModel
-from ..identify.measurements import Measurements
-from ..identify.transforms import log_so3, small_error_transform
+from ...identify.errormodel import constant_motions
+from ...identify.fit import FittedModel
+from ...identify.measurements import Measurements
+from ...identify.transforms import log_so3, small_error_transform
 
 F = NDArray[np.float64]
 

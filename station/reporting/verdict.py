@@ -30,10 +30,10 @@ from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .formats.common import load_json_limited
+from ..formats.common import load_json_limited
 
 if TYPE_CHECKING:  # the type only: the trend loads scipy.stats, archive add would wait for it
-    from ..identify.trend import TrendResult
+    from ...identify.trend import TrendResult
 
 #: A run whose mean or max TCP error is this much above the baseline's is degraded.
 RISE = 0.10

@@ -17,7 +17,7 @@ Sections, in the order a reader needs them:
                     position and, for pose (7D) data, orientation (a, b, c about the base axes)
 
 Each ``*_section`` function turns what the report found (SI, typed: the fitted model, the
-workspace error, the trend, the :class:`~quickhealth.station.verdict.Judgement`…) into a
+workspace error, the trend, the :class:`~quickhealth.station.reporting.verdict.Judgement`…) into a
 :class:`Section` in the units people read (mm, degrees, mrad); :func:`render_html` turns the
 sections into the page.  Gathering the findings from a run folder is the report service's job
 (:func:`quickhealth.station.services.report.build_report`).  :meth:`Report.to_dict` is the
@@ -48,15 +48,15 @@ import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from ..identify.errormodel import MOTION_WORDS, MOTIONS  # noqa: E402
-from ..identify.fit import FittedModel  # noqa: E402
-from ..identify.measurements import Measurements  # noqa: E402
-from ..identify.report import residual_plot, workspace_histogram  # noqa: E402
-from ..identify.robot import RobotModel, nominal_of  # noqa: E402
-from ..identify.trend import TrendResult  # noqa: E402
-from ..identify.workspace import JointCurves, WorkspaceError  # noqa: E402
-from .formats.common import json_plain as _plain  # noqa: E402
-from .formats.report import trend_to_json  # noqa: E402
+from ...identify.errormodel import MOTION_WORDS, MOTIONS  # noqa: E402
+from ...identify.fit import FittedModel  # noqa: E402
+from ...identify.measurements import Measurements  # noqa: E402
+from ...identify.report import residual_plot, workspace_histogram  # noqa: E402
+from ...identify.robot import RobotModel, nominal_of  # noqa: E402
+from ...identify.trend import TrendResult  # noqa: E402
+from ...identify.workspace import JointCurves, WorkspaceError  # noqa: E402
+from ..formats.common import json_plain as _plain  # noqa: E402
+from ..formats.report import trend_to_json  # noqa: E402
 from .iso9283 import PoseStats  # noqa: E402
 from .verdict import Judgement  # noqa: E402
 
@@ -289,7 +289,7 @@ def trend_figure(result: TrendResult) -> Figure:
 
 def verdict_section(j: Judgement) -> Section:
     """Healthy, degraded or flagged, the one-line reason, the TCP error against the baseline
-    and the top missing effect (:func:`quickhealth.station.verdict.judge`)."""
+    and the top missing effect (:func:`quickhealth.station.reporting.verdict.judge`)."""
     f, b = j.figures, j.baseline
     if b is not None:
         err = (
