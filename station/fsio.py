@@ -54,6 +54,8 @@ _USAGE_ERRNOS = {
 def write_error(path: Path, exc: OSError) -> QuickhealthError:
     """The one-line error of a failed write of ``path`` (exit 2 for the path, 3 for the machine)."""
     what = exc.strerror or type(exc).__name__
+    if exc.errno == errno.ELOOP:
+        what = "a symbolic link stands there; not followed"
     if exc.errno in _USAGE_ERRNOS:
         return InputError(f"{path}: cannot write: {what}")
     return QuickhealthError(f"{path}: writing failed: {what}")
@@ -68,6 +70,36 @@ def fsync_dir(path: str | os.PathLike[str]) -> None:
         os.close(fd)
 
 
+def open_append(path: str | os.PathLike[str]) -> int:
+    """A descriptor appending to ``path`` (made 0644 when missing), never through a symbolic
+    link (``O_NOFOLLOW``): the run journal and run.log.
+
+    Raises
+    ------
+    InputError
+        A link or something else that cannot be written stands there (one line).
+    """
+    try:
+        return os.open(
+            path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644
+        )
+    except OSError as exc:
+        raise write_error(Path(path), exc) from None
+
+
+_SECRET_IN_URL = re.compile(r"([A-Za-z][A-Za-z0-9+.\-]*://[^\s/?#@:\"'<>]*):[^\s/?#@\"'<>]*@")
+
+
+def redact_urls(text: str) -> str:
+    """``text`` with the password of every URL in it replaced by ``***``
+    (``postgresql+psycopg://qh:SECRET@db/qh`` -> ``postgresql+psycopg://qh:***@db/qh``), as
+    SQLAlchemy shows them.  Every text file the product writes passes here
+    (:func:`write_atomic`): an archive, a report or its backups never hold an index password."""
+    if "://" not in text:  # the common case: one C-level scan
+        return text
+    return _SECRET_IN_URL.sub(r"\1:***@", text)
+
+
 def write_atomic(
     path: str | os.PathLike[str],
     data: str | bytes,
@@ -76,7 +108,8 @@ def write_atomic(
     sync_dir: bool = False,
     mkdir: bool = True,
 ) -> None:
-    """Write ``data`` (text is UTF-8) to ``path`` through a temporary file and a rename.
+    """Write ``data`` (text is UTF-8, with the passwords of URLs redacted: :func:`redact_urls`)
+    to ``path`` through a temporary file and a rename.
 
     Parameters
     ----------
@@ -95,7 +128,7 @@ def write_atomic(
         The write failed on the machine's side (disk full, I/O error); exit status 3.
     """
     p = Path(path)
-    buf = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    buf = redact_urls(data).encode("utf-8") if isinstance(data, str) else bytes(data)
     if p.is_dir():
         raise InputError(f"{p}: is a directory, expected a file name")
     tmp = p.with_name(f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")

@@ -43,7 +43,7 @@ from .formats.common import json_plain
 from .formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
 from .formats.journal import decode as decode_record
 from .formats.journal import encode as encode_record
-from .fsio import fsync_dir, write_atomic
+from .fsio import fsync_dir, open_append, write_atomic
 from .provenance import provenance
 
 JOURNAL = "journal.jsonl"
@@ -192,7 +192,7 @@ class Journal:
     def open(self, *, truncate_to: int | None = None) -> Journal:
         """Open for appending; ``truncate_to`` cuts a damaged tail off first."""
         new = not self.path.exists()
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        self._fd = open_append(self.path)
         if truncate_to is not None and os.fstat(self._fd).st_size > truncate_to:
             os.ftruncate(self._fd, truncate_to)
             os.fsync(self._fd)

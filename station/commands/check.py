@@ -22,13 +22,20 @@ See docs/monitoring.md, "The quick check".
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 from ...identify.errors import InputError
 from ...identify.quickcheck import CheckSettings
 from .. import lock, options
-from ..fsio import claim_output_folder, foreign_results, make_dirs, refuse_overwriting_inputs
+from ..fsio import (
+    claim_output_folder,
+    foreign_results,
+    make_dirs,
+    open_append,
+    refuse_overwriting_inputs,
+)
 from ..lock import RunLock
 from .archive import add_archive_options
 from .run import add_station_arguments, check_station_arguments, open_station
@@ -130,7 +137,9 @@ def _check_locked(args, plan, cell, baseline, settings, out) -> int:  # type: ig
     from ..services.checking import quick_check  # (the same)
 
     make_dirs(out)
-    log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115
+    log = (  # never through a link planted as run.log
+        os.fdopen(open_append(out / "run.log"), "a", encoding="utf-8") if args.unattended else None
+    )
 
     def say(line: str) -> None:
         if log is not None:

@@ -39,6 +39,7 @@ from ..fsio import (
     claim_output_folder,
     foreign_results,
     make_dirs,
+    open_append,
     refuse_overwriting_inputs,
     result_files,
 )
@@ -242,7 +243,9 @@ def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
     from ..run import Progress, run_plan  # the drivers: ur-rtde, OpenCV
 
     make_dirs(out)  # an unwritable --out is one line, exit 2
-    log = open(out / "run.log", "a", encoding="utf-8") if args.unattended else None  # noqa: SIM115
+    log = (  # never through a link planted as run.log
+        os.fdopen(open_append(out / "run.log"), "a", encoding="utf-8") if args.unattended else None
+    )
 
     def progress(p: Progress) -> None:
         if p.kind in ("pose", "measured", "stop", "done", "resume", "preflight", "selfcheck"):

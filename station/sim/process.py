@@ -8,11 +8,13 @@ process that uses the client (``notes/ur-rtde.md``): :func:`start_sim_controller
 from __future__ import annotations
 
 import argparse
+import errno
 import fcntl
 import json
 import math
 import os
 import socket
+import stat
 import subprocess
 import sys
 import threading
@@ -138,10 +140,45 @@ class SimControllerHandle:
         self.stop()
 
 
+def _port_lock(host: str) -> int:
+    """A descriptor of ``host``'s port lock file, opened without following a link (made with
+    ``O_EXCL``; shared by every user of the machine, since the ports are).  Only ``flock``ed,
+    never written, so read-only is enough.  -1 when another user's file there cannot be read
+    (that address counts as taken).
+
+    Raises
+    ------
+    HardwareError
+        A link, a pipe or another non-regular file stands there (planted: one line).
+    """
+    path = PORT_LOCK.format(host=host)
+    flags = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
+    try:
+        try:
+            fd = os.open(path, flags | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            fd = os.open(path, flags)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise HardwareError(
+                f"{path}: a symbolic link stands where the simulator's port lock goes: "
+                "refusing to follow it (planted by someone?); remove it"
+            ) from None
+        if exc.errno == errno.EACCES:
+            return -1
+        raise HardwareError(f"{path}: cannot open the port lock: {exc.strerror}") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise HardwareError(f"{path}: the port lock is not a plain file; remove it")
+    return fd
+
+
 def _try_address(host: str) -> int:
     """The lock of ``host``'s UR ports (an open descriptor), or -1 when another simulator
     holds it or something else listens there."""
-    fd = os.open(PORT_LOCK.format(host=host), os.O_RDWR | os.O_CREAT, 0o666)
+    fd = _port_lock(host)
+    if fd < 0:
+        return -1
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:

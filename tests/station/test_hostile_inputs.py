@@ -2403,6 +2403,78 @@ def _(b, t):
     )
 
 
+# ---- issue 32: a hostile colleague on the same station PC or network
+# (locks and links, the fleet's index password, names, metadata, programs, loaders, limits)
+
+
+def _planted_lock_folder(t: Path, mode: int = 0o777) -> tuple[Path, Path, Path]:
+    """A lock folder another user made (mode ``mode``; owned by nobody when we are root)
+    with a link named like the next output lock of ``t/plan``, pointing at a victim file."""
+    d = t / "qh-locks"
+    d.mkdir()
+    victim = t / "victim.txt"
+    victim.write_text("the victim's file\n")
+    key = str((t / "plan").resolve())
+    link = d / f"out-{hashlib.sha256(key.encode()).hexdigest()[:32]}.lock"
+    link.symlink_to(victim)
+    os.chmod(d, mode)
+    if os.geteuid() == 0:
+        os.chown(d, 65534, 65534)  # nobody's folder
+    return d, victim, link
+
+
+def _lock_env(d: Path) -> Callable[[pytest.MonkeyPatch], None]:
+    return lambda mp: mp.setenv("QUICKHEALTH_LOCK_DIR", str(d))
+
+
+@case("lock-folder-made-by-another-user-with-a-planted-link")
+def _(b, t):
+    d, victim, link = _planted_lock_folder(t)
+    who = r"belongs to uid 65534, not to you" if os.geteuid() == 0 else r"has mode 0777"
+    return Case(
+        ["plan", "--cell", "reference", "--n", "20", "--out", str(t / "plan")],
+        3,
+        rf"qh-locks: the lock folder {who}.*refusing to keep locks there",
+        [victim, link],
+        [t / "plan"],
+        patch=_lock_env(d),
+    )
+
+
+@case("lock-file-is-a-planted-link-in-a-private-folder")
+def _(b, t):
+    d, victim, link = _planted_lock_folder(t, 0o700)
+    if os.geteuid() == 0:
+        os.chown(d, 0, 0)
+    return Case(
+        _fit(b["dir"] / "meas.csv", t)[:5] + ["--out", str(t / "plan"), "--quiet"],
+        3,
+        r"\.lock: a symbolic link stands where the lock file goes: refusing to follow it",
+        [victim, link],
+        [t / "plan"],
+        patch=_lock_env(d),
+    )
+
+
+@case("run-lock-is-a-planted-link")
+def _(b, t):
+    d = t / "qh-locks"
+    d.mkdir(mode=0o700)
+    victim = t / "victim.txt"
+    victim.write_text("the victim's file\n")
+    (d / "run.lock").symlink_to(victim)
+    plan = t / "plan" / "plan.json"
+    assert main(["plan", "--cell", "reference", "--n", "12", "--out", str(plan.parent)]) == 0
+    return Case(
+        ["run", "--cell", "reference", "--plan", str(plan), "--out", str(t / "r"), "--sim"],
+        3,
+        r"run\.lock: a symbolic link stands where the lock file goes",
+        [victim, d / "run.lock", plan],
+        [t / "r" / "journal.jsonl"],
+        patch=_lock_env(d),
+    )
+
+
 # ------------------------------------------------------------------------------ runner
 
 

@@ -98,3 +98,63 @@ def test_two_fits_into_one_new_out_at_once_one_wins(tmp_path, monkeypatch):
         assert Path(doc["input"]).name == data[ok[0]].name  # the winner's fit, whole
         assert not list(tmp_path.glob(".identify-*"))
     assert not list((tmp_path / "locks").iterdir())
+
+
+# ---- issue 32: nothing is written through a link planted in a shared or run folder
+
+
+def test_simulator_port_lock_never_follows_a_planted_link(tmp_path, monkeypatch):
+    """The simulator's port lock lives in /tmp, shared by every user (the ports are): a link
+    or a pipe planted under its name is refused in one line, never followed or blocked on."""
+    from quickhealth.identify.errors import HardwareError
+    from quickhealth.station.sim import process
+
+    monkeypatch.setattr(process, "PORT_LOCK", str(tmp_path / "ports-{host}.lock"))
+    victim = tmp_path / "victim"
+    victim.write_text("mine")
+    (tmp_path / "ports-127.0.0.9.lock").symlink_to(victim)
+    with pytest.raises(HardwareError, match=r"ports-127\.0\.0\.9\.lock: a symbolic link stands"):
+        process._port_lock("127.0.0.9")
+    os.mkfifo(tmp_path / "ports-127.0.0.8.lock")  # an open for reading would block forever
+    with pytest.raises(HardwareError, match=r"the port lock is not a plain file"):
+        process._port_lock("127.0.0.8")
+    assert victim.read_text() == "mine" and victim.stat().st_mode & 0o777 != 0o666
+    fd = process._port_lock("127.0.0.7")  # made new, O_EXCL
+    os.close(fd)
+    assert (tmp_path / "ports-127.0.0.7.lock").is_file()
+
+
+def test_journal_and_run_log_never_append_through_a_link(tmp_path):
+    from quickhealth.identify.errors import InputError
+    from quickhealth.station.fsio import open_append
+    from quickhealth.station.journal import Journal
+
+    victim = tmp_path / "victim"
+    victim.write_text("mine")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "journal.jsonl").symlink_to(victim)
+    (run / "run.log").symlink_to(victim)
+    with pytest.raises(InputError, match=r"journal\.jsonl: cannot write: a symbolic link"):
+        Journal(run).open()
+    with pytest.raises(InputError, match=r"run\.log: cannot write: a symbolic link"):
+        open_append(run / "run.log")
+    assert victim.read_text() == "mine"
+
+
+def test_lock_folder_checks(tmp_path, monkeypatch):
+    """Made private when missing; a link or another user's folder is refused (one line)."""
+    from quickhealth.station.lock import LockPlaceUnsafe, RunLock
+
+    d = tmp_path / "new" / "locks"
+    with RunLock.acquire(tmp_path / "r", directory=d):
+        assert (d.stat().st_mode & 0o777) == 0o700
+    real = tmp_path / "real"
+    real.mkdir(mode=0o700)
+    (tmp_path / "link").symlink_to(real)
+    with pytest.raises(LockPlaceUnsafe, match=r"link: the lock folder is a symbolic link"):
+        RunLock.acquire(tmp_path / "r", directory=tmp_path / "link")
+    os.chmod(real, 0o755)
+    with pytest.raises(LockPlaceUnsafe, match=r"has mode 0755: others may use it"):
+        OutputLock.acquire(tmp_path / "out", "plan", directory=real)
+    assert not list(real.iterdir())
