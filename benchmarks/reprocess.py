@@ -125,9 +125,9 @@ def _fill(arch, n: int, start: int) -> None:
     robots = sorted({r["robot"] for r in rows})
     with arch.engine.begin() as con:
         for j in range(0, len(rows), 5000):
-            con.execute(sa.insert(arch.t_runs), rows[j : j + 5000])
+            con.execute(sa.insert(arch.index.t_runs), rows[j : j + 5000])
         con.execute(
-            sa.insert(arch.t_robots), [{"robot": r, "baseline_run_id": None} for r in robots]
+            sa.insert(arch.index.t_robots), [{"robot": r, "baseline_run_id": None} for r in robots]
         )
 
 

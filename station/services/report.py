@@ -31,7 +31,7 @@ from ...identify.fit import FittedModel
 from ...identify.measurements import Measurements
 from ...identify.trend import TrendResult, assess_trend
 from ...identify.workspace import all_joint_curves, workspace_error
-from ..archive import Archive, missing_words, run_metadata, trend_runs
+from ..archive import Archive, missing_words, run_metadata, run_state, trend_runs
 from ..formats import measurements as measurements_file
 from ..formats import model as model_file
 from ..formats import report as report_file
@@ -281,8 +281,8 @@ def _trend(
     b = next((i for i, r in enumerate(recs) if r.baseline), None)
     if b is None:
         return None, [], f"robot {robot} has no baseline before this run"
-    states = [archive.run_state(r, like=recs[b]) for r in recs[:-1]]
-    states.append(archive.run_state(recs[-1], like=recs[b], folder=folder))
+    states = [run_state(archive, r, like=recs[b]) for r in recs[:-1]]
+    states.append(run_state(archive, recs[-1], like=recs[b], folder=folder))
     threshold = options.threshold
     res = assess_trend(
         states,

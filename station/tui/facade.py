@@ -35,7 +35,7 @@ from ...identify.fit import FittedModel
 from ...identify.measurements import Measurements
 from ...identify.robot import RobotModel
 from ...identify.trend import assess_trend
-from ..archive import Archive, check_lines
+from ..archive import Archive, check_lines, run_state
 from ..formats import format_measurements, load_robot, read_measurements
 from ..hardware.legs import Leg
 from ..planning import load_cell, load_plan
@@ -653,7 +653,7 @@ class Station:
         )
         base = next((i for i, r in enumerate(recs) if r.baseline), 0)
         result = assess_trend(
-            [self.archive.run_state(r) for r in recs],
+            [run_state(self.archive, r) for r in recs],
             base,
             threshold_mm=self.threshold_mm,
             threshold_figure=self.threshold_figure,

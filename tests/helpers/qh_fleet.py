@@ -36,7 +36,7 @@ def _die() -> None:
 
 def _arm(kill_at: str, rid: str) -> None:
     """Make this process kill itself at one point of the next ``add_run`` of ``rid``."""
-    from quickhealth.station.archive import Archive
+    from quickhealth.station.archive.index import Index
 
     if kill_at == "copy":
         from quickhealth.station import fsio
@@ -51,7 +51,7 @@ def _arm(kill_at: str, rid: str) -> None:
 
         fsio._copy_plain_file = copyfile
     elif kill_at == "insert":
-        Archive._insert_robot = lambda self, robot: _die()
+        Index._insert_robot = lambda self, robot: _die()
     elif kill_at == "rename":
         real_rename = Path.rename
 

@@ -8,7 +8,8 @@ import pytest
 import qh_runs as _runs
 
 from quickhealth.identify.errors import InputError
-from quickhealth.station.archive import MARKER, Archive, default_root, safe_name
+from quickhealth.station.archive import MARKER, Archive, default_root, run_state, safe_name
+from quickhealth.station.archive.folders import mark
 from quickhealth.station.cli import main
 
 
@@ -51,7 +52,7 @@ def test_runs_of_many_robots_with_metadata(tmp_path, run_dirs, index_url):
         ("ur5-b", "first", 1, "first"),
     ]
     # the trend's view of a run: figures, model with covariance, metadata
-    st = a.run_state(recs[1])
+    st = run_state(a, recs[1])
     assert st.spec is not None and st.cov.shape == (st.spec.n_params,) * 2
     assert np.isfinite(st.figures_mm["max"]) and st.meta["plan_hash"] == "plan-a"
 
@@ -135,7 +136,7 @@ def test_duplicate_and_bad_inputs(tmp_path, run_dirs, index_url):
     with pytest.raises(InputError, match=r"ghost: holds a folder this index did not put there"):
         a.add_run("ur5-a", run_dirs[1], run_id="ghost")
     assert (ghost / "half.png").read_bytes() == b"x" and a.orphans() == [ghost]
-    (ghost / MARKER).write_text(a._mark("ur5-a", "ghost"))
+    (ghost / MARKER).write_text(mark(a.index_id, "ur5-a", "ghost"))
     a.add_run("ur5-a", run_dirs[1], run_id="ghost")
     assert not (ghost / "half.png").exists() and not a.orphans()
     assert not list((a.root / "robots" / "ur5-a").glob(".incoming-*"))
@@ -258,10 +259,10 @@ def test_runs_fitted_at_other_orders_are_refitted_like_the_baseline(tmp_path, ru
     a.add_run("ur5-a", run_dirs[0])
     a.add_run("ur5-a", other, run_id="o2")
     base, rec = a.runs("ur5-a")
-    plain = a.run_state(rec)
-    like = a.run_state(rec, like=base)
+    plain = run_state(a, rec)
+    like = run_state(a, rec, like=base)
     assert plain.spec.orders.max() == 2 and np.array_equal(
-        like.spec.orders, a.run_state(base).spec.orders
+        like.spec.orders, run_state(a, base).spec.orders
     )
     assert (a.folder(rec) / "model.like-r0.json").is_file()
     from quickhealth.station.archive import trend_for
@@ -279,7 +280,7 @@ def test_postgresql_index_shared_by_two_stations(tmp_path, run_dirs, pg_server):
     b.add_run("ur5-a", run_dirs[1])
     b.set_baseline("ur5-a", "r1")
     assert [(r.run_id, r.baseline) for r in a.runs("ur5-a")] == [("r0", False), ("r1", True)]
-    assert a.run_state(a.runs("ur5-a")[0]).spec is not None
+    assert run_state(a, a.runs("ur5-a")[0]).spec is not None
     with pytest.raises(InputError, match="already archived"):
         b.add_run("ur5-a", run_dirs[0], run_id="r0")
 

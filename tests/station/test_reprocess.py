@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import qh_runs as _runs
 
-from quickhealth.station.archive import Archive
+from quickhealth.station.archive import Archive, run_state
 from quickhealth.station.cli import main
 from quickhealth.station.reprocess import jobs_for_archive, reprocess, reprocess_run
 
@@ -89,7 +89,7 @@ def test_dask_cluster_equals_local_path(fleet, cluster, capsys):
             assert ws[f"{f}_mm"] == pytest.approx(r.figures_mm[f], abs=1e-12)
     # and the local path equals a plain in-process loop and the original fit
     _same([reprocess_run(j) for j in jobs[:2]], local[:2])
-    orig = fleet.run_state(fleet.runs("ur5-0")[0])
+    orig = run_state(fleet, fleet.runs("ur5-0")[0])
     np.testing.assert_allclose(local[0].coeffs, orig.coeffs, atol=1e-9)
 
 

@@ -32,7 +32,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from ..identify.errors import HardwareError, InputError, QuickhealthError
+from ...identify.errors import HardwareError, InputError, QuickhealthError
 
 TIMEOUT_ENV = "QUICKHEALTH_DB_TIMEOUT"
 DEFAULT_TIMEOUT_S = 10.0
