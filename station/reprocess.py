@@ -46,7 +46,7 @@ from ..identify.transforms import make_T, rpy_to_R
 from ..vision.boards import TargetDescription
 from ..vision.pose7d import PoseMeasurement, Rejection, measure_stereo
 from . import formats
-from .archive import Archive, safe_name
+from .archive import INDEX_FILE, Archive, safe_name
 from .formats.journal import Captured
 from .formats.vision import read_gray, read_rig
 from .hardware.target import T_target_plate, reference_target, target0_from_plate
@@ -75,7 +75,11 @@ class ReprocessJob:
     threshold_mm: float | None = None  # the report's threshold (of ``threshold_figure``)
     threshold_figure: str = "max"
     archive_root: str | None = None  # the archive of the trend (with ``report``)
-    archive_url: str | None = None
+    # The index of that archive as it may be shown (its URL without the password; None: the
+    # archive's own SQLite file).  A job never carries credentials: a worker reads the URL
+    # from its own environment (``$QUICKHEALTH_DB`` or ``$QUICKHEALTH_DB_FILE``,
+    # :func:`worker_index_url`) and checks that it names this index.
+    archive_index: str | None = None
 
 
 @dataclass(frozen=True)
@@ -152,7 +156,7 @@ def jobs_for_archive(
                     threshold_mm=None if threshold is None else threshold.mm,
                     threshold_figure=ThresholdFigure.MAX if threshold is None else threshold.figure,
                     archive_root=str(archive.root) if report else None,
-                    archive_url=archive.url if report else None,
+                    archive_index=_shown_index(archive) if report else None,
                 )
             )
     if run_ids is not None:
@@ -160,6 +164,55 @@ def jobs_for_archive(
         if missing:
             raise InputError(f"runs not in the archive: {', '.join(sorted(missing))}")
     return jobs
+
+
+def _shown_index(archive: Archive) -> str | None:
+    """The archive's index as a job names it: None for its own SQLite file, else the URL
+    without its password."""
+    from .indexdb import shown
+
+    own = f"sqlite:///{archive.root / INDEX_FILE}"
+    return None if archive.url == own else shown(archive.url)
+
+
+#: The index URL this process was given by the command that started it (a local worker of
+#: ``reprocess``: set by :func:`reprocess` in-process and by the pool's initializer).
+_local_index_url: str | None = None
+
+
+def _set_local_index_url(url: str | None) -> None:
+    global _local_index_url
+    _local_index_url = url
+
+
+def worker_index_url(expected: str | None) -> str | None:
+    """The URL of the index a job names (``expected``: as :func:`_shown_index` shows it), as
+    this worker knows it: from the command that started it (local workers), else from its
+    own environment (:func:`~.indexdb.index_url`: ``$QUICKHEALTH_DB``, the file
+    ``$QUICKHEALTH_DB_FILE``).  None for the archive's own SQLite index.
+
+    Raises
+    ------
+    InputError
+        This worker knows no index URL, or one of another index.
+    """
+    from .indexdb import URL_ENV, URL_FILE_ENV, index_url, shown
+
+    if expected is None:
+        return None
+    url = _local_index_url or index_url(None)
+    if url is None:
+        raise InputError(
+            f"the job's index is {expected}, and this worker knows no index URL: set "
+            f"{URL_ENV} (or {URL_FILE_ENV}, a file holding it) in the worker's environment "
+            "(jobs never carry the password)"
+        )
+    if shown(url) != expected:
+        raise InputError(
+            f"the job's index is {expected}, this worker's {URL_ENV} names {shown(url)}: "
+            "give the workers the fleet's index"
+        )
+    return url
 
 
 def reprocess_run(job: ReprocessJob) -> ReprocessResult:
@@ -241,6 +294,7 @@ def redetect_run(
 
 def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
     src = Path(job.run_dir)
+    url = worker_index_url(job.archive_index) if job.report else None  # before the work
     old = formats.read_model(src / "model.json")
     if job.calibration:
         meas = redetect_run(src, job.calibration)
@@ -274,7 +328,7 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
     doc = files.report  # the figures as report.json holds them (mm)
     verdict, reason = None, ""
     if job.report:
-        arch = Archive.open(job.archive_root, job.archive_url) if job.archive_root else None
+        arch = Archive.open(job.archive_root, url) if job.archive_root else None
         threshold = (
             None
             if job.threshold_mm is None
@@ -314,6 +368,8 @@ def reprocess(
     workers: int | None = None,
     progress: Callable[[int, int, ReprocessResult], None] | None = None,
     scheduler_timeout_s: float = 10.0,
+    index_url: str | None = None,
+    security: Any = None,
 ) -> list[ReprocessResult]:
     """Run the jobs in parallel; results in job order.
 
@@ -330,6 +386,11 @@ def reprocess(
         Called as each job finishes (in the order they finish).
     scheduler_timeout_s : float
         How long to try to reach the scheduler, and to wait for its first worker (s).
+    index_url : str, optional
+        The index URL (with its password) for the local workers' reports; never sent to a
+        Dask worker, which reads it from its own environment (:func:`worker_index_url`).
+    security : distributed.Security, optional
+        TLS certificates for the scheduler (:func:`scheduler_security`).
 
     On a cluster, a job whose worker dies (killed, out of memory, machine lost) is run again
     on another worker by the scheduler; each job is deterministic and writes its output
@@ -357,14 +418,19 @@ def reprocess(
     if not jobs:
         return []
     if scheduler is not None:
-        _run_dask(jobs, scheduler, done, scheduler_timeout_s)
+        _run_dask(jobs, scheduler, done, scheduler_timeout_s, security)
     else:
         w = max(1, min(workers or os.cpu_count() or 1, n))
         if w == 1:
-            for i, j in enumerate(jobs):
-                done(i, reprocess_run(j), i + 1)
+            before = _local_index_url
+            _set_local_index_url(index_url)
+            try:
+                for i, j in enumerate(jobs):
+                    done(i, reprocess_run(j), i + 1)
+            finally:
+                _set_local_index_url(before)
         else:
-            with Pool(max_workers=w) as ex:
+            with Pool(max_workers=w, initializer=_set_local_index_url, initargs=(index_url,)) as ex:
                 futs = {ex.submit(reprocess_run, j): i for i, j in enumerate(jobs)}
 
                 for k, f in enumerate(as_completed(futs), 1):
@@ -373,31 +439,93 @@ def reprocess(
 
 
 def check_scheduler(address: str) -> None:
-    """Refuse (one line, exit 2) a ``--scheduler`` that is not a Dask address, before any
-    work starts.  A well-formed address whose host does not resolve or answer is a runtime
-    failure, reported when connecting (exit 3)."""
-    from distributed.comm import resolve_address  # Dask (optional) only with --scheduler
+    """Refuse (one line, exit 2) a ``--scheduler`` that is not a Dask address, or a plain
+    ``tcp://`` one off this machine, before any work starts.  A well-formed address whose
+    host does not resolve or answer is a runtime failure, reported when connecting (exit 3).
+
+    Dask workers run the code they are sent, and the jobs name the fleet's archive: a cluster
+    that leaves the machine must be ``tls://`` with certificates on every side
+    (:func:`scheduler_security`, docs/monitoring.md).
+    """
+    from distributed.comm import parse_address, resolve_address  # Dask only with --scheduler
+    from distributed.comm.addressing import parse_host_port
 
     try:
         resolve_address(address)
+        scheme, loc = parse_address(address)
+        host = str(parse_host_port(loc)[0])
     except ValueError as exc:
         raise InputError(
             f"--scheduler {address[:80]!r}: not a Dask scheduler address ({exc}); "
-            "e.g. tcp://10.0.0.5:8786"
+            "e.g. tls://10.0.0.5:8786"
         ) from None
     except OSError:
-        pass
+        return
+    if scheme == "tcp" and not _is_loopback(host):
+        raise InputError(
+            f"--scheduler {address[:80]}: a plain tcp:// cluster off this machine is open to "
+            "anyone on the network (Dask workers run the code they are sent): use tls:// with "
+            "--tls-ca-file, --tls-cert and --tls-key (docs/monitoring.md)"
+        )
+
+
+def _is_loopback(host: str) -> bool:
+    import ipaddress
+
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def scheduler_security(address: str, ca_file: str | None, cert: str | None, key: str | None) -> Any:
+    """Dask's :class:`distributed.Security` for a ``tls://`` scheduler (encryption required;
+    the client's certificate and key, the fleet's CA), else None.
+
+    Raises
+    ------
+    InputError
+        A ``tls://`` address without the three files, a file that does not exist, or TLS
+        files for a scheduler that is not ``tls://`` (one line).
+    """
+    given = {"--tls-ca-file": ca_file, "--tls-cert": cert, "--tls-key": key}
+    if not address.startswith("tls://"):
+        if any(given.values()):
+            raise InputError(
+                f"--scheduler {address[:80]}: TLS files given for a non-tls:// address"
+            )
+        return None
+    missing = [k for k, v in given.items() if not v]
+    if missing:
+        raise InputError(
+            f"--scheduler {address[:80]}: a tls:// scheduler needs {', '.join(missing)} "
+            "(the fleet's CA, this machine's certificate and key)"
+        )
+    for k, v in given.items():
+        if not Path(str(v)).is_file():
+            raise InputError(f"{k} {v}: file not found")
+    from distributed.security import Security  # Dask (optional) only with --scheduler
+
+    return Security(
+        tls_ca_file=ca_file, tls_client_cert=cert, tls_client_key=key, require_encryption=True
+    )
 
 
 def _run_dask(
-    jobs: list[ReprocessJob], scheduler: Any, done: Callable[..., None], timeout_s: float
+    jobs: list[ReprocessJob],
+    scheduler: Any,
+    done: Callable[..., None],
+    timeout_s: float,
+    security: Any = None,
 ) -> None:
     from distributed import Client, as_completed  # Dask (optional) only with --scheduler
     from distributed.scheduler import KilledWorker
 
     own = not isinstance(scheduler, Client)
     try:
-        client = Client(scheduler, timeout=f"{timeout_s}s") if own else scheduler
+        client = Client(scheduler, timeout=f"{timeout_s}s", security=security) if own else scheduler
     except ValueError as exc:  # an address that is not one (check_scheduler says so first)
         raise InputError(f"--scheduler {str(scheduler)[:80]!r}: {exc}") from None
     except (OSError, TimeoutError) as exc:

@@ -16,7 +16,9 @@ SQLAlchemy URL, PostgreSQL for a fleet).  Every index operation runs inside
   quickhealth index; :class:`HardwareError` (exit 3) for a server that cannot be reached,
   refuses the connection or does not answer in time, and a lock held too long.
 
-The URL is never printed with its password.
+The URL is never printed with its password, and never has to be typed on a command line
+(where every user of the machine sees it in ``ps``): :func:`index_url` also takes it from
+``$QUICKHEALTH_DB`` or from the file ``$QUICKHEALTH_DB_FILE`` names.
 """
 
 from __future__ import annotations
@@ -30,11 +32,14 @@ import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from stat import S_ISREG
 from typing import Any
 
 from ...identify.errors import HardwareError, InputError, QuickhealthError
 
 TIMEOUT_ENV = "QUICKHEALTH_DB_TIMEOUT"
+URL_ENV = "QUICKHEALTH_DB"
+URL_FILE_ENV = "QUICKHEALTH_DB_FILE"
 DEFAULT_TIMEOUT_S = 10.0
 #: the client-side watchdog of one PostgreSQL operation, in time-outs (connect, statements)
 WATCHDOG_TIMEOUTS = 3.0
@@ -56,6 +61,45 @@ def timeout_s(value: float | None = None) -> float:
     if not (math.isfinite(value) and 0 < value <= 3600):
         raise InputError(f"{where}: the index time-out must be in (0, 3600] s")
     return float(value)
+
+
+def index_url(given: str | None = None) -> str | None:
+    """The index URL: ``given`` (``--db``), else ``$QUICKHEALTH_DB``, else the first line of
+    the file ``$QUICKHEALTH_DB_FILE`` names (a file only its owner may read), else None (the
+    archive's own SQLite index).  A Dask worker finds the index this way: jobs never carry
+    it (:mod:`quickhealth.station.reprocess`).
+
+    Raises
+    ------
+    InputError
+        The file is missing, empty, not a plain file, or others may read it (one line).
+    """
+    if given:
+        return given
+    env = os.environ.get(URL_ENV)
+    if env:
+        return env.strip()
+    name = os.environ.get(URL_FILE_ENV)
+    if not name:
+        return None
+    where = f"{URL_FILE_ENV}={name}"
+    try:
+        fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        raise InputError(f"{where}: cannot read the index URL: {exc.strerror}") from None
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        if not S_ISREG(st.st_mode):
+            raise InputError(f"{where}: not a plain file")
+        if st.st_mode & 0o077:
+            raise InputError(
+                f"{where}: others may read it (mode {st.st_mode & 0o777:04o}) and the index "
+                f"password in it: chmod 600 {name}"
+            )
+        first = fh.read(4096).decode("utf-8", "replace").strip().splitlines()
+    if not first or not first[0].strip():
+        raise InputError(f"{where}: empty; expected the index URL on its first line")
+    return first[0].strip()
 
 
 def shown(url: str) -> str:

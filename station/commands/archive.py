@@ -32,7 +32,13 @@ def add_archive_options(p: argparse.ArgumentParser) -> None:
         default=None,
         help="archive folder (default $QUICKHEALTH_ARCHIVE, else ~/quickhealth-archive)",
     )
-    p.add_argument("--db", default=None, help="SQLAlchemy URL of a shared index (default SQLite)")
+    p.add_argument(
+        "--db",
+        default=None,
+        help="SQLAlchemy URL of a shared index (default $QUICKHEALTH_DB, else the first line "
+        "of the file $QUICKHEALTH_DB_FILE, else the archive's SQLite; a password given here "
+        "shows in ps to every user of the machine)",
+    )
     p.add_argument(
         "--db-timeout",
         type=options.TIMEOUT_S,
@@ -45,9 +51,13 @@ def add_archive_options(p: argparse.ArgumentParser) -> None:
 def open_archive(args: argparse.Namespace, create: bool = False) -> Archive:
     """The archive ``--archive`` and ``--db`` name; only ``archive add`` creates a missing one."""
     from ..archive import Archive  # SQLAlchemy: only for the commands that use the archive
+    from ..indexdb import index_url
 
     return Archive.open(
-        args.archive, args.db, create=create, timeout_s=getattr(args, "db_timeout", None)
+        args.archive,
+        index_url(args.db),
+        create=create,
+        timeout_s=getattr(args, "db_timeout", None),
     )
 
 

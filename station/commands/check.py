@@ -36,6 +36,7 @@ from ..fsio import (
     open_append,
     refuse_overwriting_inputs,
 )
+from ..indexdb import index_url
 from ..lock import RunLock
 from .archive import add_archive_options
 from .run import add_station_arguments, check_station_arguments, open_station
@@ -118,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     folder = (
         args.baseline
         if args.baseline is not None
-        else checking.archive_baseline(args.robot, args.archive, args.db)
+        else checking.archive_baseline(args.robot, args.archive, index_url(args.db))
     )
     baseline = checking.load_baseline(folder)
     if args.baseline is not None:

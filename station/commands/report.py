@@ -84,12 +84,14 @@ def _archived_as(args: argparse.Namespace, d: Path) -> tuple[Archive | None, str
     it was: a run of the folder's run id whose archived model.json is this folder's, under one
     robot only.  An archive that does not exist is not created."""
     from ..archive import Archive, NoArchive, default_root, run_metadata  # SQLAlchemy
+    from ..indexdb import index_url
 
     root = Path(args.archive) if args.archive else default_root()
-    if args.db is None and not (root / "index.sqlite").is_file():
+    url = index_url(args.db)
+    if url is None and not (root / "index.sqlite").is_file():
         return None, None
     try:
-        arch = Archive.open(root, args.db, create=False, timeout_s=args.db_timeout)
+        arch = Archive.open(root, url, create=False, timeout_s=args.db_timeout)
     except NoArchive:
         return None, None
     rid = args.run_id or run_metadata(d).get("run_id") or d.resolve().name

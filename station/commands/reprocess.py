@@ -44,6 +44,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=10.0,
         help="seconds to reach the scheduler and find a worker (10)",
     )
+    for opt, what in (
+        ("--tls-ca-file", "the fleet's CA certificate (PEM)"),
+        ("--tls-cert", "this machine's certificate (PEM)"),
+        ("--tls-key", "this machine's private key (PEM)"),
+    ):
+        rp.add_argument(opt, default=None, help=f"with a tls:// --scheduler: {what}")
     rp.add_argument(
         "--workers", type=options.WORKERS, default=None, help="local processes (CPU count)"
     )
@@ -82,10 +88,15 @@ def _reprocess(args: argparse.Namespace) -> int:
         check_scheduler,
         jobs_for_archive,
         reprocess,
+        scheduler_security,
     )
 
+    security = None
     if args.scheduler is not None:
         check_scheduler(args.scheduler)
+        security = scheduler_security(args.scheduler, args.tls_ca_file, args.tls_cert, args.tls_key)
+    elif args.tls_ca_file or args.tls_cert or args.tls_key:
+        raise InputError("--tls-ca-file, --tls-cert and --tls-key need a tls:// --scheduler")
     arch = open_archive(args)
     runs = None if args.runs is None else [r.strip() for r in args.runs.split(",") if r.strip()]
     jobs = jobs_for_archive(
@@ -124,6 +135,8 @@ def _reprocess(args: argparse.Namespace) -> int:
         workers=args.workers,
         progress=progress,
         scheduler_timeout_s=args.scheduler_timeout,
+        index_url=arch.url,  # local workers only; a Dask worker reads its own environment
+        security=security,
     )
     for r in results:
         print(r.line())

@@ -2,6 +2,7 @@
 `dask worker` processes on loopback) give what the local path gives, survive a killed
 worker, and an unreachable scheduler is one line and exit 3."""
 
+import json
 import pickle
 import time
 from pathlib import Path
@@ -270,3 +271,73 @@ def test_redetect_with_a_new_calibration(imaged_run):
     depth_new = np.linalg.norm(new.pos, axis=1)
     # a longer baseline puts the target farther away, by about the same 1 %
     np.testing.assert_allclose(depth_new / depth_old, 1.01, atol=2e-3)
+
+
+# ---- issue 32: the fleet network: sockets where the user says, jobs without credentials
+
+
+@pytest.mark.slow
+def test_documented_cluster_listens_only_where_the_user_said(cluster):
+    """docs/monitoring.md's one-machine commands (the fixture's, with free ports): every
+    listening socket of the scheduler and the workers, dashboards included, is on 127.0.0.1.
+    With Dask's defaults the dashboard and the workers listened on 0.0.0.0 and [::]."""
+    socks = cluster.listening()
+    kinds = {name for _, _, name in socks}
+    assert {"scheduler", "w0", "w1"} <= kinds, socks
+    assert sum(name == "scheduler" for _, _, name in socks) >= 2, socks  # comm + dashboard
+    assert all(ip == "127.0.0.1" for ip, _, _ in socks), socks
+
+
+def test_a_plain_tcp_cluster_off_this_machine_is_refused(fleet, capsys, tmp_path):
+    argv = ["reprocess", "--archive", str(fleet.root), "--runs", "run00", "ur5-0"]
+    assert main([*argv, "--scheduler", "tcp://192.0.2.10:8786"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a plain tcp:// cluster off this machine is open" in err
+    assert main([*argv, "--scheduler", "tls://192.0.2.10:8786", "--tls-cert", "x.pem"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "needs --tls-ca-file, --tls-key" in err
+    from quickhealth.station.reprocess import scheduler_security
+
+    for n in ("ca.pem", "c.pem", "c.key"):
+        (tmp_path / n).write_text("-")
+    sec = scheduler_security("tls://10.0.0.5:8786", *(str(tmp_path / n) for n in ("ca.pem", "c.pem", "c.key")))  # fmt: skip
+    assert sec.require_encryption and sec.tls_client_cert == str(tmp_path / "c.pem")
+
+
+@pytest.mark.slow
+def test_index_password_never_written_nor_sent_to_workers(pg_server, tmp_path, cluster, capsys):
+    """`reprocess --report --db URL-with-password`: no file the product writes holds the
+    password, the jobs (what a Dask worker receives) do not carry it, and a worker finds the
+    index in its own environment (QUICKHEALTH_DB_FILE) or fails the job with one line."""
+    secret = "S3cret-pw"
+    url = pg_server.new_database().replace("://qh@", f"://qh:{secret}@")  # trust: accepted
+    arch = Archive.open(tmp_path / "arch", url)
+    for k in range(2):
+        d = _runs.make_run(tmp_path / f"src{k}", k, n_poses=25, time_utc=f"2026-01-0{k + 1}T08:00:00Z", light=True)  # fmt: skip
+        arch.add_run("ur5-pw", d, run_id=f"run{k}")
+    argv = ["reprocess", "ur5-pw", "--archive", str(arch.root), "--db", url, "--report",
+            "--runs", "run1", "--workspace-samples", "500"]  # fmt: skip
+    assert main([*argv, "--workers", "1", "--tag", "local"]) == 0, capsys.readouterr().err
+    jobs = jobs_for_archive(arch, "ur5-pw", report=True)
+    assert secret.encode() not in pickle.dumps(jobs)
+    assert jobs[0].archive_index == url.replace(secret, "***")
+    # a Dask worker without the index URL: the job fails, saying what to set, at once
+    assert main([*argv, "--scheduler", cluster.address, "--tag", "dask"]) == 3
+    out = capsys.readouterr().out
+    assert "FAILED: QUICKHEALTH_DB_FILE=" in out and "cannot read the index URL" in out, out
+    cluster.index_url_file.write_text(url + "\n")
+    cluster.index_url_file.chmod(0o644)
+    assert main([*argv, "--scheduler", cluster.address, "--tag", "dask"]) == 3
+    assert "others may read it (mode 0644)" in capsys.readouterr().out
+    cluster.index_url_file.chmod(0o600)
+    try:
+        assert main([*argv, "--scheduler", cluster.address, "--tag", "dask"]) == 0
+    finally:
+        cluster.index_url_file.unlink()
+    assert "HEALTHY" in capsys.readouterr().out.upper()
+    written = [p for p in arch.root.rglob("*") if p.is_file()]
+    assert any(p.name == "reprocess.json" for p in written)
+    leaks = [p for p in written if secret.encode() in p.read_bytes()]
+    assert not leaks, leaks
+    done = json.loads(next(p for p in written if p.name == "reprocess.json").read_text())
+    assert done["job"]["archive_index"].startswith("postgresql+psycopg://qh:***@")
