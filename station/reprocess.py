@@ -169,7 +169,7 @@ def jobs_for_archive(
 def _shown_index(archive: Archive) -> str | None:
     """The archive's index as a job names it: None for its own SQLite file, else the URL
     without its password."""
-    from .indexdb import shown
+    from .archive.db import shown
 
     own = f"sqlite:///{archive.root / INDEX_FILE}"
     return None if archive.url == own else shown(archive.url)
@@ -188,7 +188,7 @@ def _set_local_index_url(url: str | None) -> None:
 def worker_index_url(expected: str | None) -> str | None:
     """The URL of the index a job names (``expected``: as :func:`_shown_index` shows it), as
     this worker knows it: from the command that started it (local workers), else from its
-    own environment (:func:`~.indexdb.index_url`: ``$QUICKHEALTH_DB``, the file
+    own environment (:func:`~.archive.db.index_url`: ``$QUICKHEALTH_DB``, the file
     ``$QUICKHEALTH_DB_FILE``).  None for the archive's own SQLite index.
 
     Raises
@@ -196,7 +196,7 @@ def worker_index_url(expected: str | None) -> str | None:
     InputError
         This worker knows no index URL, or one of another index.
     """
-    from .indexdb import URL_ENV, URL_FILE_ENV, index_url, shown
+    from .archive.db import URL_ENV, URL_FILE_ENV, index_url, shown
 
     if expected is None:
         return None

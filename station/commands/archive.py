@@ -51,7 +51,7 @@ def add_archive_options(p: argparse.ArgumentParser) -> None:
 def open_archive(args: argparse.Namespace, create: bool = False) -> Archive:
     """The archive ``--archive`` and ``--db`` name; only ``archive add`` creates a missing one."""
     from ..archive import Archive  # SQLAlchemy: only for the commands that use the archive
-    from ..indexdb import index_url
+    from ..archive.db import index_url
 
     return Archive.open(
         args.archive,

@@ -36,7 +36,6 @@ from ..fsio import (
     open_append,
     refuse_overwriting_inputs,
 )
-from ..indexdb import index_url
 from ..lock import RunLock
 from .archive import add_archive_options
 from .run import add_station_arguments, check_station_arguments, open_station
@@ -116,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"{args.plan}: made for cell {plan.cell_name!r} with other contents than {args.cell}: plan again"
         )
+    from ..archive.db import index_url  # the archive package: SQLAlchemy, the trend
+
     folder = (
         args.baseline
         if args.baseline is not None

@@ -84,7 +84,7 @@ def _archived_as(args: argparse.Namespace, d: Path) -> tuple[Archive | None, str
     it was: a run of the folder's run id whose archived model.json is this folder's, under one
     robot only.  An archive that does not exist is not created."""
     from ..archive import Archive, NoArchive, default_root, run_metadata  # SQLAlchemy
-    from ..indexdb import index_url
+    from ..archive.db import index_url
 
     root = Path(args.archive) if args.archive else default_root()
     url = index_url(args.db)
