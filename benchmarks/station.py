@@ -41,11 +41,13 @@ def main() -> int:
     from quickhealth.station.planning import load_cell
     from quickhealth.station.planning.planfile import plan_from_dict, plan_to_dict
     from quickhealth.station.planning.planner import plan_loop
-    from quickhealth.station.run import RunSettings, Station, run_plan
+    from quickhealth.station.run.loop import run_plan
+    from quickhealth.station.run.settings import RunSettings
     from quickhealth.station.sim.cameras import scaled_rig
     from quickhealth.station.sim.fake_robot import FakeRobot
     from quickhealth.station.sim.motor_emulator import MotorEmulator
     from quickhealth.station.sim.world import build_world
+    from quickhealth.station.station import Station
     from quickhealth.vision.render import render_stereo
 
     cell = load_cell("reference")

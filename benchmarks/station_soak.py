@@ -173,9 +173,9 @@ def _say(event: str, **what: object) -> None:
 
 def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
     from quickhealth.identify.errors import HardwareError
-    from quickhealth.station.journal import JOURNAL
     from quickhealth.station.planning import load_plan
-    from quickhealth.station.run import run_plan
+    from quickhealth.station.run.journal import JOURNAL
+    from quickhealth.station.run.loop import run_plan
     from quickhealth.station.sim.cell import sim_station
 
     rng = random.Random(seed)
@@ -233,7 +233,7 @@ def journal_check(run_dir: Path, n_poses: int) -> tuple[int, int, bool]:
     resume (by design); what must never repeat is a measurement: a pose measured twice in
     the journal or listed twice in measurements.csv.
     """
-    from quickhealth.station.journal import JOURNAL, iter_records, read_journal
+    from quickhealth.station.run.journal import JOURNAL, iter_records, read_journal
 
     if not (run_dir / JOURNAL).is_file():
         return n_poses, 0, False

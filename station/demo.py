@@ -38,7 +38,8 @@ from .archive import Archive, trend_for
 from .formats import load_robot, read_measurements, read_model
 from .planning.cell import load_cell
 from .planning.planfile import Plan
-from .run import Progress, ProgressKind, RunResult, run_plan
+from .run.loop import RunResult, run_plan
+from .run.progress import Progress, ProgressKind
 from .services.diagnosis import diagnose_model, write_diagnosis
 from .services.fitting import fit_folder
 from .services.planning import plan_folder

@@ -50,8 +50,8 @@ from .archive import INDEX_FILE, Archive, safe_name
 from .formats.journal import Captured
 from .formats.vision import read_gray, read_rig
 from .hardware.target import T_target_plate, reference_target, target0_from_plate
-from .journal import JOURNAL, read_journal
 from .reporting.verdict import HealthVerdict, Threshold, ThresholdFigure
+from .run.journal import JOURNAL, read_journal
 from .services import fitting, report
 from .services.options import FitOptions, ReportOptions
 from .workers import Pool

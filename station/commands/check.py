@@ -28,7 +28,7 @@ from pathlib import Path
 
 from ...identify.errors import InputError
 from ...identify.quickcheck import CheckSettings
-from .. import lock, options
+from .. import options
 from ..fsio import (
     claim_output_folder,
     foreign_results,
@@ -36,7 +36,8 @@ from ..fsio import (
     open_append,
     refuse_overwriting_inputs,
 )
-from ..lock import RunLock
+from ..run import lock
+from ..run.lock import RunLock
 from .archive import add_archive_options
 from .run import add_station_arguments, check_station_arguments, open_station
 
@@ -135,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check_locked(args, plan, cell, baseline, settings, out) -> int:  # type: ignore[no-untyped-def]
-    from ..run import Progress  # the run: OpenCV and the vision library
+    from ..run.progress import Progress  # the run: OpenCV and the vision library
     from ..services.checking import quick_check  # (the same)
 
     make_dirs(out)

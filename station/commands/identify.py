@@ -45,10 +45,11 @@ from ...identify.workspace import (
     predict_commands,
     prediction_band,
 )
-from .. import formats, lock, options, workers
+from .. import formats, options, workers
 from ..fsio import claim_output_folder, refuse_overwriting_inputs
 from ..planning.cell import load_cell
 from ..progress import Progress
+from ..run import lock
 from ..services.fitting import FigureRenderer, claim_fit_folder, fit_folder
 from ..services.options import FitOptions
 from ..services.wam import wam_sign

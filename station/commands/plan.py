@@ -29,10 +29,11 @@ from ...identify.design import Criterion, DesignSettings
 from ...identify.errors import InputError
 from ...identify.linearize import InstrumentNoise
 from ...identify.transforms import make_T
-from .. import lock, options
+from .. import options
 from ..formats import load_robot
 from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs, write_atomic
 from ..planning.cell import load_cell
+from ..run import lock
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -17,9 +17,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ...identify.errors import InputError
-from .. import lock, options
+from .. import options
 from ..fsio import refuse_overwriting_inputs
 from ..reporting.verdict import Threshold, ThresholdFigure
+from ..run import lock
 from ..services.options import ReportOptions
 from .archive import add_archive_options, open_archive
 

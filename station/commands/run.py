@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ...identify.errors import HardwareError, InputError, QuickhealthError
-from .. import lock, options
+from .. import options
 from ..formats import check_poses_for_fit, load_robot, read_measurements
 from ..fsio import (
     claim_output_folder,
@@ -43,14 +43,15 @@ from ..fsio import (
     refuse_overwriting_inputs,
     result_files,
 )
-from ..lock import RunLock
+from ..run import lock
+from ..run.lock import RunLock
 from ..services.fitting import fit_folder
 from ..sim.process import add_arguments as add_sim_arguments
 from ..sim.process import run_from_args
 
 if TYPE_CHECKING:  # the types only: the planner loads the collision library, run the drivers
     from ..planning.planfile import Plan
-    from ..run import Station
+    from ..station import Station
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -150,12 +151,12 @@ def open_station(args: argparse.Namespace, robot_name: str | None) -> Station:
         if robot_name:
             station.robot_name = robot_name
         return station
-    from ..run import ur_station  # the drivers: ur-rtde, OpenCV
+    from ..station import real_station  # the drivers: ur-rtde, OpenCV
 
     cams = tuple(c if not c.isdigit() else int(c) for c in args.cameras.split(","))
     if len(cams) != 2:
         raise InputError("--cameras needs two entries: left,right")
-    station = ur_station(
+    station = real_station(
         args.cell,
         args.robot_ip,
         motor_port=args.motor_port,
@@ -240,7 +241,8 @@ def _sim_setting(
 
 
 def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
-    from ..run import Progress, run_plan  # the drivers: ur-rtde, OpenCV
+    from ..run.loop import run_plan  # the drivers: ur-rtde, OpenCV
+    from ..run.progress import Progress
 
     make_dirs(out)  # an unwritable --out is one line, exit 2
     log = (  # never through a link planted as run.log

@@ -29,11 +29,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ...identify.errors import InputError
-from .. import lock, options, workers
+from .. import options, workers
 from ..formats.journal import Box
 from ..formats.measurements import write_measurements
 from ..fsio import refuse_overwriting_inputs, write_figure
-from ..journal import JOURNAL, read_journal
+from ..run import lock
+from ..run.journal import JOURNAL, read_journal
 
 F = NDArray[np.float64]
 

@@ -3,7 +3,7 @@
 Each line of ``RUN_DIR/journal.jsonl`` is one record (``type``: a :class:`RecordKind`).  The
 run writes typed records and every reader gets them back typed, through the one encoder
 (:func:`encode`) and the one decoder (:func:`decode`) here; the durable storage (checksums,
-``fsync``, the torn last line) is :mod:`quickhealth.station.journal`.
+``fsync``, the torn last line) is :mod:`quickhealth.station.run.journal`.
 
 - ``start``, ``resume``, ``stop``, ``end``: plain objects (ids, times, reasons; no units);
 - ``selfcheck`` (:class:`SelfCheck`): the instrument self-check on the reference board;

@@ -1,7 +1,7 @@
 """The quick check: has the robot changed since its baseline run?  One call for every door.
 
 :func:`quick_check` runs the check on a station through the run's own machinery
-(:func:`~quickhealth.station.run.run_plan`: pre-flight, self-check, the crash-safe journal,
+(:func:`~quickhealth.station.run.loop.run_plan`: pre-flight, self-check, the crash-safe journal,
 images, faults, cancel and ``resume``) with a :class:`CheckSequence` that chooses each next
 pose while the data come in, and writes ``check.json`` beside the run's measurements.csv and
 journal.  The statistics are :mod:`quickhealth.identify.quickcheck`.
@@ -53,17 +53,13 @@ from ...identify.transforms import R_to_rpy
 from ..formats import read_measurements, read_model
 from ..formats.common import write_text_atomic
 from ..hardware.legs import Leg
-from ..journal import JOURNAL, JournalState, read_journal
 from ..provenance import software_version
-from ..run import (
-    Progress,
-    ProgressFn,
-    RunResult,
-    RunSettings,
-    Station,
-    journal_measurements,
-    run_plan,
-)
+from ..run.journal import JOURNAL, JournalState, read_journal
+from ..run.loop import RunResult, run_plan
+from ..run.outputs import journal_measurements
+from ..run.progress import Progress, ProgressFn
+from ..run.settings import RunSettings
+from ..station import Station
 
 if TYPE_CHECKING:  # the planner's collision library loads with the sequence, not the import
     from ..planning.cell import Cell

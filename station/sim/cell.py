@@ -7,12 +7,13 @@ emulator on a pseudo-terminal, and connects the *real* drivers to them:
 stereo camera renders what is really there: it asks the controller simulator for the arm's
 true target pose (the digital twin at the actual joints) and the motor emulator for the
 true pan angle.  :func:`sim_station` wraps it all in a run's
-:class:`~quickhealth.station.run.Station`.  :func:`inprocess_sim_station` is the same cell in
+:class:`~quickhealth.station.station.Station`.  :func:`inprocess_sim_station` is the same cell in
 this process (the pure-Python :class:`~.fake_robot.FakeRobot` for the controller simulator):
 fast, for the TUI's tests and demos.
 
 The simulator uses the drivers, never the reverse: nothing in
-:mod:`quickhealth.station.hardware` or :mod:`quickhealth.station.run` imports this package.
+:mod:`quickhealth.station.hardware`, :mod:`quickhealth.station.station` or
+:mod:`quickhealth.station.run` imports this package.
 
 SYNOPSIS
     >>> with start_sim_cell(image_scale=0.25) as cell:          # doctest: +SKIP
@@ -36,7 +37,7 @@ from ..hardware.robot import Robot, UrRobot
 from ..hardware.target import T_target_plate
 from ..planning import load_cell
 from ..planning.cell import Cell
-from ..run import Station
+from ..station import Station
 from .arm import controller_arm
 from .cameras import SimStereoCamera, scaled_rig
 from .fake_robot import FakeRobot
@@ -75,7 +76,7 @@ class SimCell:
     def stop_simulators(self) -> None:
         """Close the robot's client, then stop the controller simulator and the motor emulator.
 
-        A :class:`~quickhealth.station.run.Station` built by :func:`sim_station` calls this
+        A :class:`~quickhealth.station.station.Station` built by :func:`sim_station` calls this
         after its device owners closed the pan motor and the camera."""
         try:
             self.robot.close()
@@ -168,7 +169,7 @@ def sim_station(
     camera_seed: int = 0,
     sim_options: dict[str, Any] | None = None,
 ) -> tuple[Station, SimCell]:
-    """A run's :class:`~quickhealth.station.run.Station` on the built-in simulated cell, and
+    """A run's :class:`~quickhealth.station.station.Station` on the built-in simulated cell, and
     the :class:`SimCell` behind it.
 
     ``station.close()`` stops the simulators too.  ``degrade`` changes the twin's true
@@ -212,7 +213,7 @@ def station_in_world(
     robot_name: str | None = None,
     closers: list[Callable[[], None]] | None = None,
 ) -> Station:
-    """A run's :class:`~quickhealth.station.run.Station` in the simulated ``world`` of ``cell``.
+    """A run's :class:`~quickhealth.station.station.Station` in the simulated ``world`` of ``cell``.
 
     The nominal geometry comes from the cell file; the target and the self-check board from
     the world.  Used by ``--sim``, the TUI's in-process cell and the tests.
@@ -247,7 +248,7 @@ def inprocess_sim_station(
     image_scale: float = 0.3,
     time_scale: float = 20.0,
 ) -> tuple[Station, Cell]:
-    """A run's :class:`~quickhealth.station.run.Station` on the simulated cell without the
+    """A run's :class:`~quickhealth.station.station.Station` on the simulated cell without the
     controller subprocess.
 
     FakeRobot (same motion model and faults as the controller simulator), the pan-motor

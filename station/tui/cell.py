@@ -1,6 +1,6 @@
 """The cell behind the TUI: devices, pre-flight and run control around ``station.run``.
 
-:class:`CellControl` wraps a :class:`quickhealth.station.run.Station` (robot, pan motor,
+:class:`CellControl` wraps a :class:`quickhealth.station.station.Station` (robot, pan motor,
 stereo camera) and one run folder.  It turns ``run_plan``'s progress events into the per-pose
 table the Run screen shows, and adds what a person at the station needs:
 
@@ -25,10 +25,13 @@ import numpy as np
 
 from ...identify.errors import HardwareError, QuickhealthError
 from ..hardware.robot import Robot
-from ..journal import JOURNAL, JournalState, read_journal
 from ..planning.planfile import Plan
-from ..run import Progress, ProgressKind, RunSettings, preflight, run_plan
-from ..run import Station as Hardware
+from ..run.journal import JOURNAL, JournalState, read_journal
+from ..run.loop import run_plan
+from ..run.preflight import preflight
+from ..run.progress import Progress, ProgressKind
+from ..run.settings import RunSettings
+from ..station import Station as Hardware
 from .views import CellState, Check, Connection, Fault, PoseStatus, Preflight, RunProgress
 
 WHAT_TO_DO = {
@@ -146,7 +149,7 @@ class CellControl:
         return tuple(out)
 
     def preflight(self) -> Preflight:
-        """``station.run.preflight`` (it captures one frame, pings the motor; nothing moves)."""
+        """``station.run.preflight.preflight`` (it captures one frame, pings the motor; nothing moves)."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
         resume = (self.run_dir / JOURNAL).is_file()
         remaining = sum(1 for p in self.plan.poses if p.index not in self._done_indices())

@@ -3,7 +3,7 @@
 It wraps the pieces the screens show and returns the small frozen records of
 :mod:`quickhealth.station.tui.views`:
 
-- devices and their state, pre-flight, run control (``station.hardware``, ``station.run``);
+- devices and their state, pre-flight, run control (``station.station``, ``station.run``);
 - the plan and its dry run (``station.planning``);
 - results: BIC order selection and the ML fit (``identify.select``, ``identify.fit``), the
   workspace error and the joint curves with bands (``identify.workspace``, ``identify.trend``);
@@ -43,11 +43,12 @@ from ..planning.cell import Cell
 from ..planning.planfile import Plan, plan_from_dict, plan_to_dict
 from ..planning.planner import plan_loop
 from ..reporting.verdict import HealthVerdict, Judgement, Threshold, ThresholdFigure
-from ..run import RunSettings, ur_station
-from ..run import Station as Hardware
+from ..run.settings import RunSettings
 from ..services.checking import load_baseline, quick_check
 from ..services.fitting import write_fit
 from ..services.options import TUI_THRESHOLD_MM, FitOptions
+from ..station import Station as Hardware
+from ..station import real_station
 from . import jobs
 from .cell import CellControl
 from .offload import offload, warm_up
@@ -352,7 +353,7 @@ class Station:
             raise InputError(
                 "tui: a real station needs --robot-ip, --motor-port, --cameras and --calibration"
             )
-        hw = ur_station(
+        hw = real_station(
             cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
         )
         return cls(

@@ -21,7 +21,7 @@ import numpy as np
 from ..hardware.target import reference_target
 from ..planning.cell import Cell
 from ..planning.planfile import Plan
-from ..run import RunSettings
+from ..run.settings import RunSettings
 from ..sim.cell import inprocess_sim_station, sim_station
 from .facade import Station, cell_and_plan, make_plan, new_run_id
 

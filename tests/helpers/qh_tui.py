@@ -7,7 +7,7 @@ from pathlib import Path
 
 from textual.widgets import Static
 
-from quickhealth.station.journal import JOURNAL, iter_records
+from quickhealth.station.run.journal import JOURNAL, iter_records
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.screens.confirm import ConfirmScreen
 

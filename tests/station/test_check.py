@@ -22,7 +22,7 @@ import pytest
 import qh_station_plan as _station_plan
 
 from quickhealth.station.cli import main
-from quickhealth.station.journal import JOURNAL, iter_records, read_journal
+from quickhealth.station.run.journal import JOURNAL, iter_records, read_journal
 
 pytestmark = [pytest.mark.slow]
 

@@ -308,7 +308,7 @@ def test_measure_a_quickhealth_run_folder_from_its_journal(tmp_path, capsys):
     frame at pan 0, so the same tool pose measured at two pan angles gives the same row."""
     from quickhealth.station.formats import read_measurements
     from quickhealth.station.hardware.target import T_target_plate
-    from quickhealth.station.journal import SCHEMA, Journal
+    from quickhealth.station.run.journal import SCHEMA, Journal
 
     rig = _small_rig()
     tgt = reference_target()

@@ -33,7 +33,8 @@ DRIVERS = [
     "quickhealth.station.hardware.urtypes",
     "quickhealth.station.hardware.target",
     "quickhealth.station.hardware.legs",
-    "quickhealth.station.run",
+    "quickhealth.station.station",
+    "quickhealth.station.run.loop",
 ]
 # The App on the real cell (``quickhealth tui --robot-ip``): its dry run drives the plan on the
 # simulator's arm model (sim.fake_robot), so it may reach the simulator but never the twin.
@@ -111,7 +112,7 @@ def test_the_walk_finds_what_it_must() -> None:
     assert "quickhealth.station.sim.process" in seen
     assert "quickhealth.station.hardware.robot" in seen
     assert "quickhealth.station.hardware.ur_client" in seen  # imported inside a function
-    run = reach("quickhealth.station.run")
+    run = reach("quickhealth.station.run.loop")
     assert "quickhealth.station.hardware.robot" in run and "quickhealth.identify" in run
 
 

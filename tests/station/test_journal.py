@@ -18,7 +18,8 @@ from quickhealth.station.formats.journal import (
     decode,
     encode,
 )
-from quickhealth.station.journal import (
+from quickhealth.station.provenance import provenance
+from quickhealth.station.run.journal import (
     JOURNAL,
     SCHEMA,
     Journal,
@@ -26,7 +27,6 @@ from quickhealth.station.journal import (
     read_journal,
     write_bytes_atomic,
 )
-from quickhealth.station.provenance import provenance
 
 
 def _start():

@@ -17,7 +17,7 @@ import pytest
 
 from quickhealth.identify.twin import make_twin, random_joints
 from quickhealth.station import formats
-from quickhealth.station.lock import OutputBusy, OutputLock
+from quickhealth.station.run.lock import OutputBusy, OutputLock
 
 
 def test_second_writer_is_refused_naming_the_holder(tmp_path, monkeypatch):
@@ -127,7 +127,7 @@ def test_simulator_port_lock_never_follows_a_planted_link(tmp_path, monkeypatch)
 def test_journal_and_run_log_never_append_through_a_link(tmp_path):
     from quickhealth.identify.errors import InputError
     from quickhealth.station.fsio import open_append
-    from quickhealth.station.journal import Journal
+    from quickhealth.station.run.journal import Journal
 
     victim = tmp_path / "victim"
     victim.write_text("mine")
@@ -144,7 +144,7 @@ def test_journal_and_run_log_never_append_through_a_link(tmp_path):
 
 def test_lock_folder_checks(tmp_path, monkeypatch):
     """Made private when missing; a link or another user's folder is refused (one line)."""
-    from quickhealth.station.lock import LockPlaceUnsafe, RunLock
+    from quickhealth.station.run.lock import LockPlaceUnsafe, RunLock
 
     d = tmp_path / "new" / "locks"
     with RunLock.acquire(tmp_path / "r", directory=d):

@@ -207,11 +207,11 @@ def test_station_close_goes_through_the_owners_and_skips_a_stuck_device(
     """Station.close never calls a device's close from outside its owner: a stuck pan motor
     is left open with a logged line (the raw ``motor.close`` among the closers is skipped),
     the camera is closed by its owner, the other closers still run."""
-    from quickhealth.station import run as station_run
-    from quickhealth.station.run import Station
+    from quickhealth.station import station as station_module
     from quickhealth.station.sim.fake_robot import FakeRobot
+    from quickhealth.station.station import Station
 
-    monkeypatch.setattr(station_run, "DEVICE_CLOSE_TIMEOUT_S", 0.2)
+    monkeypatch.setattr(station_module, "DEVICE_CLOSE_TIMEOUT_S", 0.2)
     motor, camera = Recorder(), Recorder()
     robot = FakeRobot()
     ran: list[str] = []
@@ -228,7 +228,7 @@ def test_station_close_goes_through_the_owners_and_skips_a_stuck_device(
     stuck.start()
     while not motor.log:
         time.sleep(0.001)
-    with caplog.at_level(logging.WARNING, logger="quickhealth.station.run"):
+    with caplog.at_level(logging.WARNING, logger="quickhealth.station.station"):
         station.close()
     assert "pan motor is still inside hang()" in caplog.text
     assert motor.closed_by == []  # left to its owner

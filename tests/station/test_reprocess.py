@@ -214,7 +214,8 @@ def imaged_run(tmp_path_factory):
     from quickhealth.station.hardware.motor import SerialPanMotor
     from quickhealth.station.hardware.target import T_target_plate
     from quickhealth.station.planning import load_cell, load_plan
-    from quickhealth.station.run import RunSettings, run_plan
+    from quickhealth.station.run.loop import run_plan
+    from quickhealth.station.run.settings import RunSettings
     from quickhealth.station.sim.cameras import SimStereoCamera, scaled_rig
     from quickhealth.station.sim.cell import station_in_world
     from quickhealth.station.sim.fake_robot import FakeRobot

@@ -17,9 +17,11 @@ import qh_station_plan as _station_plan
 
 from quickhealth.station.hardware.motor import SerialPanMotor
 from quickhealth.station.hardware.target import T_target_plate
-from quickhealth.station.journal import JOURNAL, read_journal
 from quickhealth.station.planning import load_cell, load_plan
-from quickhealth.station.run import RunSettings, is_settled, run_plan
+from quickhealth.station.run.journal import JOURNAL, read_journal
+from quickhealth.station.run.loop import run_plan
+from quickhealth.station.run.settings import RunSettings
+from quickhealth.station.run.settle import is_settled
 from quickhealth.station.sim.cameras import SimStereoCamera, scaled_rig
 from quickhealth.station.sim.cell import station_in_world
 from quickhealth.station.sim.fake_robot import FakeRobot

@@ -155,7 +155,7 @@ def test_second_unattended_run_exits_at_once(plan_path, tmp_path, capsys, monkey
 
 
 def test_run_lock_is_exclusive_and_names_its_holder(tmp_path):
-    from quickhealth.station.lock import RunBusy, RunLock
+    from quickhealth.station.run.lock import RunBusy, RunLock
 
     with RunLock.acquire(tmp_path / "night1", directory=tmp_path / "lk"):
         with pytest.raises(RunBusy) as err:

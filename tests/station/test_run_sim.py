@@ -23,9 +23,10 @@ from qh_dashboard import dashboard
 
 from quickhealth.station.cli import main
 from quickhealth.station.formats import read_measurements
-from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_plan
-from quickhealth.station.run import RunSettings, run_plan
+from quickhealth.station.run.journal import JOURNAL, iter_records, read_journal
+from quickhealth.station.run.loop import run_plan
+from quickhealth.station.run.settings import RunSettings
 from quickhealth.station.sim.cell import sim_station
 from quickhealth.station.sim.states import TESTING
 from quickhealth.station.sim.world import build_world

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from qh_tui import ended, journal_indices, run_until_first_pose, settle, start_run, text, wait_for
 
-from quickhealth.station.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.planning import load_cell
+from quickhealth.station.run.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.facade import Station, make_plan
 from quickhealth.station.tui.screens.confirm import ConfirmScreen

@@ -11,7 +11,7 @@ import time
 import pytest
 from qh_tui import ended, journal_indices, settle, start_run, text, wait_for
 
-from quickhealth.station.journal import JOURNAL, iter_records, read_journal
+from quickhealth.station.run.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.simulated import open_simulated
 

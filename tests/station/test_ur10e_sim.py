@@ -21,7 +21,7 @@ from qh_dashboard import dashboard
 
 from quickhealth.station.cli import main
 from quickhealth.station.planning import load_plan
-from quickhealth.station.run import run_plan
+from quickhealth.station.run.loop import run_plan
 from quickhealth.station.sim.cell import sim_station
 
 pytestmark = [pytest.mark.slow]

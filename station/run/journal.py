@@ -38,13 +38,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..identify.errors import InputError
-from .formats.common import json_plain
-from .formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
-from .formats.journal import decode as decode_record
-from .formats.journal import encode as encode_record
-from .fsio import fsync_dir, open_append, write_atomic
-from .provenance import provenance
+from ...identify.errors import InputError
+from ..formats.common import json_plain
+from ..formats.journal import Captured, Failed, Measured, Record, RecordKind, SelfCheck
+from ..formats.journal import decode as decode_record
+from ..formats.journal import encode as encode_record
+from ..fsio import fsync_dir, open_append, write_atomic
+from ..provenance import provenance
 
 JOURNAL = "journal.jsonl"
 SCHEMA = "quickhealth.journal/1"

@@ -36,7 +36,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, TypeVar
 
-from ..identify.errors import HardwareError
+from ...identify.errors import HardwareError
 
 ENV_VAR = "QUICKHEALTH_LOCK_DIR"
 F = TypeVar("F", bound=Callable[..., Any])
