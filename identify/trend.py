@@ -54,6 +54,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,6 +62,12 @@ from scipy import special, stats
 
 from .errormodel import MOTION_WORDS, MOTIONS, ErrorModelSpec, chebyshev_basis, chebyshev_u
 from .errors import InputError
+from .fault_test import FaultTest, fault_tests_of
+from .faults import NamedChange
+
+if TYPE_CHECKING:
+    from .fit import FittedModel
+    from .measurements import Measurements
 
 F = NDArray[np.float64]
 FIGURES: tuple[str, ...] = ("mean", "std", "max")
@@ -92,6 +99,12 @@ class RunState:
         Standard uncertainty of each figure as the run itself reports it (optional).
     meta : mapping of str to str
         ``plan_hash``, ``cell``, ``calibration_id``, ``software_version`` …
+    model : FittedModel, optional
+        The whole fitted model (at the baseline's orders): changes are then tested along
+        every physical fault and named by it (:mod:`.fault_test`).
+    poses : Measurements, optional
+        The run's measured poses (execution order); the baseline's are the evaluation set
+        the faults are mapped through the gauge on.
     """
 
     run_id: str
@@ -103,6 +116,8 @@ class RunState:
     figure_sigma_mm: Mapping[str, float] = field(default_factory=dict)
     meta: Mapping[str, str] = field(default_factory=dict)
     q_measured: tuple[F, F] | None = None  # (lo, hi) rad per joint: the range the run covered
+    model: FittedModel | None = None
+    poses: Measurements | None = None
 
 
 @dataclass(frozen=True)
@@ -132,16 +147,19 @@ class CurveChange:
         return self.motion.startswith("e")
 
     def hint(self) -> str:
-        """The change in words, e.g. "joint 2 tilt about x grew by 0.30 mrad since baseline"."""
+        """The change in words, e.g. "joint 2 tilt about x grew by 0.30 mrad since baseline
+        (χ² = 52.3 on 2 dof, p = 4.4e-12)": the χ² and its p, which agree (the largest
+        pointwise z over the range, ``z_max``, is no test of its own and is not shown)."""
         size = (
             f"{self.max_change * 1e3:.2f} mrad"
             if self.is_angle
             else f"{self.max_change * 1e3:.3f} mm"
         )
         verb = "grew" if self.peak_run > self.peak_baseline else "changed"
+        p = f"p = {self.p_value:.1e}" if self.p_value > 1e-300 else "p < 1e-300"
         return (
             f"joint {self.joint} {MOTION_WORDS[self.motion]} {verb} by {size} since baseline "
-            f"({self.z_max:.1f}σ, p = {self.p_value:.1e})"
+            f"(χ² = {self.chi2:.1f} on {self.dof} dof, {p})"
         )
 
 
@@ -215,6 +233,7 @@ class TrendResult:
     threshold_figure: str
     breaches: tuple[bool, ...]  # per run: figure above the threshold
     warnings: tuple[str, ...]
+    fault_tests: tuple[FaultTest | None, ...] = ()  # per run: the change named by faults
 
     @property
     def latest(self) -> int:
@@ -226,6 +245,20 @@ class TrendResult:
         i = self.latest if index is None else index
         ch = [c for c in self.curve_changes[i] if c.significant]
         return sorted(ch, key=lambda c: -c.z_max)
+
+    def named_changes(self, index: int | None = None) -> list[NamedChange]:
+        """The run's changes named by the physical fault that explains each (robot faults
+        that passed the test; :mod:`.fault_test`), most evident first."""
+        i = self.latest if index is None else index
+        t = self.fault_tests[i] if i < len(self.fault_tests) else None
+        return [] if t is None else list(t.robot)
+
+    def setup_changes(self, index: int | None = None) -> list[NamedChange]:
+        """Set-up changes the test found (the target moved on the flange): no fault of the
+        robot, reported as warnings."""
+        i = self.latest if index is None else index
+        t = self.fault_tests[i] if i < len(self.fault_tests) else None
+        return [] if t is None else list(t.setup)
 
     def alarms(self, index: int | None = None) -> list[str]:
         """Control-chart figures in alarm at a run (default the latest)."""
@@ -251,6 +284,7 @@ class TrendResult:
                 f"{FIGURE_WORDS[f]} EWMA {c.ewma_mm[k]:.3f} mm is above its control limit "
                 f"{c.ucl_mm[k]:.3f} mm"
             )
+        out.extend(c.line() for c in self.named_changes(i))
         out.extend(c.hint() for c in self.significant_changes(i))
         return out
 
@@ -261,8 +295,11 @@ class TrendResult:
 
     @property
     def hints(self) -> list[str]:
-        """Root-cause hints for the latest run (significant curve changes, in words)."""
-        return [c.hint() for c in self.significant_changes()]
+        """Root-cause hints for the latest run: the named faults, then curve changes no
+        fault explains (in words)."""
+        return [c.line() for c in self.named_changes()] + [
+            c.hint() for c in self.significant_changes()
+        ]
 
 
 # ---------------------------------------------------------------------------- curves
@@ -750,9 +787,18 @@ def assess_trend(
     figs = {f: tuple(float(r.figures_mm.get(f, math.nan)) for r in runs) for f in FIGURES}
     base = runs[baseline_index]
     kw = {"alpha": alpha, "min_change_m": min_change_m, "min_change_rad": min_change_rad}
+    named = fault_tests_of(
+        runs, baseline_index, alpha=alpha, floors={"m": min_change_m, "rad": min_change_rad}
+    )
+    # the curves are judged on what the named faults leave (a zero offset is one change,
+    # not one per gauge coordinate it moves)
+    left = [
+        r if e is None or r.coeffs is None else replace(r, coeffs=np.asarray(r.coeffs) - e)
+        for r, e in zip(runs, named.explained, strict=True)
+    ]
     raw = [
         () if i <= baseline_index else compare_curves(base, r, inflate=1.0, **kw)
-        for i, r in enumerate(runs)
+        for i, r in enumerate(left)
     ]
     # genomic control pooled over every comparison so far (causal): steadier than one run's
     changes_l: list[tuple[CurveChange, ...]] = []
@@ -792,5 +838,6 @@ def assess_trend(
         threshold_mm=threshold_mm,
         threshold_figure=threshold_figure,
         breaches=breaches,
-        warnings=comparability_warnings(runs, baseline_index),
+        warnings=comparability_warnings(runs, baseline_index) + named.warnings,
+        fault_tests=named.tests,
     )

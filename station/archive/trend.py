@@ -14,7 +14,7 @@ import numpy as np
 
 from ...identify.errormodel import ErrorModelSpec
 from ...identify.errors import InputError
-from ...identify.fit import fit_model
+from ...identify.fit import FittedModel, fit_model
 from .. import formats
 from .folders import read_json, report_figures
 from .records import CheckRecord, RunRecord, safe_name
@@ -63,15 +63,16 @@ def run_state(
         f2, sig = report_figures(read_json(rp))
         keep = {} if own else {k: v for k, v in figs.items() if not math.isnan(v)}
         figs = {**figs, **f2, **keep}
-    spec = coeffs = cov = None
+    spec = coeffs = cov = model = poses = None
     mp = folder / "model.json"
     csv = folder / "measurements.csv"
     if mp.is_file():
-        spec, coeffs, cov = model_arrays(read_json(mp), str(mp))
+        model = formats.model_from_json(dict(read_json(mp)), str(mp))
         if like is not None and like.run_id != rec.run_id and csv.is_file():
             bp = arch.folder(like) / "model.json"
             if bp.is_file():
                 bspec, _, _ = model_arrays(read_json(bp), str(bp))
+                spec = model.spec
                 same = (
                     bspec.orders.shape == spec.orders.shape
                     and np.array_equal(bspec.orders, spec.orders)
@@ -79,11 +80,14 @@ def run_state(
                     and np.allclose(bspec.q_hi, spec.q_hi)
                 )
                 if not same and bspec.n_joints == spec.n_joints:
-                    spec, coeffs, cov = _like_model(folder, mp, csv, like, bspec)
+                    model = _like_model(folder, mp, csv, like, bspec)
+        n = model.spec.n_params
+        spec, coeffs = model.spec, np.asarray(model.coeffs, float)
+        cov = np.asarray(model.cov, float)[:n, :n]
     q_measured = None
     if spec is not None and csv.is_file():
-        q = formats.read_measurements(csv, spec.n_joints).q
-        q_measured = (q.min(axis=0), q.max(axis=0))
+        poses = formats.read_measurements(csv, spec.n_joints)
+        q_measured = (poses.q.min(axis=0), poses.q.max(axis=0))
     from ...identify.trend import RunState  # scipy.stats: see FIGURES
 
     return RunState(
@@ -96,12 +100,14 @@ def run_state(
         figure_sigma_mm=sig,
         meta=rec.meta,
         q_measured=q_measured,
+        model=model,
+        poses=poses,
     )
 
 
 def _like_model(
     folder: Path, mp: Path, csv: Path, like: RunRecord, bspec: ErrorModelSpec
-) -> tuple[ErrorModelSpec, np.ndarray, np.ndarray | None]:
+) -> FittedModel:
 
     cache = folder / f"model.like-{safe_name(like.run_id, 'run id')}.json"
     if not cache.is_file():
@@ -109,7 +115,7 @@ def _like_model(
         meas = formats.read_measurements(csv, own.robot.n_joints)
         refit = fit_model(own.robot, meas, bspec, own.effects, own.noise, own.prior)
         formats.write_model(cache, refit)
-    return model_arrays(read_json(cache), str(cache))
+    return formats.model_from_json(dict(read_json(cache)), str(cache))
 
 
 def trend_runs(

@@ -336,15 +336,38 @@ def trend_to_json(res: TrendResult) -> dict[str, Any]:
             }
             for f, p in res.prognoses.items()
         },
+        "changes": [c.to_json() for c in res.named_changes()],
+        "setup_changes": [c.to_json() for c in res.setup_changes()],
+        "fault_test": _fault_test_json(res),
         "curve_changes": [
             {
                 "joint": c.joint,
                 "motion": c.motion,
                 "max_change": c.max_change,
+                "chi2": c.chi2,
+                "dof": c.dof,
                 "z_max": c.z_max,
                 "p_value": c.p_value,
                 "significant": c.significant,
             }
             for c in res.curve_changes[res.latest]
         ],
+    }
+
+
+def _fault_test_json(res: TrendResult) -> dict[str, Any] | None:
+    """How the latest run's change was tested along the faults (None: not tested)."""
+    t = res.fault_tests[res.latest] if res.latest < len(res.fault_tests) else None
+    if t is None:
+        return None
+    return {
+        "faults_tested": t.tested,
+        "level_per_fault": t.level,
+        "scale": t.scale,
+        "chi2": t.chi2,
+        "dof": t.dof,
+        "residual_chi2": t.residual_chi2,
+        "residual_dof": t.residual_dof,
+        "residual_p": t.residual_p,
+        "next": [c.to_json() for c in t.named if not c.significant],
     }

@@ -187,11 +187,15 @@ def test_trend_command_flags_the_degraded_joint_not_the_healthy_repeat(
     rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch, *db, "--json", str(tmp_path / "t.json"))
     assert rc == 1
     assert "latest run r3: FLAGGED" in out
-    assert "joint 2 tilt about x grew by" in out
-    hint = [line for line in out.splitlines() if "tilt about x grew" in line]
-    assert len(hint) == 1 and "joint 2" in hint[0], out  # no other joint or motion blamed
+    # j2.ex.c0 turns joint 3's axis about x (the link between them twisted): named as that
+    # fault in its own unit, and nothing else blamed
+    flags = [line for line in out.splitlines() if line.startswith("  - ")]
+    assert len(flags) == 1 and "joint 3 tilt about x changed by +0.5" in flags[0], out
     doc = json.loads((tmp_path / "t.json").read_text())
     assert doc["flagged"] and doc["baseline"] == "r0"
+    (ch,) = doc["changes"]
+    assert ch["fault"] == "j3.tilt_x" and ch["size_unit"] == "mrad"
+    assert abs(ch["size"] - 0.5) < 2 * ch["sigma"] and ch["sigma"] < 0.05
     # only the threshold counts: the max error is well below 5 mm
     rc, _, _ = _trend(
         capsys, "ur5-a", "--archive", arch, *db, "--fail-on", "threshold", "--threshold-mm", "5"

@@ -189,7 +189,9 @@ def test_report_command_extends_report_json(reported):
     assert doc["n_poses"] == 55 and "workspace" in doc  # the fit's keys stay
     tr = doc["trend"]
     assert tr["flagged"] is True and tr["baseline"] == "r0"
-    assert any(h.startswith("joint 2 tilt about x grew by") for h in tr["hints"])
+    # j2.ex.c0 twists link 2: the axis of joint 3 tilts about x, named as that fault
+    assert any(h.startswith("joint 3 tilt about x changed by +") for h in tr["hints"]), tr
+    assert [c["fault"] for c in tr["changes"]] == ["j3.tilt_x"], tr["changes"]
     assert {p["pose_id"] for p in doc["iso9283"]["poses"]} == {f"P{i:03d}" for i in range(5)}
     assert all(p["n"] == 4 and p["rp_mm"] < 0.3 for p in doc["iso9283"]["poses"])
     iso = doc["iso9283"]  # a 7D run: orientation accuracy and repeatability too
