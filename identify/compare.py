@@ -33,7 +33,7 @@ from .diagnose import (
     state_from_fitted,
     whitening,
 )
-from .effects import Effect, EffectContext, parse_effects, same_effect_key
+from .effects import Effect, EffectContext, missing_channels, parse_effects, same_effect_key
 from .errors import InputError
 from .fit import FittedModel, fit_model
 from .linearize import measurement_context, pose_residuals
@@ -236,9 +236,8 @@ def compare_effect(
         if same_effect_key(e) in have:
             raise InputError(f"the model already has {have[same_effect_key(e)]}")
         for data, what in ((train, "training"), (heldout, "held-out")):
-            for col in e.requires():
-                if data is not None and getattr(data, col) is None:
-                    raise InputError(f"{e.name} needs a {col!r} column in the {what} data")
+            for col in missing_channels(e, data) if data is not None else ():
+                raise InputError(f"{e.name} needs a {col!r} column in the {what} data")
     say = progress or (lambda s: None)
     all_effects: tuple[Effect, ...] = (*fitted.effects, *new)
 

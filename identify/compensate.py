@@ -46,16 +46,19 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from enum import StrEnum
 from xml.sax.saxutils import escape as xml_escape
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from .effects import Effect, EffectContext, Perturbation, effect_context, total_perturbation
-from .effects.backlash import Backlash
-from .effects.cyclic import Cyclic
+from .effects import (
+    CHANNELS,
+    Effect,
+    Perturbation,
+    effect_context,
+    total_perturbation,
+)
 from .errormodel import ErrorModelSpec, joint_error_motions
 from .errors import InputError
 from .fit import FittedModel
@@ -380,32 +383,11 @@ def ur_kinematics_text(
 # ------------------------------------------------------------------ compensate program
 
 
-class Channel(StrEnum):
-    """How an effect perturbs the loop, which decides whether a joint command can correct it."""
-
-    JOINT = "joint angle"  # dq: backlash, compliance, cyclic
-    LINKS = "link lengths"  # link_scale: thermal
-    BASE = "base motion"  # base_twist: drift
-    INSTRUMENT = "instrument"  # instr_scale_z: depthscale, the camera's error, not the robot's
-
-
 #: Why an instrument effect is never compensated (the printed and documented reason).
 INSTRUMENT_REASON = (
     "an instrument effect: it is how the camera measures, not where the robot goes; "
     "nothing for a robot program to correct"
 )
-
-
-def effect_channels(effect: Effect, ctx: EffectContext) -> tuple[Channel, ...]:
-    """The loop channels ``effect`` perturbs (probed with unit parameters at ``ctx``)."""
-    p = effect.perturbation(ctx, np.ones(effect.n_params))
-    got = (
-        (Channel.JOINT, p.dq),
-        (Channel.LINKS, p.link_scale),
-        (Channel.BASE, p.base_twist),
-        (Channel.INSTRUMENT, p.instr_scale_z),
-    )
-    return tuple(c for c, v in got if v is not None)
 
 
 @dataclass(frozen=True, eq=False)
@@ -680,7 +662,8 @@ def compensate_program(
     base perturbations, in the identified base frame) equals the nominal TCP pose of the
     original target.  What each effect contributes at a target:
 
-    - ``backlash:jK``: ``± b/2`` by the direction the program moves joint K into the target.
+    - ``backlash:jK`` (any effect that needs the ``approach`` channel): ``± b/2`` by the
+      direction the program moves joint K into the target.
       The program runs in the order given, so the approach is that of the *compensated*
       program (the previous compensated target), recomputed until it settles
       (``approach_rounds``); the first target, and joints that do not move, follow the fit's
@@ -691,7 +674,11 @@ def compensate_program(
     - ``thermal``: the links grown to ``temp_c`` (°C); ``drift``: the base moved to its place at
       ``time_s`` (s on the fitted run's clock).  Both must be given when the effect is
       compensated: a program is run at the conditions its user states.
-    - an instrument effect (``depthscale``) is never compensated (:data:`INSTRUMENT_REASON`).
+    - an instrument effect (``depthscale``: :attr:`~.effects.Effect.instrument`) is never
+      compensated (:data:`INSTRUMENT_REASON`).
+
+    Each compensated effect says in :attr:`Compensation.described` what it used
+    (:meth:`~.effects.Effect.correction`).
 
     Parameters
     ----------
@@ -720,36 +707,36 @@ def compensate_program(
     if unknown:
         have = ", ".join(names) or "none"
         raise InputError(f"cannot leave out {', '.join(unknown)}: the model's effects are {have}")
-    n = len(q0)
-    cond = {
-        "temp": None if temp_c is None else np.full(n, float(temp_c)),
-        "time": None if time_s is None else np.full(n, float(time_s)),
+    # the scalar conditions the program runs at, by channel (approach: the program's order)
+    given: dict[str, float | None] = {
+        "temp": None if temp_c is None else float(temp_c),
+        "time": None if time_s is None else float(time_s),
     }
-    probe = effect_context(robot, q0[:1], np.ones((1, robot.n_joints)), np.zeros(1), np.zeros(1))
     used: list[tuple[Effect, F]] = []
     left: list[tuple[str, str]] = []
     for e, p in zip(fitted.effects, fitted.effect_params, strict=True):
         if e.name in leave_out:
             left.append((e.name, "left out on request"))
             continue
-        if Channel.INSTRUMENT in effect_channels(e, probe):
+        if e.instrument:
             left.append((e.name, INSTRUMENT_REASON))
             continue
         for col in e.requires():
-            if cond[col] is None:
-                what = (
-                    "temperature (°C)" if col == "temp" else "time (s, on the fitted run's clock)"
-                )
+            if col != "approach" and given.get(col) is None:
                 raise InputError(
-                    f"effect {e.name!r} needs the {what} the program runs at, or leave it out"
+                    f"effect {e.name!r} needs the {CHANNELS[col].words} the program runs at, or "
+                    "leave it out"
                 )
         used.append((e, np.asarray(p, float)))
-    backlash = sorted({e.joint for e, _ in used if isinstance(e, Backlash)})
+    # joints whose correction depends on the direction the program moves them into a target
+    approach_joints = sorted({e.joint for e, _ in used if "approach" in e.requires()})
 
     def perturb(q: F, app: F) -> Perturbation:
         if not used:
             return Perturbation()
-        ctx = effect_context(robot, q, app, cond["time"], cond["temp"])
+        n = len(q)
+        at = {k: None if v is None else np.full(n, v) for k, v in given.items()}
+        ctx = effect_context(robot, q, app, at["time"], at["temp"])
         return total_perturbation([e for e, _ in used], [p for _, p in used], ctx)
 
     comp = _solve(
@@ -760,7 +747,7 @@ def compensate_program(
         T_flange_tcp,
         perturb,
         None if approach is None else np.asarray(approach, float),
-        backlash,
+        approach_joints,
         max_iter=max_iter,
         tol_pos=tol_pos,
         tol_rot=tol_rot,
@@ -774,26 +761,8 @@ def compensate_program(
         left_out=tuple(left),
         temp_c=float(temp_c) if "temp" in needs and temp_c is not None else None,
         time_s=float(time_s) if "time" in needs and time_s is not None else None,
-        described=tuple(_describe(e, temp_c, time_s) for e, _ in used),
+        described=tuple(e.correction(given) for e, _ in used),
     )
-
-
-def _describe(e: Effect, temp_c: float | None, time_s: float | None) -> str:
-    """What a compensated effect was evaluated with, in words."""
-    if "temp" in e.requires():
-        return f"{e.name} at {temp_c:g} °C"
-    if "time" in e.requires():
-        return f"{e.name} at {time_s:g} s on the fitted run's clock"
-    if isinstance(e, Backlash):
-        return (
-            f"{e.name} by the direction joint {e.joint + 1} moves into each target "
-            "(the program's own order)"
-        )
-    if isinstance(e, Cyclic):
-        return f"{e.name} by the phase at each target"
-    if str(getattr(e, "physical", "")).startswith("compliance:"):
-        return f"{e.name} by the gravity torque at each target"
-    return f"{e.name} at each target"
 
 
 def fitted_tool(fitted: FittedModel) -> F:

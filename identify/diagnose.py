@@ -2,11 +2,11 @@
 
 The fitted model is compared with the measurements pose by pose.  What it leaves in the
 residuals is tested against every candidate effect of :mod:`quickhealth.identify.effects`
-that the model does not have yet: gravity compliance of each joint (residual against the
-joint's gravity torque), backlash of each joint (against its approach direction), cyclic
-errors of every joint and harmonic (the residual *spectrum* against each joint angle), thermal
-growth (against temperature), drift (against time) and the instrument's depth scale (against
-the distance from the instrument).
+that the model does not have yet, as each registered effect type proposes them: e.g. gravity
+compliance of each joint (residual against the joint's gravity torque), backlash of each joint
+(against its approach direction), cyclic errors of every joint and harmonic (the residual
+*spectrum* against each joint angle), thermal growth (against temperature), drift (against
+time) and the instrument's depth scale (against the distance from the instrument).
 
 The test is a linearised score (Lagrange-multiplier) test.  With whitened residuals ``r``
 (n_obs,) and the fitted model's whitened Jacobian ``J`` at the estimate, a candidate's
@@ -40,9 +40,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .effects import Effect, EffectContext, parse_effect, same_effect_key, total_perturbation
-from .effects.cyclic import Cyclic
-from .effects.depthscale import UNIFORM_SCALE_EXPLANATION
+from .effects import (
+    Effect,
+    EffectContext,
+    NotIdentifiable,
+    ProposalOptions,
+    missing_channels,
+    parse_effect,
+    propose,
+    same_effect_key,
+    total_perturbation,
+)
 from .errormodel import ErrorModelSpec, chebyshev_basis, chebyshev_u
 from .linearize import (
     InstrumentNoise,
@@ -57,7 +65,7 @@ from .linearize import (
 )
 from .linearize import sensitivities as loop_sensitivities
 from .measurements import Measurements
-from .robot import RobotModel, gravity_torques
+from .robot import RobotModel
 
 F = NDArray[np.float64]
 
@@ -216,45 +224,14 @@ def candidate_names(
 ) -> list[str]:
     """Every effect worth testing on this data set, minus those already in the model.
 
-    Compliance is tested in its mass form (with link masses) and in its lumped form (the
-    moments estimated, payload included) for every joint whose gravity load varies; backlash
-    needs a
-    joint approached from both sides; thermal a varying ``temp`` column; drift a varying
-    ``time`` column.  Cyclic harmonics go up to ``max_harmonic`` cycles per revolution.
+    Each registered effect type proposes its own (:func:`~.effects.propose`): e.g. compliance
+    in its mass and lumped forms for every joint whose gravity load varies, backlash for a
+    joint approached from both sides, thermal when the ``temp`` column varies, cyclic
+    harmonics up to ``max_harmonic`` cycles per revolution.
     """
     ex = set(exclude)
-    out: list[str] = []
-    nj = robot.n_joints
-    if robot.masses is not None and robot.coms is not None:
-        tau = gravity_torques(robot, meas.q)
-        out += [f"compliance:j{k + 1}" for k in range(nj) if np.ptp(tau[:, k]) > 1e-6]
-    # the lumped form estimates the moments themselves: an unknown payload (a tracker's
-    # probe of 1-1.5 kg on a UR10) is in it, where the mass form knows the links only
-    out += _lumped_compliance_candidates(robot, meas)
-    app = meas.approach_sign()
-    out += [f"backlash:j{k + 1}" for k in range(nj) if np.unique(app[:, k]).size > 1]
-    out += [f"cyclic:j{k + 1}:h{m}" for k in range(nj) for m in range(1, max_harmonic + 1)]
-    if meas.temp is not None and np.ptp(meas.temp) > 0.05:
-        out.append("thermal")
-    if meas.time is not None and np.ptp(meas.time) > 0:
-        out.append("drift")
-    out.append("depthscale")
+    out = propose(robot, meas, ProposalOptions(max_harmonic=max_harmonic))
     return [c for c in out if c not in ex]
-
-
-def _lumped_compliance_candidates(robot: RobotModel, meas: Measurements) -> list[str]:
-    """``compliance:jK:lumped`` for every joint gravity loads and the data move the load of:
-    a robot without link masses still gets its gravity compliance tested (lumped form)."""
-    from .effects.compliance import lumped_joints, structural_basis
-    from .robot import gravity_regressor
-
-    out = []
-    for k in lumped_joints(robot):
-        keep = list(structural_basis(robot, k).keep)
-        Y = gravity_regressor(robot, meas.q, k).reshape(meas.n_poses, -1)[:, keep]
-        if np.ptp(Y, axis=0).max() > 1e-6:
-            out.append(f"compliance:j{k + 1}:lumped")
-    return out
 
 
 @dataclass(frozen=True)
@@ -503,8 +480,9 @@ def diagnose(
     meas : Measurements
         The data it was fitted to (or new data of the same robot and set-up).
     candidates : sequence of str, optional
-        Effect names to test (default: :func:`candidate_names`).  ``uniformscale`` may be
-        asked about: it is reported as not identifiable, with the reason.
+        Effect names to test (default: :func:`candidate_names`).  A name that is explained,
+        never fitted (``uniformscale``), may be asked about: it is reported as not
+        identifiable, with the reason.
     alpha : float
         Family-wise false-alarm rate of the Bonferroni-corrected test.
     max_harmonic : int
@@ -540,9 +518,13 @@ def diagnose(
     )
     notes: list[str] = []
     not_ident: list[str] = []
-    if "uniformscale" in names:
-        names.remove("uniformscale")
-        not_ident.append(f"uniformscale: {UNIFORM_SCALE_EXPLANATION}")
+    parsed: list[tuple[str, Effect]] = []
+    for name in names:
+        try:
+            parsed.append((name, parse_effect(name, state.robot)))
+        except NotIdentifiable as exc:
+            not_ident.append(f"{exc.name}: {exc.reason}")
+    names = [n for n, _ in parsed]
     Q = _orthonormal_basis(J)
     r_perp = r - Q @ (Q.T @ r)
     rss = float(r_perp @ r_perp)
@@ -555,9 +537,8 @@ def diagnose(
     rms_rot = _rms_rot_mrad(res_now) if c == 6 else None
     m_tests = max(len(names), 1)
     effects: list[Effect] = []
-    for name in names:
-        effect = parse_effect(name, state.robot)
-        missing = [col for col in effect.requires() if getattr(meas, col) is None]
+    for name, effect in parsed:
+        missing = missing_channels(effect, meas)
         if missing:
             notes.append(f"{name} not tested: the data have no {', '.join(missing)} column")
             continue
@@ -600,14 +581,14 @@ def diagnose(
             rot_rms_after_mrad=rot_after,
         )
         raw.append((logp_adj, cand))
-        if effect.name.startswith("cyclic:"):
-            _, jk, hm = effect.name.split(":")
+        spectrum_bin = effect.spectrum_bin()
+        if spectrum_bin is not None:
+            jk, h = spectrum_bin
             spec_list = spectra.setdefault(jk, [])
-            h = int(hm[1:])
             while len(spec_list) < h:
                 spec_list.append(0.0)
             spec_list[h - 1] = float(lm)
-    raw = _prefer_mass_form(raw, alpha)
+    raw = _prefer_simpler_form(raw, {e.name: e for e in effects}, alpha)
     raw.sort(key=lambda t: _rank(t[1], t[0]))
     cands = tuple(
         replace(c_, evidence=_evidence(c_, state, spectra, m_tests, rms_now)) for _, c_ in raw
@@ -659,25 +640,30 @@ def _rms_rot_mrad(res: F) -> float:
     return float(np.sqrt(np.mean(np.sum(res[:, 3:] ** 2, axis=1))) * 1e3)
 
 
-def _prefer_mass_form(
-    raw: list[tuple[float, Candidate]], alpha: float
+def _prefer_simpler_form(
+    raw: list[tuple[float, Candidate]], effects: dict[str, Effect], alpha: float
 ) -> list[tuple[float, Candidate]]:
-    """Of a joint's two compliance forms, the lumped one (more parameters: it estimates the
-    moments, an unknown payload included) only counts where it explains significantly more
-    than the mass form (nested χ² test at ``alpha``); otherwise it is marked not significant,
-    so the simpler form with the known masses is ranked and suggested."""
+    """Of two forms of one physical effect (:attr:`~.effects.Effect.physical`), the one with
+    more parameters (a joint's lumped compliance: it estimates the moments, an unknown payload
+    included) only counts where it explains significantly more than each form with fewer
+    parameters tested (nested χ² test at ``alpha``); otherwise it is marked not significant,
+    so the simpler form (the known masses) is ranked and suggested."""
     from scipy import stats
 
-    by_name = {c.effect: c for _, c in raw}
+    forms: dict[str, list[Candidate]] = {}
+    for _, c in raw:
+        forms.setdefault(effects[c.effect].physical, []).append(c)
     out = []
     for logp, c in raw:
-        mass = by_name.get(c.effect.removesuffix(":lumped"))
-        if c.effect.endswith(":lumped") and c.significant and mass is not None:
-            extra = c.lm_statistic - mass.lm_statistic
-            k = c.dof - mass.dof
+        n = effects[c.effect].n_params
+        simpler = [s for s in forms[effects[c.effect].physical] if effects[s.effect].n_params < n]
+        for s in simpler if c.significant else ():
+            extra = c.lm_statistic - s.lm_statistic
+            k = c.dof - s.dof
             p = float(stats.chi2.sf(max(extra, 0.0), k)) if k > 0 else 1.0
             if p >= alpha:
                 c = replace(c, significant=False)
+                break
         out.append((logp, c))
     return out
 
@@ -730,24 +716,10 @@ class _Basis:
 
 
 def _nuisance_joints(effect: Effect, nj: int) -> tuple[int, ...]:
-    """Joints whose smooth (Chebyshev) errors a candidate must be more than.
-
-    Backlash and cyclic errors of joint K are tested against higher Chebyshev orders of joint
-    K: a low harmonic *is* a smooth function of q_K, and under a random execution order the
-    approach direction correlates with q_K itself (a high reading was most likely approached
-    from below), so an order search that stopped early would otherwise show up as backlash.
-    Compliance of joint K is tested against joints K and K+1, whose angles its gravity
-    torque depends on most; what remains is the torque's non-additive dependence (on
-    q_K + q_K+1), which no per-joint polynomial expresses.
-    """
-    from .effects.backlash import Backlash
-    from .effects.compliance import Compliance, LumpedCompliance
-
-    if isinstance(effect, Cyclic | Backlash):
-        return (effect.joint,)
-    if isinstance(effect, Compliance | LumpedCompliance):
-        return tuple(j for j in (effect.joint, effect.joint + 1) if j < nj)
-    return ()
+    """Joints whose smooth (Chebyshev) errors a candidate must be more than, as the effect
+    declares (:meth:`~.effects.Effect.nuisance_joints`): backlash and cyclic errors of joint K
+    against higher orders of joint K, compliance of joint K against joints K and K+1."""
+    return tuple(effect.nuisance_joints(nj))
 
 
 class _Bases:
@@ -944,10 +916,10 @@ def _evidence(
         f"{n} ≈ {v:.3g} {u}"
         for n, v, u in zip(effect.param_names, c.params, effect.param_units, strict=False)
     )
-    if c.effect.startswith("cyclic:"):
-        _, jk, hm = c.effect.split(":")
+    spectrum_bin = effect.spectrum_bin()
+    if spectrum_bin is not None:
+        jk, h = spectrum_bin
         sp = np.asarray(spectra.get(jk, []))
-        h = int(hm[1:])
         if sp.size > 1:
             others = np.delete(sp, h - 1)
             j2 = int(np.argmax(others))
@@ -1024,18 +996,12 @@ class EffectView:
 def regressor_values(
     effect: Effect, ctx: EffectContext, T_model: F, params: F | None = None
 ) -> tuple[F, str]:
-    """The effect's regressor per pose and its label (depth from the model for depthscale).
-
-    An effect whose single regressor needs its parameters (the lumped compliance: many
-    columns, one modelled deflection) gives it through ``regressor_at`` when ``params`` are
-    known."""
-    if effect.name == "depthscale":
-        return T_model[:, 2, 3], effect.regressor_name
-    at = getattr(effect, "regressor_at", None)
-    if at is not None and params is not None:
-        x, label = at(ctx, np.asarray(params, float))
-        return np.asarray(x, float), str(label)
-    return effect.regressor(ctx), effect.regressor_name
+    """The effect's regressor per pose and its label (:meth:`~.effects.Effect.regressor_at`:
+    the depth from the model pose for depthscale; the modelled deflection for the lumped
+    compliance, whose many columns have one regressor only once ``params`` are known)."""
+    p = None if params is None else np.asarray(params, float)
+    x, label = effect.regressor_at(ctx, p, T_model)
+    return np.asarray(x, float), str(label)
 
 
 def implied_channel(

@@ -44,7 +44,14 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .effects import Effect, EffectContext, Perturbation, effect_context, total_perturbation
+from .effects import (
+    Effect,
+    EffectContext,
+    Perturbation,
+    effect_context,
+    missing_channels,
+    total_perturbation,
+)
 from .effects.thermal import T_REF_C
 from .errormodel import MOTIONS, ErrorModelSpec, chebyshev_u, constant_motions
 from .errors import InputError
@@ -348,8 +355,7 @@ class FittedModel:
         if self.effects:
             lines.append("effects: " + ", ".join(e.name for e in self.effects))
             for e in self.effects:  # an effect may say which form it took and what it identified
-                describe = getattr(e, "describe_fit", None)
-                lines += describe(self) if describe is not None else []
+                lines += e.describe_fit(self)
         if self.held:
             lines.append(f"held at their known values: {len(self.held)} parameters")
         if self.unidentifiable:
@@ -425,9 +431,8 @@ def fit_model(
     if spec.n_joints != robot.n_joints:
         raise InputError(f"error model has {spec.n_joints} joints, robot has {robot.n_joints}")
     for e in effects:
-        for col in e.requires():
-            if getattr(meas, col, None) is None:
-                raise InputError(f"effect {e.name!r} needs the {col!r} column in the measurements")
+        for col in missing_channels(e, meas):
+            raise InputError(f"effect {e.name!r} needs the {col!r} column in the measurements")
     labels = parameter_labels(spec, effects)
     unknown = sorted(set(hold) - set(labels))
     if unknown:

@@ -36,6 +36,7 @@ from .effects import (
     EffectContext,
     Perturbation,
     effect_context,
+    missing_channels,
     parse_effect,
     total_perturbation,
 )
@@ -255,9 +256,8 @@ class Twin:
 
     def _check_columns(self, ctx: EffectContext) -> None:
         for e in self.effects:
-            for col in e.requires():
-                if getattr(ctx, col) is None:
-                    raise ValueError(f"the twin's effect {e.name} needs a {col!r} schedule")
+            for col in missing_channels(e, ctx):
+                raise ValueError(f"the twin's effect {e.name} needs a {col!r} schedule")
 
 
 def simulate(
@@ -275,7 +275,8 @@ def simulate(
 def effect_params(effect: Effect, size: float | Sequence[float], rng: np.random.Generator) -> F:
     """Parameters of ``effect`` from a size (SI) or an explicit parameter list.
 
-    A scalar size means: compliance ``c`` (rad/(N·m)); backlash play ``b`` (rad); cyclic
+    A scalar size is read by the effect (:meth:`~quickhealth.identify.effects.Effect.
+    twin_params`): e.g. compliance ``c`` (rad/(N·m)); backlash play ``b`` (rad); cyclic
     amplitude (rad) at a random phase; thermal ``α`` (1/K); drift translation rate (m/s) in a
     random direction, with a rotation rate of size / 1 m (rad/s) about a random axis;
     depthscale ``s``.
@@ -285,17 +286,7 @@ def effect_params(effect: Effect, size: float | Sequence[float], rng: np.random.
         if p.shape != (effect.n_params,):
             raise ValueError(f"{effect.name} takes {effect.n_params} parameters, got {p.shape}")
         return p
-    s = float(size)  # type: ignore[arg-type]
-    if effect.n_params == 1:
-        return np.array([s])
-    if effect.n_params == 2:  # cyclic: amplitude at a random phase
-        ph = rng.uniform(0, 2 * np.pi)
-        return np.array([s * np.cos(ph), s * np.sin(ph)])
-    if effect.n_params == 6:  # drift
-        v = rng.normal(size=3)
-        w = rng.normal(size=3)
-        return np.concatenate([s * v / np.linalg.norm(v), s * w / np.linalg.norm(w)])
-    raise ValueError(f"give {effect.name}'s {effect.n_params} parameters explicitly")
+    return np.asarray(effect.twin_params(float(size), rng), dtype=float)  # type: ignore[arg-type]
 
 
 def make_twin(

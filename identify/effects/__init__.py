@@ -11,15 +11,20 @@ effects' perturbations, so effects compose with the Chebyshev model and with eac
     measured point = diag(1, 1, 1 + instr_scale_z) · position of T_instr_target
 
 Each effect lives in its own module of this package with its physics in the docstring, and
-registers its name pattern in :data:`REGISTRY` (see :func:`parse_effect`).
+registers its name pattern in :data:`REGISTRY` (see :func:`parse_effect`) with what its type
+declares (:class:`EffectType`: the channels it needs, the candidates it proposes, its quick-check
+family, its size on the twin's command line, an example).  Everything else a consumer needs is
+declared on the effect object (:class:`Effect`; defaults in :class:`._base.EffectBase`): the
+diagnosis, the twin, compensate, the quick check, the simulated cell and the command line loop
+over the registry and never name an effect (docs/effects.md, "Adding an effect").
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -130,8 +135,72 @@ def effect_context(
     )
 
 
+@dataclass(frozen=True)
+class Channel:
+    """What an effect may need beyond the joint readings (:meth:`Effect.requires`).
+
+    Each channel is an attribute of :class:`EffectContext`; all but ``approach`` (which the
+    execution order gives every file) are also optional attributes of
+    :class:`~quickhealth.identify.measurements.Measurements` and conditions a model is
+    evaluated at (``FittedModel.predict``'s keywords).
+
+    Attributes
+    ----------
+    words : str
+        The channel in words, with its unit.
+    condition : str or None
+        Its key in report.json's ``workspace.conditions`` (the value the workspace map states
+        for it); None for a channel that is no condition (the approach directions).
+    """
+
+    words: str
+    condition: str | None
+
+
+CHANNELS: dict[str, Channel] = {
+    "approach": Channel("approach direction of every joint (from the execution order)", None),
+    "time": Channel("time (s, on the fitted run's clock)", "time_s"),
+    "temp": Channel("temperature (°C)", "temp_c"),
+}
+
+#: Channels every measurement file has (derived from the order of its rows).
+ALWAYS = frozenset({"approach"})
+
+
+@dataclass(frozen=True)
+class TwinSize:
+    """How ``quickhealth twin --effects NAME=SIZE`` reads an effect's size.
+
+    ``unit`` is the command line's unit in words; ``to_si`` multiplies the size into the SI
+    size that :meth:`Effect.twin_params` takes.
+    """
+
+    unit: str
+    to_si: float
+
+
+@dataclass(frozen=True)
+class CheckFamily:
+    """An effect as a family of the quick check's change model
+    (:func:`~quickhealth.identify.quickcheck.change_model`).
+
+    ``kind`` is the family's name in ``CheckSettings.effects`` (``backlash``, ``compliance``).
+    ``jump``: the effect's size is the TCP jump between two states of the joint (the two
+    approach directions), which no set-up change takes up.
+    """
+
+    kind: str
+    jump: bool = False
+
+
 class Effect(Protocol):
-    """A physical effect: a few parameters, linear in its perturbation of the loop."""
+    """A physical effect: a few parameters, linear in its perturbation of the loop.
+
+    Everything a consumer needs is declared here; :class:`~._base.EffectBase` gives the
+    defaults, so a new effect declares what differs.  The consumers (diagnose, the twin,
+    compensate, the quick check, the simulated cell, the command line and the tests) loop over
+    :data:`REGISTRY` and these attributes: none of them names an effect.
+    """
 
     name: str  # the contract name, e.g. "compliance:j2"
     param_names: tuple[str, ...]  # e.g. ("c",)
@@ -140,9 +209,27 @@ class Effect(Protocol):
     regressor_name: (
         str  # what to plot residuals against, in words (e.g. "gravity torque of joint 2 (N·m)")
     )
+    joint: int | None  # 0-based joint the effect belongs to; None for the whole arm or instrument
+    instrument: bool  # the instrument's error, not the robot's: never compensated or simulated
 
     @property
     def n_params(self) -> int: ...
+
+    @property
+    def physical(self) -> str:
+        """The physical effect this is a form of (``compliance:j2`` for its mass and lumped
+        forms): a model holds each at most once."""
+        ...
+
+    @property
+    def form(self) -> str:
+        """Which form of the physical effect (``masses``, ``lumped``; ``""`` when it has one)."""
+        ...
+
+    @property
+    def check_family(self) -> CheckFamily | None:
+        """Its family in the quick check's change model (None: the check does not test it)."""
+        ...
 
     def perturbation(self, ctx: EffectContext, params: F) -> Perturbation:
         """The loop perturbation for parameters ``params`` (linear in ``params``)."""
@@ -152,34 +239,203 @@ class Effect(Protocol):
         """The scalar per pose the effect's size scales with, shape (n,): for plots."""
         ...
 
+    def regressor_at(self, ctx: EffectContext, params: F | None, T_model: F) -> tuple[F, str]:
+        """The plot regressor per pose and its label, once the parameters (or the model pose
+        ``T_model``, (n, 4, 4)) are known."""
+        ...
+
     def requires(self) -> tuple[str, ...]:
-        """Measurement columns the effect needs, e.g. ("temp",)."""
+        """Channels the effect needs (:data:`CHANNELS`), e.g. ("temp",): its type's
+        (:attr:`EffectType.requires`)."""
+        ...
+
+    def nuisance_joints(self, n_joints: int) -> tuple[int, ...]:
+        """Joints (0-based) whose smooth Chebyshev errors the diagnosis must see the effect
+        beyond (a low harmonic *is* a smooth function of its joint's angle)."""
+        ...
+
+    def spectrum_bin(self) -> tuple[str, int] | None:
+        """``(joint key, harmonic)`` when the effect is a bin of the diagnosis's residual
+        spectrum against a joint angle (``("j1", 9)``), else None."""
+        ...
+
+    def twin_params(self, size: float, rng: np.random.Generator) -> F:
+        """True parameters of a hidden instance of SI ``size`` (the twin; InputError when one
+        size cannot say it)."""
+        ...
+
+    def correction(self, conditions: Mapping[str, float | None]) -> str:
+        """What compensating it at each target of a program uses, in words (``conditions``:
+        the scalar conditions the program runs at, keyed by channel)."""
+        ...
+
+    def correction_notes(self, params: F, q_program: F) -> list[str]:
+        """Warnings about a compensated program ``q_program`` (n, nj) rad (e.g. moves smaller
+        than a backlash's play)."""
+        ...
+
+    def describe_fit(self, fitted: Any) -> list[str]:
+        """The fit summary's lines about this effect (its form, estimates in words and units)."""
+        ...
+
+    def info(self) -> dict[str, Any]:
+        """What model.json keeps beside the name and parameters."""
         ...
 
 
 EffectFactory = Callable[[re.Match[str], RobotModel], Effect]
-REGISTRY: list[tuple[re.Pattern[str], EffectFactory, str]] = []
+#: ``(robot, measurements, options)`` → the effect names of one type worth testing on the data.
+Proposer = Callable[[RobotModel, Any, "ProposalOptions"], list[str]]
 
 
-def register(pattern: str, doc: str) -> Callable[[EffectFactory], EffectFactory]:
-    """Decorator: register a factory for effect names matching ``pattern`` (full match)."""
+@dataclass(frozen=True)
+class ProposalOptions:
+    """Options of the diagnosis's candidate proposal."""
+
+    max_harmonic: int = 30
+
+
+@dataclass(frozen=True)
+class EffectType:
+    """One registered effect name pattern and what it declares beyond its objects.
+
+    Attributes
+    ----------
+    pattern : compiled regex
+        The contract names it makes (full match), e.g. ``backlash:j(\\d+)``.
+    make : callable
+        ``(match, robot) → Effect``.
+    doc : str
+        The pattern in words, e.g. ``backlash:jK``.
+    requires : tuple of str
+        The channels (:data:`CHANNELS`) its effects need, e.g. ``("temp",)``.
+    propose : callable, optional
+        The names of this type diagnose tests on a robot and data set (None: never proposed).
+    check : (str, callable), optional
+        The quick check's family kind (``backlash``) and the names of this type its change
+        model holds on a robot.
+    twin : TwinSize, optional
+        How the twin's command line reads a size (None: not hidden by one size).
+    example : str, optional
+        ``NAME=SIZE`` in the twin's command-line units: a hidden instance diagnose must name
+        (the command-line test of every effect runs it).
+    """
+
+    pattern: re.Pattern[str]
+    make: EffectFactory
+    doc: str
+    requires: tuple[str, ...] = ()
+    propose: Proposer | None = None
+    check: tuple[str, Callable[[RobotModel], list[str]]] | None = None
+    twin: TwinSize | None = None
+    example: str | None = None
+
+
+REGISTRY: list[EffectType] = []
+
+
+def register(
+    pattern: str,
+    doc: str,
+    *,
+    requires: tuple[str, ...] = (),
+    propose: Proposer | None = None,
+    check: tuple[str, Callable[[RobotModel], list[str]]] | None = None,
+    twin: TwinSize | None = None,
+    example: str | None = None,
+) -> Callable[[EffectFactory], EffectFactory]:
+    """Decorator: register a factory for effect names matching ``pattern`` (full match), with
+    what the type declares (see :class:`EffectType`)."""
 
     def deco(factory: EffectFactory) -> EffectFactory:
-        REGISTRY.append((re.compile(pattern), factory, doc))
+        REGISTRY.append(
+            EffectType(re.compile(pattern), factory, doc, requires, propose, check, twin, example)
+        )
         return factory
 
     return deco
 
 
+class NotIdentifiable(InputError):
+    """A registered name that is explained, never fitted (``uniformscale``): ``reason`` says
+    why the data cannot identify it."""
+
+    def __init__(self, name: str, reason: str) -> None:
+        super().__init__(f"effect {name!r} is not fitted: {reason}")
+        self.name = name
+        self.reason = reason
+
+
+def effect_types() -> list[EffectType]:
+    """Every registered effect type, built-ins first (in the order diagnose proposes them),
+    whatever order their modules were imported in."""
+    _load_builtin()
+    return sorted(REGISTRY, key=lambda t: _module_rank(t.make.__module__.rsplit(".", 1)[-1]))
+
+
+def effect_type(name: str) -> EffectType:
+    """The registered type a contract name belongs to (InputError for an unknown name)."""
+    for t in effect_types():
+        if t.pattern.fullmatch(name.strip()):
+            return t
+    raise InputError(f"unknown effect {name!r}; known: chebyshev, {_known()}")
+
+
+def is_effect_name(name: str) -> bool:
+    """True when ``name`` is a registered effect name (``compliance:j2``, ``thermal``), as
+    opposed to, e.g., a coefficient label (``j2.ex.c0``)."""
+    return any(t.pattern.fullmatch(name.strip()) for t in effect_types())
+
+
+def _known() -> str:
+    return ", ".join(t.doc for t in REGISTRY) or "none"
+
+
+def propose(
+    robot: RobotModel, meas: Any, options: ProposalOptions = ProposalOptions()
+) -> list[str]:
+    """Every effect name worth testing on ``meas`` (diagnose's candidates), type by type."""
+    out: list[str] = []
+    for t in effect_types():
+        if t.propose is not None:
+            out += t.propose(robot, meas, options)
+    return out
+
+
+def check_kinds() -> tuple[str, ...]:
+    """Every quick-check family kind an effect type declares (``backlash``, ``compliance``)."""
+    return tuple(sorted({t.check[0] for t in effect_types() if t.check is not None}))
+
+
+def check_effects(kinds: Sequence[str], robot: RobotModel) -> list[Effect]:
+    """The effects of the quick check's families ``kinds`` on ``robot`` (InputError for a kind
+    no registered effect declares)."""
+    checked = [t.check for t in effect_types() if t.check is not None]
+    known = check_kinds()
+    out: list[Effect] = []
+    for kind in kinds:
+        if kind not in known:
+            raise InputError(f"a check tests {' and '.join(known)} families, not {kind!r}")
+        out += [parse_effect(n, robot) for k, names in checked if k == kind for n in names(robot)]
+    return out
+
+
+def channels_of(name: str) -> tuple[str, ...]:
+    """The channels the effects of a registered name need (no robot needed)."""
+    return effect_type(name).requires
+
+
+def missing_channels(effect: Effect, data: Any) -> list[str]:
+    """The channels ``effect`` needs that ``data`` (Measurements or EffectContext) lacks."""
+    return [c for c in effect.requires() if c not in ALWAYS and getattr(data, c, None) is None]
+
+
 def parse_effect(name: str, robot: RobotModel) -> Effect:
     """Effect object for a contract name such as ``backlash:j2`` or ``cyclic:j1:h11``."""
-    _load_builtin()
-    for pattern, factory, _ in REGISTRY:
-        m = pattern.fullmatch(name.strip())
-        if m:
-            return factory(m, robot)
-    known = ", ".join(doc for _, _, doc in REGISTRY) or "none"
-    raise InputError(f"unknown effect {name!r}; known: chebyshev, {known}")
+    t = effect_type(name)
+    m = t.pattern.fullmatch(name.strip())
+    assert m is not None
+    return t.make(m, robot)
 
 
 def parse_effects(spec: str | Sequence[str] | None, robot: RobotModel) -> list[Effect]:
@@ -206,7 +462,7 @@ def parse_effects(spec: str | Sequence[str] | None, robot: RobotModel) -> list[E
 def same_effect_key(effect: Effect) -> str:
     """The physical effect an effect object is a form of (``compliance:j2`` for both the mass
     and the lumped form): a model holds each at most once."""
-    return str(getattr(effect, "physical", effect.name))
+    return effect.physical
 
 
 def total_perturbation(
@@ -219,10 +475,26 @@ def total_perturbation(
     return total
 
 
+#: The built-in modules in the order their candidates are proposed (the diagnosis's output
+#: order); any other module of this package registers after them, by name.
+_BUILTIN = ("compliance", "backlash", "cyclic", "thermal", "drift", "depthscale")
+
+
+def _module_rank(name: str) -> tuple[int, str]:
+    return (_BUILTIN.index(name) if name in _BUILTIN else len(_BUILTIN), name)
+
+
+_LOADED: list[bool] = []
+
+
 def _load_builtin() -> None:
-    """Import the built-in effect modules so they register themselves (idempotent)."""
+    """Import the effect modules of this package so they register themselves (once)."""
     import importlib
     import pkgutil
 
-    for info in pkgutil.iter_modules(__path__):
-        importlib.import_module(f"{__name__}.{info.name}")
+    if _LOADED:
+        return
+    names = [i.name for i in pkgutil.iter_modules(__path__) if not i.name.startswith("_")]
+    for name in sorted(names, key=_module_rank):
+        importlib.import_module(f"{__name__}.{name}")
+    _LOADED.append(True)

@@ -47,16 +47,17 @@ without parameters the torque pattern of the base set's principal direction.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ..errors import InputError
-from ..robot import RobotModel, gravity_regressor
-from . import EffectContext, Perturbation, register
-from ._base import F, joint_dq, joint_index
+from ..measurements import Measurements
+from ..robot import RobotModel, gravity_regressor, gravity_torques
+from . import CheckFamily, EffectContext, Perturbation, ProposalOptions, TwinSize, register
+from ._base import EffectBase, F, fitted_estimates, joint_dq, joint_index
 
 AXES = ("x", "y", "z")
 #: Prior standard deviation of a lumped parameter (rad): 10 mrad, far above any sane deflection.
@@ -66,7 +67,7 @@ _REL_TOL = 1e-7  # a column adding less new direction than this (relative) is de
 
 
 @dataclass(frozen=True, eq=False)
-class Compliance:
+class Compliance(EffectBase):
     """Joint ``joint`` (0-based) deflects by ``c · τ`` (mass form)."""
 
     joint: int
@@ -109,9 +110,20 @@ class Compliance:
             dq=joint_dq(ctx.n_poses, ctx.robot.n_joints, self.joint, params[0] * tau)
         )
 
-    def requires(self) -> tuple[str, ...]:
-        """Only joint readings (and the robot's inertial data)."""
-        return ()
+    def nuisance_joints(self, n_joints: int) -> tuple[int, ...]:
+        """Joints K and K+1, whose angles the gravity torque depends on most: what remains is
+        the torque's non-additive dependence (on q_K + q_K+1), which no per-joint polynomial
+        expresses."""
+        return _own_and_next(self.joint, n_joints)
+
+    @property
+    def check_family(self) -> CheckFamily:
+        """The quick check's ``compliance`` family."""
+        return CheckFamily("compliance")
+
+    def correction(self, conditions: Mapping[str, float | None]) -> str:
+        """By the gravity torque at each target."""
+        return f"{self.name} by the gravity torque at each target"
 
     def info(self) -> dict[str, Any]:
         """What model.json keeps beside the name: the form used."""
@@ -119,7 +131,7 @@ class Compliance:
 
     def describe_fit(self, fitted: Any) -> list[str]:
         """The fit summary's line: the form and the estimate."""
-        v, s = _estimates(fitted, self)
+        v, s = fitted_estimates(fitted, self)
         return [
             f"{self.name}: mass form (gravity torque from the robot's link masses and centres "
             f"of mass): c = {v[0]:.3g} ± {s[0]:.2g} rad/(N·m)"
@@ -218,7 +230,7 @@ def structural_basis(robot: RobotModel, joint: int, n_samples: int = _SAMPLES) -
 
 
 @dataclass(frozen=True, eq=False)
-class LumpedCompliance:
+class LumpedCompliance(EffectBase):
     """Joint ``joint`` (0-based) deflects by ``Σ Y_b(q) θ_b`` over the structural base set.
 
     ``reason`` says why this form was chosen when the name asked for did not (the fallback of
@@ -266,10 +278,10 @@ class LumpedCompliance:
         """Torque pattern along the base set's principal direction, shape (n,) (for plots)."""
         return self.columns(ctx) @ self.basis.principal
 
-    def regressor_at(self, ctx: EffectContext, params: F) -> tuple[F, str]:
+    def regressor_at(self, ctx: EffectContext, params: F | None, T_model: F) -> tuple[F, str]:
         """The modelled deflection at ``params`` (mrad) and its label: the plot regressor once
         the parameters are known (a single number per pose the residual should follow)."""
-        if not np.any(np.asarray(params, float)):
+        if params is None or not np.any(np.asarray(params, float)):
             return self.regressor(ctx), self.regressor_name
         return (
             self.columns(ctx) @ np.asarray(params, float) * 1e3,
@@ -281,9 +293,20 @@ class LumpedCompliance:
         dq = self.columns(ctx) @ np.asarray(params, float)
         return Perturbation(dq=joint_dq(ctx.n_poses, ctx.robot.n_joints, self.joint, dq))
 
-    def requires(self) -> tuple[str, ...]:
-        """Only joint readings: no masses."""
-        return ()
+    def nuisance_joints(self, n_joints: int) -> tuple[int, ...]:
+        """Joints K and K+1, as the mass form."""
+        return _own_and_next(self.joint, n_joints)
+
+    def twin_params(self, size: float, rng: np.random.Generator) -> F:
+        """Many parameters, not one size: the twin hides compliance in its mass form."""
+        raise InputError(
+            f"{self.name} has {self.n_params} parameters, not one size; hide compliance as "
+            f"compliance:j{self.joint + 1}=SIZE (deg/(N·m), with the twin's masses)"
+        )
+
+    def correction(self, conditions: Mapping[str, float | None]) -> str:
+        """By the gravity torque at each target."""
+        return f"{self.name} by the gravity torque at each target"
 
     def info(self) -> dict[str, Any]:
         """What model.json keeps beside the name: form, base set and what it stands for."""
@@ -296,7 +319,7 @@ class LumpedCompliance:
 
     def describe_fit(self, fitted: Any) -> list[str]:
         """The fit summary's lines: the form, which combinations the data identify, estimates."""
-        v, s = _estimates(fitted, self)
+        v, s = fitted_estimates(fitted, self)
         labels = [f"{self.name}.{n}" for n in self.param_names]
         unident = set(fitted.unidentifiable) | set(fitted.held)
         ok = [n for n, lb in zip(self.param_names, labels, strict=True) if lb not in unident]
@@ -320,13 +343,8 @@ class LumpedCompliance:
         return lines
 
 
-def _estimates(fitted: Any, effect: Any) -> tuple[F, F]:
-    """The effect's fitted parameters and standard uncertainties."""
-    names = [e.name for e in fitted.effects]
-    k = names.index(effect.name)
-    pos = fitted.spec.n_params + sum(e.n_params for e in fitted.effects[:k])
-    sd = fitted.sigma[pos : pos + effect.n_params]
-    return np.asarray(fitted.effect_params[k], float), np.asarray(sd, float)
+def _own_and_next(joint: int, n_joints: int) -> tuple[int, ...]:
+    return tuple(j for j in (joint, joint + 1) if j < n_joints)
 
 
 def lumped(robot: RobotModel, joint: int, reason: str = "") -> LumpedCompliance:
@@ -351,7 +369,41 @@ def has_masses(robot: RobotModel) -> bool:
     return robot.masses is not None and robot.coms is not None
 
 
-@register(r"compliance:j(\d+)", "compliance:jK")
+def _propose_masses(robot: RobotModel, meas: Measurements, options: ProposalOptions) -> list[str]:
+    """The mass form of every joint whose gravity load the data vary (robots with masses)."""
+    if not has_masses(robot):
+        return []
+    tau = gravity_torques(robot, meas.q)
+    return [f"compliance:j{k + 1}" for k in range(robot.n_joints) if np.ptp(tau[:, k]) > 1e-6]
+
+
+def _propose_lumped(robot: RobotModel, meas: Measurements, options: ProposalOptions) -> list[str]:
+    """The lumped form of every joint gravity loads and the data move the load of: it
+    estimates the moments themselves, so an unknown payload (a tracker's probe of 1–1.5 kg on
+    a UR10) is in it, where the mass form knows the links only; and a robot without link
+    masses still gets its gravity compliance tested."""
+    out = []
+    for k in lumped_joints(robot):
+        keep = list(structural_basis(robot, k).keep)
+        Y = gravity_regressor(robot, meas.q, k).reshape(meas.n_poses, -1)[:, keep]
+        if np.ptp(Y, axis=0).max() > 1e-6:
+            out.append(f"compliance:j{k + 1}:lumped")
+    return out
+
+
+def _check_names(robot: RobotModel) -> list[str]:
+    """The quick check tests the mass form of every joint, on robots with masses."""
+    return [f"compliance:j{k + 1}" for k in range(robot.n_joints)] if has_masses(robot) else []
+
+
+@register(
+    r"compliance:j(\d+)",
+    "compliance:jK",
+    propose=_propose_masses,
+    check=("compliance", _check_names),
+    twin=TwinSize("deg/(N·m)", np.pi / 180.0),
+    example="compliance:j2=0.00143",
+)
 def _make(m: re.Match[str], robot: RobotModel) -> Compliance | LumpedCompliance:
     j = joint_index(m.group(1), robot, m.group(0))
     if not has_masses(robot):
@@ -364,7 +416,7 @@ def _make(m: re.Match[str], robot: RobotModel) -> Compliance | LumpedCompliance:
     return Compliance(joint=j, name=f"compliance:j{j + 1}")
 
 
-@register(r"compliance:j(\d+):lumped", "compliance:jK:lumped")
+@register(r"compliance:j(\d+):lumped", "compliance:jK:lumped", propose=_propose_lumped)
 def _make_lumped(m: re.Match[str], robot: RobotModel) -> LumpedCompliance:
     j = joint_index(m.group(1), robot, m.group(0))
     return lumped(robot, j)

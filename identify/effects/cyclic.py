@@ -17,18 +17,19 @@ the phase ``M q_K`` wrapped to [0, 2π).
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import InputError
 from ..robot import RobotModel
-from . import EffectContext, Perturbation, register
-from ._base import F, joint_dq, joint_index
+from . import EffectContext, Perturbation, ProposalOptions, TwinSize, register
+from ._base import EffectBase, F, joint_dq, joint_index
 
 
 @dataclass(frozen=True, eq=False)
-class Cyclic:
+class Cyclic(EffectBase):
     """Joint ``joint`` (0-based) has an error with ``harmonic`` cycles per revolution."""
 
     joint: int
@@ -62,12 +63,37 @@ class Cyclic:
         v = params[0] * np.sin(ph) + params[1] * np.cos(ph)
         return Perturbation(dq=joint_dq(ctx.n_poses, ctx.robot.n_joints, self.joint, v))
 
-    def requires(self) -> tuple[str, ...]:
-        """Only joint readings."""
-        return ()
+    def nuisance_joints(self, n_joints: int) -> tuple[int, ...]:
+        """Joint K's own higher orders: a low harmonic is a smooth function of q_K."""
+        return (self.joint,)
+
+    def spectrum_bin(self) -> tuple[str, int]:
+        """Harmonic M of the residual spectrum against joint K's angle."""
+        return f"j{self.joint + 1}", self.harmonic
+
+    def twin_params(self, size: float, rng: np.random.Generator) -> F:
+        """Amplitude ``size`` (rad) at a random phase."""
+        ph = rng.uniform(0, 2 * np.pi)
+        return np.array([size * np.cos(ph), size * np.sin(ph)])
+
+    def correction(self, conditions: Mapping[str, float | None]) -> str:
+        """By the phase at each target."""
+        return f"{self.name} by the phase at each target"
 
 
-@register(r"cyclic:j(\d+):h(\d+)", "cyclic:jK:hM")
+def _propose(robot: RobotModel, meas: object, options: ProposalOptions) -> list[str]:
+    """Every joint and harmonic up to ``options.max_harmonic``."""
+    nh = options.max_harmonic
+    return [f"cyclic:j{k + 1}:h{m}" for k in range(robot.n_joints) for m in range(1, nh + 1)]
+
+
+@register(
+    r"cyclic:j(\d+):h(\d+)",
+    "cyclic:jK:hM",
+    propose=_propose,
+    twin=TwinSize("deg (amplitude)", np.pi / 180.0),
+    example="cyclic:j1:h9=0.01146",
+)
 def _make(m: re.Match[str], robot: RobotModel) -> Cyclic:
     j = joint_index(m.group(1), robot, m.group(0))
     h = int(m.group(2))

@@ -24,10 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
 from ..robot import RobotModel
-from . import EffectContext, Perturbation, register
-from ._base import F
+from . import EffectContext, NotIdentifiable, Perturbation, TwinSize, register
+from ._base import EffectBase, F
 
 UNIFORM_SCALE_EXPLANATION = (
     "a uniform instrument scale is indistinguishable from scaling every link length, the "
@@ -38,10 +37,13 @@ UNIFORM_SCALE_EXPLANATION = (
 
 
 @dataclass(frozen=True, eq=False)
-class DepthScale:
+class DepthScale(EffectBase):
     """The instrument's z (optical axis) reads ``1 + s`` times too long."""
 
+    instrument = True  # the camera's error: never compensated, never on the simulated arm
+
     name: str = "depthscale"
+    joint: int | None = None  # the instrument
     param_names: tuple[str, ...] = ("s",)
     param_units: tuple[str, ...] = ("1",)
     prior_sigma: F = field(default_factory=lambda: np.array([1e-2]))
@@ -60,16 +62,22 @@ class DepthScale:
         """``instr_scale_z = s``."""
         return Perturbation(instr_scale_z=np.full(ctx.n_poses, float(params[0])))
 
-    def requires(self) -> tuple[str, ...]:
-        """Position data in the instrument's own frame, which every file has."""
-        return ()
+    def regressor_at(self, ctx: EffectContext, params: F | None, T_model: F) -> tuple[F, str]:
+        """The pose's depth (instrument z, m) from the model pose."""
+        return T_model[:, 2, 3], self.regressor_name
 
 
-@register(r"depthscale", "depthscale")
+@register(
+    r"depthscale",
+    "depthscale",
+    propose=lambda robot, meas, options: ["depthscale"],
+    twin=TwinSize("1 (fraction)", 1.0),
+    example="depthscale=4e-4",
+)
 def _make(m: re.Match[str], robot: RobotModel) -> DepthScale:
     return DepthScale()
 
 
 @register(r"uniformscale", "uniformscale (explained, not fitted)")
 def _uniform(m: re.Match[str], robot: RobotModel) -> DepthScale:
-    raise InputError(f"effect 'uniformscale' is not fitted: {UNIFORM_SCALE_EXPLANATION}")
+    raise NotIdentifiable("uniformscale", UNIFORM_SCALE_EXPLANATION)

@@ -16,14 +16,16 @@ as a constant link-length error, which the geometric model already fits: only th
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import InputError
+from ..measurements import Measurements
 from ..robot import RobotModel
-from . import EffectContext, Perturbation, register
-from ._base import F
+from . import EffectContext, Perturbation, ProposalOptions, TwinSize, register
+from ._base import EffectBase, F
 
 #: The temperature (°C) the link lengths refer to: the thermal effect's zero and the reference
 #: condition of the workspace map (:func:`~quickhealth.identify.workspace.reference_conditions`).
@@ -31,10 +33,11 @@ T_REF_C = 20.0
 
 
 @dataclass(frozen=True, eq=False)
-class Thermal:
+class Thermal(EffectBase):
     """Links grow by ``α · (temp − 20 °C)``."""
 
     name: str = "thermal"
+    joint: int | None = None  # the whole arm
     param_names: tuple[str, ...] = ("alpha",)
     param_units: tuple[str, ...] = ("1/K",)
     prior_sigma: F = field(default_factory=lambda: np.array([1e-4]))
@@ -55,11 +58,23 @@ class Thermal:
         """``link_scale = α · (temp − 20)``."""
         return Perturbation(link_scale=params[0] * self.regressor(ctx))
 
-    def requires(self) -> tuple[str, ...]:
-        """The ``temp`` column."""
-        return ("temp",)
+    def correction(self, conditions: Mapping[str, float | None]) -> str:
+        """At the temperature the program runs at."""
+        return f"{self.name} at {conditions['temp']:g} °C"
 
 
-@register(r"thermal", "thermal")
+def _propose(robot: RobotModel, meas: Measurements, options: ProposalOptions) -> list[str]:
+    """When the temperature varies: a constant offset looks like a link-length error."""
+    return ["thermal"] if meas.temp is not None and np.ptp(meas.temp) > 0.05 else []
+
+
+@register(
+    r"thermal",
+    "thermal",
+    requires=("temp",),
+    propose=_propose,
+    twin=TwinSize("1/K", 1.0),
+    example="thermal=5e-5",
+)
 def _make(m: re.Match[str], robot: RobotModel) -> Thermal:
     return Thermal()

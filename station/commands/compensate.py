@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ...identify.effects.backlash import Backlash
 from ...identify.errors import InputError
 from ...identify.fit import FittedModel
 from ...identify.urscript import replace_targets
@@ -151,7 +150,7 @@ def _compensate(args: argparse.Namespace) -> int:
         f"{comp.residual_pos.max() * 1e3:.6f} mm max after compensation; largest correction "
         f"{np.abs(dq).max():.4f} deg (cap {cap:g})"
     )
-    for line in _compensation_notes(fm, comp, args, Backlash):
+    for line in _compensation_notes(fm, comp, args):
         print(line)
     print(f"wrote {args.out}" + (f", {args.errors}" if args.errors else ""))
     return 0
@@ -188,9 +187,7 @@ def _refusals(refused: Sequence[Refused], where: Sequence[str], cap: float) -> l
     return lines
 
 
-def _compensation_notes(
-    fm: FittedModel, comp: Compensation, args: argparse.Namespace, backlash: type
-) -> list[str]:
+def _compensation_notes(fm: FittedModel, comp: Compensation, args: argparse.Namespace) -> list[str]:
     """The lines that say what the compensation used and what it left out (never silently)."""
     out = []
     if comp.described:
@@ -207,22 +204,9 @@ def _compensation_notes(
         out.append(
             f"drift extrapolated linearly to {args.time_s:g} s; the fitted run ended at {end:g} s"
         )
-    # a move smaller than the play leaves a real gear between its two sides
+    # what each compensated effect warns about the program (a move smaller than a backlash's
+    # play leaves a real gear between its two sides)
     for e, p in zip(fm.effects, fm.effect_params, strict=True):
-        if not isinstance(e, backlash) or e.name not in comp.effects:
-            continue
-        out.append(
-            f"note: {e.name}: the first target counts as reached with joint {e.joint + 1} "
-            "moving in the positive direction (the fit's rule for a first pose); make the "
-            "move into it do so"
-        )
-        step = np.abs(np.diff(comp.q[:, e.joint], prepend=comp.q[0, e.joint]))[1:]
-        small = np.flatnonzero(step < abs(float(p[0])))
-        if small.size:
-            shown = ", ".join(str(int(k) + 2) for k in small[:8]) + (" …" if small.size > 8 else "")
-            out.append(
-                f"note: joint {e.joint + 1} moves less than its play "
-                f"({np.degrees(abs(float(p[0]))):.4g} deg) into target(s) {shown}: the side "
-                f"its gear rests on there is uncertain; {e.name} assumes the direction of the move"
-            )
+        if e.name in comp.effects:
+            out += e.correction_notes(np.asarray(p, float), comp.q)
     return out

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ...identify.diagnose import Verdict, plot_candidate, plot_spectrum
-from ...identify.effects import parse_effect
+from ...identify.effects import effect_type, effect_types, parse_effect
 from ...identify.errors import InputError
 from ...identify.robot import RobotModel, ur5
 from ...identify.twin import make_twin, random_joints, schedules
@@ -42,15 +42,11 @@ from ..services.diagnosis import diagnose_model, write_diagnosis
 
 F = NDArray[np.float64]
 
-#: Units of effect sizes on the command line (the twin's --effects NAME=SIZE).
-SIZE_UNITS = {
-    "compliance": ("deg/(N·m)", "deg"),
-    "backlash": ("deg", "deg"),
-    "cyclic": ("deg (amplitude)", "deg"),
-    "thermal": ("1/K", "1"),
-    "drift": ("mm/s (and size/1 m rad/s)", "mm"),
-    "depthscale": ("1 (fraction)", "1"),
-}
+
+def size_units() -> str:
+    """The units of effect sizes on the command line (the twin's --effects NAME=SIZE), as
+    each effect type declares them (:class:`~quickhealth.identify.effects.TwinSize`)."""
+    return "; ".join(f"{t.doc}: {t.twin.unit}" for t in effect_types() if t.twin is not None)
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -99,7 +95,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         description="Measurements of the digital twin: a UR5 with random geometric and "
         "position-dependent joint errors plus hidden physical effects, measured by a stereo "
         "camera 2 m away (noise 0.03 mm, 0.1 mrad by default). Sizes: "
-        + "; ".join(f"{k}: {u}" for k, (u, _) in SIZE_UNITS.items())
+        + size_units()
         + ". Writes CSV v1 and the truth (JSON, SI units).",
     )
     t.add_argument("--out", type=Path, required=True, help="measurement CSV to write")
@@ -172,8 +168,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     diag = d.diagnosis
     write_diagnosis(args.json, diag)
     print("\n".join(diag.summary(top=args.top)))
-    for s in diag.not_identifiable:
-        if s.startswith("uniformscale"):
+    for s in diag.not_identifiable:  # why a candidate asked about by name was not tested
+        if any(s.startswith(f"{c}: ") for c in cands or ()):
             print(s)
     if args.plots:
         for i, c in enumerate(diag.candidates[:3], 1):
@@ -200,7 +196,7 @@ def _refuse_plots_over_inputs(folder: Path, inputs: list[Path]) -> None:
 
 
 def parse_twin_effects(text: str, robot: RobotModel) -> dict[str, float]:
-    """``NAME=SIZE,...`` (command-line units, see :data:`SIZE_UNITS`) → SI sizes."""
+    """``NAME=SIZE,...`` (command-line units, see :func:`size_units`) → SI sizes."""
     out: dict[str, float] = {}
     for item in (s.strip() for s in text.split(",")):
         if not item:
@@ -215,14 +211,14 @@ def parse_twin_effects(text: str, robot: RobotModel) -> dict[str, float]:
         if not np.isfinite(size):
             raise InputError(f"--effects: size of {name!r} must be finite")
         e = parse_effect(name.strip(), robot)
-        if getattr(e, "form", None) == "lumped":
-            raise InputError(
-                f"--effects: {e.name} has {e.n_params} parameters, not one size; hide "
-                f"compliance as compliance:j{e.joint + 1}=SIZE (deg/(N·m), with the twin's masses)"
-            )
-        unit = SIZE_UNITS[e.name.split(":")[0]][1]
-        factor = {"deg": np.pi / 180.0, "mm": 1e-3, "1": 1.0}[unit]
-        out[e.name] = size * factor
+        twin = effect_type(e.name).twin
+        try:  # an effect one size cannot say refuses it, with its reason
+            e.twin_params(size * (twin.to_si if twin else 1.0), np.random.default_rng(0))
+        except InputError as exc:
+            raise InputError(f"--effects: {exc}") from None
+        if twin is None:
+            raise InputError(f"--effects: {e.name} has no size on the command line")
+        out[e.name] = size * twin.to_si
     return out
 
 

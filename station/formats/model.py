@@ -40,7 +40,7 @@ def model_to_json(fitted: FittedModel) -> dict[str, Any]:
                 "name": e.name,
                 "params": np.asarray(p, float).tolist(),
                 "param_names": list(e.param_names),
-                **(e.info() if hasattr(e, "info") else {}),
+                **e.info(),
             }
             for e, p in zip(fitted.effects, fitted.effect_params, strict=True)
         ],

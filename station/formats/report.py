@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ...identify.effects import CHANNELS, channels_of
 from ...identify.errormodel import MOTIONS
 from ...identify.errors import InputError
 from ...identify.robot import Nominal, nominal_of
@@ -154,10 +155,14 @@ def _check_schema(doc: dict[str, Any], name: str) -> None:
     cond = doc["workspace"]["conditions"]
     if not isinstance(cond, dict) or not {"temp_c", "time_s", "text"} <= set(cond):
         raise InputError(f"{name}: workspace.conditions needs temp_c, time_s and text")
-    needs = {"thermal": "temp_c", "drift": "time_s"}
-    for eff, key in needs.items():
-        if eff in doc["effects"] and cond[key] is None:
-            raise InputError(f"{name}: the model has {eff} but the conditions give no {key}")
+    for eff in doc["effects"]:  # each condition an effect depends on is stated
+        try:
+            needs = channels_of(str(eff))
+        except InputError:
+            raise InputError(f"{name}: effects holds {eff!r}, not an effect name") from None
+        for key in (CHANNELS[c].condition for c in needs):
+            if key is not None and cond.get(key) is None:
+                raise InputError(f"{name}: the model has {eff} but the conditions give no {key}")
     if len(doc["residuals"]) != doc["n_poses"]:
         raise InputError(
             f"{name}: {len(doc['residuals'])} residual rows for {doc['n_poses']} poses"

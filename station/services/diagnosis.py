@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...identify.diagnose import Diagnosis, LoopState, diagnose, state_from_fitted
-from ...identify.effects import parse_effect
+from ...identify.effects import NotIdentifiable, parse_effect
 from ...identify.fit import FittedModel
 from ...identify.measurements import Measurements
 from ...identify.sanity import check_describes
@@ -57,8 +57,10 @@ def diagnose_model(
     """
     cands = None if candidates is None else list(candidates)
     for c in cands or ():
-        if c != "uniformscale":
+        try:
             parse_effect(c, fitted.robot)  # InputError for unknown names
+        except NotIdentifiable:
+            pass  # explained, never fitted: the diagnosis says why
     check_describes(fitted, meas, name)
     state = state_from_fitted(fitted)
     diag = diagnose(

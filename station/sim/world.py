@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ...identify.effects import parse_effect
+from ...identify.effects import CHANNELS, is_effect_name, parse_effect
 from ...identify.errors import InputError
 from ...identify.robot import RobotModel
 from ...identify.transforms import inv_T, make_T
@@ -104,15 +104,15 @@ def degrade_truth(
     with a colon) to the effect's size (:func:`~quickhealth.identify.twin.effect_params`: a
     compliance in rad/(N·m), a backlash play in rad), which needs the twin's ``robot``.  The
     simulated cell uses it for "a month later" runs and for effects a run must find.
-    Effects that need the time or the temperature (``thermal``, ``drift``) or belong to the
-    camera (``depthscale``) are refused: the simulated arm has no clock or temperature and
-    the images are rendered.
+    Effects that need a channel the simulated arm does not record (:data:`SIM_CHANNELS`: the
+    time or the temperature, as ``thermal`` and ``drift`` do) or belong to the camera
+    (``depthscale``, an instrument effect) are refused: the images are rendered.
     """
     labels = truth.spec.labels()
     coeffs = truth.coeffs.copy()
     effects = dict(truth.effects)
     for label, delta in changes.items():
-        if ":" in label or label in _UNTIMED:
+        if is_effect_name(label):
             effects.update(_hidden_effect(label, delta, robot, truth.seed))
             continue
         if label not in labels:
@@ -124,7 +124,9 @@ def degrade_truth(
     return replace(truth, coeffs=coeffs, effects=effects)
 
 
-_UNTIMED = ("thermal", "drift", "depthscale")  # effects the simulated arm cannot carry
+#: The channels the simulated arm gives its true pose (:data:`~quickhealth.identify.effects.
+#: CHANNELS`): an effect that needs another cannot be hidden in it.
+SIM_CHANNELS = frozenset({"approach"})
 
 
 def _hidden_effect(
@@ -134,10 +136,16 @@ def _hidden_effect(
     if robot is None:
         raise InputError(f"degradation {name!r}: a hidden effect needs the twin's robot")
     e = parse_effect(name, robot)
-    if e.name.split(":")[0] in _UNTIMED:
+    if e.instrument:
         raise InputError(
-            f"degradation {name!r}: the simulated arm hides arm effects only (compliance, "
-            "backlash, cyclic): it has no clock or temperature, and the camera is rendered"
+            f"degradation {name!r}: the simulated arm hides arm effects only: {e.name} is the "
+            "instrument's, and the camera is rendered"
+        )
+    lacking = sorted(set(e.requires()) - SIM_CHANNELS)
+    if lacking:
+        raise InputError(
+            f"degradation {name!r}: the simulated arm hides arm effects only: it has no clock "
+            f"or temperature ({e.name} needs the {', '.join(CHANNELS[c].words for c in lacking)})"
         )
     return {e.name: list(map(float, effect_params(e, size, np.random.default_rng(seed))))}
 

@@ -14,7 +14,11 @@ from quickhealth.identify.diagnose import (
     sensitivities,
 )
 from quickhealth.identify.effects import (
+    CHANNELS,
     EffectContext,
+    Perturbation,
+    effect_type,
+    effect_types,
     parse_effect,
     parse_effects,
     total_perturbation,
@@ -34,17 +38,24 @@ from quickhealth.identify.robot import (
 from quickhealth.identify.transforms import log_so3
 from quickhealth.identify.twin import camera_pose, random_joints
 
-ALL = [
-    "compliance:j2",
-    "compliance:j3",
-    "compliance:j2:lumped",
-    "compliance:j5:lumped",
-    "backlash:j1",
-    "cyclic:j3:h7",
-    "thermal",
-    "drift",
-    "depthscale",
-]
+# every registered type's example joins the hand-picked names: a new effect is checked here
+# (Jacobian, linearity, its declarations) without an edit to this file
+ALL = list(
+    dict.fromkeys(
+        [
+            "compliance:j2",
+            "compliance:j3",
+            "compliance:j2:lumped",
+            "compliance:j5:lumped",
+            "backlash:j1",
+            "cyclic:j3:h7",
+            "thermal",
+            "drift",
+            "depthscale",
+        ]
+        + [t.example.partition("=")[0] for t in effect_types() if t.example]
+    )
+)
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +135,7 @@ def test_perturbation_is_linear_in_params(setup, name) -> None:
     rng = np.random.default_rng(2)
     a, b = rng.normal(size=e.n_params), rng.normal(size=e.n_params)
     pa, pb, pab = (e.perturbation(ctx, x) for x in (a, b, 2 * a - 3 * b))
-    for field in ("dq", "link_scale", "base_twist", "instr_scale_z"):
+    for field in (f.name for f in dataclasses.fields(Perturbation)):
         fa, fb, fab = (getattr(p, field) for p in (pa, pb, pab))
         if fab is None:
             assert fa is None and fb is None
@@ -132,6 +143,36 @@ def test_perturbation_is_linear_in_params(setup, name) -> None:
         np.testing.assert_allclose(fab, 2 * fa - 3 * fb, atol=1e-15)
     assert e.regressor(ctx).shape == (ctx.n_poses,)
     assert len(e.param_names) == len(e.param_units) == e.n_params == e.prior_sigma.size
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_every_effect_declares_what_its_consumers_need(setup, name) -> None:
+    """The protocol's declarations (effects/__init__.py ``Effect``), checked for each effect:
+    the consumers read them and nothing else."""
+    robot, meas, _ = setup
+    e = parse_effect(name, robot)
+    t = effect_type(name)
+    assert set(e.requires()) <= set(CHANNELS) and e.requires() == t.requires
+    assert e.joint is None or 0 <= e.joint < robot.n_joints
+    assert all(0 <= j < robot.n_joints for j in e.nuisance_joints(robot.n_joints))
+    assert parse_effect(e.physical, robot).physical == e.physical  # a form of a real name
+    assert isinstance(e.form, str) and isinstance(e.instrument, bool)
+    bin_ = e.spectrum_bin()
+    assert bin_ is None or (bin_[0] == f"j{e.joint + 1}" and bin_[1] >= 1)
+    if e.check_family is not None:
+        assert e.joint is not None and t.check is not None and e.check_family.kind == t.check[0]
+    if t.twin is not None:
+        p = e.twin_params(1e-4, np.random.default_rng(0))
+        assert p.shape == (e.n_params,) and np.all(np.isfinite(p)) and np.any(p != 0)
+    conditions = dict.fromkeys(CHANNELS, 1.0)
+    assert e.correction(conditions).startswith(e.name)
+    ctx = context_for(robot, meas)
+    x, label = e.regressor_at(ctx, np.ones(e.n_params), np.tile(np.eye(4), (ctx.n_poses, 1, 1)))
+    assert x.shape == (ctx.n_poses,) and label
+    assert isinstance(e.info(), dict)
+    if t.example:  # the example is a name of this type with a size the twin reads
+        name_, _, size = t.example.partition("=")
+        assert effect_type(name_) is t and t.twin is not None and float(size) > 0
 
 
 def test_effects_compose_with_each_other_and_the_chebyshev_model(setup) -> None:

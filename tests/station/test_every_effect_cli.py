@@ -1,7 +1,8 @@
 """Every effect through every door, through the command line (not the library).
 
-For each of the six effect families of CONTRACTS.md, one case with two effects at once and one
-with three: ``quickhealth twin`` hides the effects, ``identify fit`` fits the paper's model,
+For each registered effect type with an example (``register(..., example=...)``: every effect a
+twin can hide by one size), one case, and one case with two effects at once and one with three:
+``quickhealth twin`` hides the effects, ``identify fit`` fits the paper's model,
 ``diagnose`` names what is missing, ``identify fit --effects <its suggested list>`` fits again
 and ``identify predict`` on held-out poses must come within 1.3x the noise floor.  On the same
 data the other doors: ``compare`` (the held-out error falls) and reprocessing of the fitted run
@@ -20,19 +21,19 @@ from pathlib import Path
 
 import pytest
 
+from quickhealth.identify.effects import effect_types
 from quickhealth.station.cli import main
 from quickhealth.station.formats import check_report
 
 FLOOR_MM = math.sqrt(3) * 0.03  # 3D RMS of the twin's 0.03 mm per-axis instrument noise
 
-# sizes at the command line's units (twin --help): deg/(N·m), deg, deg, 1/K, mm/s, fraction
+# every registered effect type's own example (sizes at the command line's units, twin --help),
+# then two and three effects at once
 CASES = {
-    "compliance": ("compliance:j2=0.00143", {"compliance:j2"}),
-    "backlash": ("backlash:j3=0.0229", {"backlash:j3"}),
-    "cyclic": ("cyclic:j1:h9=0.01146", {"cyclic:j1:h9"}),
-    "thermal": ("thermal=5e-5", {"thermal"}),
-    "drift": ("drift=2e-4", {"drift"}),
-    "depthscale": ("depthscale=4e-4", {"depthscale"}),
+    t.example.partition("=")[0].replace(":", "_"): (t.example, {t.example.partition("=")[0]})
+    for t in effect_types()
+    if t.example
+} | {
     "two": ("backlash:j3=0.0229,thermal=5e-5", {"backlash:j3", "thermal"}),
     "three": (
         "compliance:j2=0.00143,cyclic:j1:h9=0.01146,depthscale=4e-4",
