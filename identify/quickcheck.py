@@ -72,7 +72,14 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from .effects import Effect, Perturbation, effect_context, parse_effect, total_perturbation
+from .effects import (
+    Effect,
+    Perturbation,
+    check_effects,
+    check_kinds,
+    effect_context,
+    total_perturbation,
+)
 from .errormodel import MOTION_WORDS, MOTIONS, ErrorModelSpec
 from .errors import InputError
 from .fit import FittedModel, linearised
@@ -124,7 +131,8 @@ class CheckSettings:
     order : int
         A changed error motion is a Chebyshev series of orders ``0 … order`` (0: constant).
     effects : tuple of str
-        Effect kinds whose appearance (or change) on any joint is a family of its own.
+        Effect kinds whose appearance (or change) on any joint is a family of its own
+        (default: every kind an effect type declares, :func:`~.effects.check_kinds`).
     setup_pos, setup_rot : float, m and rad
         Prior standard deviation of a change of the set-up between the baseline and the
         check (every base and tool motion): a moved camera or re-mounted target is no change
@@ -145,7 +153,7 @@ class CheckSettings:
     detect: float = 5e-5
     power: float = 0.95
     order: int = 1
-    effects: tuple[str, ...] = ("backlash", "compliance")
+    effects: tuple[str, ...] = field(default_factory=check_kinds)
     setup_pos: float = 0.01
     setup_rot: float = 0.01
     cov_scale: float = 1.0
@@ -388,12 +396,13 @@ def change_model(
     for e in effects:
         cols = np.arange(pos, pos + e.n_params)
         pos += e.n_params
-        kind, joint = e.name.split(":")[0], int(e.name.split(":j")[1])
-        # a backlash's size is the TCP jump between the two approach directions: no set-up
-        # change takes up a shift whose sign follows the approach
-        g_reg = 2.0 * G if kind == "backlash" else Greg
-        fam = _family(e.name, FamilyKind.EFFECT, joint, kind, cols, G, g_reg, settings,
-                      e.param_units[0])  # fmt: skip
+        family = e.check_family
+        assert family is not None and e.joint is not None, e.name
+        # a jump's size (a backlash's: between the two approach directions) is the TCP jump
+        # between the two states: no set-up change takes up a shift whose sign follows them
+        g_reg = 2.0 * G if family.jump else Greg
+        fam = _family(e.name, FamilyKind.EFFECT, e.joint + 1, family.kind, cols, G, g_reg,
+                      settings, e.param_units[0])  # fmt: skip
         if fam is not None:
             fams.append(fam)
     labels = fitted.labels
@@ -439,15 +448,9 @@ def change_model(
 
 
 def _effect_families(kinds: tuple[str, ...], robot) -> list[Effect]:  # type: ignore[no-untyped-def]
-    out = []
-    for kind in kinds:
-        if kind not in ("backlash", "compliance"):
-            raise InputError(f"a check tests backlash and compliance families, not {kind!r}")
-        for j in range(1, robot.n_joints + 1):
-            if kind == "compliance" and (robot.masses is None or robot.coms is None):
-                continue
-            out.append(parse_effect(f"{kind}:j{j}", robot))
-    return out
+    """The effects of the families ``kinds``, as each effect type declares its quick-check
+    family (:func:`~quickhealth.identify.effects.check_effects`)."""
+    return check_effects(kinds, robot)
 
 
 def _family(
