@@ -248,7 +248,7 @@ def _fault(kind: FaultKind, joint: int, unit: str, terms: Sequence[FaultTerm] = 
            effect: str | None = None, coordinates: Sequence[str] = (), key: str | None = None,
            words: str | None = None) -> Fault:  # fmt: skip
     w, cause, action = _WORDS[kind]
-    fmt = {"i": joint, "effect": (effect or "").split(":")[0]}
+    fmt = {"i": joint, "effect": effect or ""}
     return Fault(
         key=key or f"j{joint}.{kind.value}",
         kind=kind,
@@ -303,18 +303,20 @@ def geometric_faults(robot) -> tuple[Fault, ...]:  # type: ignore[no-untyped-def
 def effect_fault(effect) -> Fault:  # type: ignore[no-untyped-def]
     """The fault of an effect (``backlash:j2``, ``compliance:j3``, ``cyclic:j1:h11`` …): its
     parameter(s) changed or appeared."""
-    kind_name = effect.name.split(":")[0]
-    try:
-        kind = FaultKind(kind_name)
+    try:  # the effect's declarations (identify/effects), never its name's spelling
+        kind = FaultKind(effect.family)
     except ValueError:
         kind = FaultKind.OTHER
-    joint = int(effect.name.split(":j")[1].split(":")[0]) if ":j" in effect.name else 0
+    joint = 0 if effect.joint is None else effect.joint + 1
     unit = effect.param_units[0] if effect.param_units else "1"
     words = None
-    if kind is FaultKind.CYCLIC:
-        words = f"joint {joint} cyclic error ({effect.name.split(':h')[-1]} per turn)"
-    if kind is FaultKind.COMPLIANCE and effect.name.count(":") > 1:
-        words = f"joint {joint} compliance ({effect.name.split(':')[-1]} form)"
+    spectrum_bin = effect.spectrum_bin()
+    if kind is FaultKind.OTHER:
+        words = f"joint {joint} {effect.family}"
+    elif spectrum_bin is not None:
+        words = f"joint {joint} {effect.family} error ({spectrum_bin[1]} per turn)"
+    elif effect.name != effect.physical:  # another form of the effect (compliance:j2:lumped)
+        words = f"joint {joint} {effect.family} ({effect.form} form)"
     coords = tuple(f"{effect.name}.{p}" for p in effect.param_names)
     return _fault(kind, joint, unit, effect=effect.name, coordinates=coords, key=effect.name,
                   words=words)  # fmt: skip

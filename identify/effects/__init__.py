@@ -227,6 +227,12 @@ class Effect(Protocol):
         ...
 
     @property
+    def family(self) -> str:
+        """The kind of effect in one word (``backlash``, ``compliance``, ``cyclic``, ``thermal``):
+        what a fault dictionary or a report groups it by."""
+        ...
+
+    @property
     def check_family(self) -> CheckFamily | None:
         """Its family in the quick check's change model (None: the check does not test it)."""
         ...

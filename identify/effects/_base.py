@@ -65,6 +65,11 @@ class EffectBase:
         return ""
 
     @property
+    def family(self) -> str:
+        """The first word of its name (``backlash`` of ``backlash:j2``)."""
+        return self.name.split(":")[0]
+
+    @property
     def check_family(self) -> Any:
         """Not a family of the quick check."""
         return None

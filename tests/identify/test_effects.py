@@ -157,6 +157,7 @@ def test_every_effect_declares_what_its_consumers_need(setup, name) -> None:
     assert all(0 <= j < robot.n_joints for j in e.nuisance_joints(robot.n_joints))
     assert parse_effect(e.physical, robot).physical == e.physical  # a form of a real name
     assert isinstance(e.form, str) and isinstance(e.instrument, bool)
+    assert e.family and ":" not in e.family
     bin_ = e.spectrum_bin()
     assert bin_ is None or (bin_[0] == f"j{e.joint + 1}" and bin_[1] >= 1)
     if e.check_family is not None:
