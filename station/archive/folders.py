@@ -42,13 +42,14 @@ def read_json(path: Path) -> dict[str, Any]:
 def _csv_meta(path: Path) -> dict[str, str]:
     """``# key: value`` comment lines at the top of a CSV v1 file."""
     out: dict[str, str] = {}
-    with path.open() as fh:
-        for line in fh:
-            if not line.startswith("#"):
-                break
-            key, sep, value = line[1:].partition(":")
-            if sep:
-                out[key.strip()] = value.strip()
+    with path.open(encoding="utf-8", errors="replace") as fh:
+        for raw in fh:
+            for line in raw.splitlines():  # the lines the measurement reader sees
+                if not line.startswith("#"):
+                    return out
+                kv = formats.common.read_meta_line(line)
+                if kv is not None:
+                    out[kv[0]] = kv[1]
     return out
 
 
@@ -173,10 +174,9 @@ def prepare_run(
     if run_id is not None:
         safe_name(run_id, "run id")
     for k, v in (meta or {}).items():
-        if len(str(v)) > 200 or any(c < " " for c in str(v)):
-            raise InputError(
-                f"--{k.replace('_', '-')}: at most 200 characters without control characters"
-            )
+        formats.one_line(v, f"--{k.replace('_', '-')}")  # an index row, a report line
+        if len(str(v)) > 200:
+            raise InputError(f"--{k.replace('_', '-')}: at most 200 characters")
     if time_utc is not None:
         parse_time(time_utc)
     given = Path(run_dir)
@@ -196,8 +196,10 @@ def prepare_run(
     _, files, n_bytes = plain_tree(given)  # links and special files refused up front
     found = run_metadata(src)
     for k, v in found.items():
-        if k in META_KEYS and len(str(v)) > 200:
-            raise InputError(f"{given}: its {k} is longer than 200 characters")
+        if k in (*META_KEYS, "run_id", "time_utc", "started_utc"):
+            formats.one_line(v, f"{given}: its {k}")
+            if len(str(v)) > 200:
+                raise InputError(f"{given}: its {k} is longer than 200 characters")
     found.update(meta or {})
     rid = run_id if run_id is not None else (found.get("run_id") or src.name)
     rid = safe_name(rid, "run id")

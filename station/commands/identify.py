@@ -244,15 +244,16 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def csv_cells(values: Iterable[str]) -> list[str]:
-    """Each text as one CSV cell, quoted as the csv module quotes it (only when it holds a
-    comma, a quote or a line break): for rows built by ``%`` formatting, where the other
-    cells are numbers."""
+    """Each text as one CSV cell, neutralised where a spreadsheet would run it as a formula
+    (:func:`~..formats.common.csv_cell`) and quoted as the csv module quotes it (only when it
+    holds a comma, a quote or a line break): for rows built by ``%`` formatting, where the
+    other cells are numbers."""
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     out = []
     for v in values:
-        s = str(v)
+        s = formats.csv_cell(str(v))
         if "," in s or '"' in s or "\n" in s or "\r" in s:
             buf.seek(0)
             buf.truncate()

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 
 from ...identify.errors import HardwareError, InputError, QuickhealthError
 from .. import options
-from ..formats import check_poses_for_fit, load_robot, read_measurements
+from ..formats import check_poses_for_fit, load_robot, one_line, read_measurements
 from ..fsio import (
     claim_output_folder,
     foreign_results,
@@ -131,6 +131,11 @@ def check_station_arguments(args: argparse.Namespace) -> None:
     )
     if not args.sim and args.calibration is None:
         raise InputError("--robot-ip needs --calibration CAL.json (quickhealth vision calibrate)")
+    # the folder's name is the run id, the calibration names the instrument: both become
+    # '# key: value' lines of measurements.csv and rows of the archive (before anything moves)
+    one_line(Path(args.out).name, "--out: the run folder's name (its run id)")
+    if args.calibration is not None:
+        one_line(args.calibration, "--calibration")
     if args.sim_degrade is not None and not args.sim:
         raise InputError("--sim-degrade changes the simulated robot: it needs --sim")
 

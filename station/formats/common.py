@@ -144,6 +144,100 @@ def findings(lines: list[str], kind: type[Exception] = InputError) -> Exception:
     return exc
 
 
+# ------------------------------------------------------------------ text that goes into files
+
+#: Every character ``str.splitlines`` starts a new line at: a value holding one would begin a
+#: new line in the file that records it (a forged ``# calibration_id: …`` comment, a CSV row).
+LINE_BREAKS = "\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"
+_NOT_ONE_LINE = re.compile("[" + re.escape(LINE_BREAKS) + "\x00-\x1f\x7f-\x9f]")
+
+
+def excerpt(value: object, n: int = 40) -> str:
+    """A short quoted prefix of ``value`` for a message (never the whole of a hostile value)."""
+    s = str(value)
+    return repr(s[:n]) + ("…" if len(s) > n else "")
+
+
+def one_line(value: object, what: str) -> str:
+    """``value`` as text, refused when it holds a line break (any of :data:`LINE_BREAKS`) or
+    another control character.  The one check of every value that goes into a ``# key:
+    value`` line, a CSV cell or an index row (the journal's JSON escapes them itself).
+
+    Raises
+    ------
+    InputError
+        One line naming ``what``, a prefix of the value and the character.
+    """
+    s = str(value)
+    m = _NOT_ONE_LINE.search(s)
+    if m is not None:
+        raise InputError(
+            f"{what} {excerpt(s)} holds a line break or control character "
+            f"(U+{ord(m.group()):04X} at character {m.start() + 1}): it would start a new line "
+            "in the files that record it; not accepted"
+        )
+    return s
+
+
+# OWASP "CSV injection": a cell a spreadsheet would run as a formula begins with = + - @, tab
+# or CR (after any apostrophes this writer added, or a quote a spreadsheet strips).
+_FORMULA = re.compile(r"'*\"?[=+\-@\t\r]")
+
+
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")  # as repr(float) writes them
+
+
+def _number(text: str) -> bool:
+    return _NUMBER.fullmatch(text) is not None
+
+
+def csv_cell(text: str) -> str:
+    """``text`` as a spreadsheet must not run it: one apostrophe before a cell that begins
+    like a formula (``=HYPERLINK(…)``, ``@SUM(…)``, ``+…``, ``-…``, tab, CR), as OWASP
+    recommends; numbers (``-1.5``) stay numbers.  :func:`csv_text` gives the text back
+    exactly (a cell that already begins with such apostrophes gains one more)."""
+    if text and _FORMULA.match(text) and not _number(text):
+        return "'" + text
+    return text
+
+
+def csv_text(cell: str) -> str:
+    """The text :func:`csv_cell` neutralised (any other cell unchanged)."""
+    if cell.startswith("'") and _FORMULA.match(cell, 1) and not _number(cell[1:]):
+        return cell[1:]
+    return cell
+
+
+def meta_value(text: str) -> str:
+    """A ``# key: value`` comment's value as the file holds it: each comma-separated piece
+    through :func:`csv_cell` (a spreadsheet splits the comment line at its commas)."""
+    return ",".join(csv_cell(p) for p in text.split(","))
+
+
+def meta_text(value: str) -> str:
+    """The value :func:`meta_value` wrote."""
+    return ",".join(csv_text(p) for p in value.split(","))
+
+
+_META = re.compile(r"#\s*([^:]+?)\s*:\s*(.*)$")
+
+
+def read_meta_line(line: str) -> tuple[str, str] | None:
+    """``(key, value)`` of a ``# key: value`` comment line as :func:`meta_line` wrote it,
+    else None: the one reader of metadata lines (the measurement reader, the archive)."""
+    m = _META.match(line.strip())
+    return None if m is None else (m.group(1), meta_text(m.group(2).strip()))
+
+
+def meta_line(key: str, value: object) -> str:
+    """One ``# key: value`` metadata line (with its newline), refused when the key or the
+    value holds a line break (:func:`one_line`) or the key a colon."""
+    k = one_line(key, "metadata key")
+    if ":" in k or not k.strip():
+        raise InputError(f"metadata key {excerpt(k)}: empty or holds a colon; not written")
+    return f"# {k}: {meta_value(one_line(value, f'metadata {k}:'))}\n"
+
+
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` atomically, respecting the umask (:func:`..fsio.write_atomic`)."""
     write_atomic(path, text)

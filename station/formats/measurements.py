@@ -11,7 +11,6 @@ import csv
 import io
 import math
 import os
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -29,6 +28,12 @@ from .common import (
     MAX_ROWS,
     MIN_DISTINCT_POSES,
     MIN_JOINT_SPAN_DEG,
+    csv_cell,
+    csv_text,
+    excerpt,
+    meta_line,
+    one_line,
+    read_meta_line,
     read_text_limited,
     write_text_atomic,
 )
@@ -200,9 +205,9 @@ def parse_measurements(
         if not s:
             continue
         if s.startswith("#"):
-            m = re.match(r"#\s*([^:]+?)\s*:\s*(.*)$", s)
-            if m:
-                meta[m.group(1)] = m.group(2).strip()
+            kv = read_meta_line(s)
+            if kv is not None:
+                meta[kv[0]] = kv[1]
             continue
         if '"' not in line:  # the common case, 20x faster than the csv module per line
             cells = [c.strip() for c in line.split(",")]
@@ -385,7 +390,9 @@ def parse_measurements(
         if "srot" in col
         else None
     )
-    pose_id = tuple(cells[col["pose_id"]] for _, cells in rows) if "pose_id" in col else None
+    pose_id = (  # as written: a cell that looked like a formula carries an apostrophe
+        tuple(csv_text(cells[col["pose_id"]]) for _, cells in rows) if "pose_id" in col else None
+    )
     return Measurements(
         q=q,
         pos=pos,
@@ -409,17 +416,21 @@ def format_measurements(meas: Measurements) -> str:
     ------
     InputError
         Data the contract (and :func:`parse_measurements`) would refuse: non-finite joints,
-        a pose id with a control character (a newline would split the row).
+        a pose id or a metadata value with a line break or control character (it would
+        split the row or forge a ``# key: value`` line: :func:`~.common.one_line`).  A pose
+        id a spreadsheet would run as a formula is written neutralised (:func:`~.common.csv_cell`;
+        read back as it was).
     """
     if not np.all(np.isfinite(meas.q)):
         i = int(np.argwhere(~np.isfinite(meas.q))[0][0])
         raise InputError(f"measurement row {i + 1}: joint angles are not finite; not written")
     if meas.pose_id is not None:
         for i, pid in enumerate(meas.pose_id):
-            if any(c < " " or c == "\x7f" for c in str(pid)) or len(str(pid)) > MAX_CELL_CHARS:
+            one_line(pid, f"measurement row {i + 1}: pose_id")
+            if len(str(pid)) > MAX_CELL_CHARS - 1:  # room for csv_cell's apostrophe
                 raise InputError(
-                    f"measurement row {i + 1}: pose_id {str(pid)[:40]!r} has a control character "
-                    "or is too long; not written"
+                    f"measurement row {i + 1}: pose_id {excerpt(pid)} is longer than "
+                    f"{MAX_CELL_CHARS - 1} characters; not written"
                 )
             if str(pid) != str(pid).strip():
                 raise InputError(
@@ -428,10 +439,10 @@ def format_measurements(meas: Measurements) -> str:
                 )
     buf = io.StringIO()
     for k, v in meas.meta.items():
-        buf.write(f"# {k}: {v}\n")
+        buf.write(meta_line(k, v))
     cols: list[tuple[str, F | tuple[str, ...]]] = []
     if meas.pose_id is not None:
-        cols.append(("pose_id", meas.pose_id))
+        cols.append(("pose_id", tuple(csv_cell(str(p)) for p in meas.pose_id)))
     for i in range(meas.n_joints):
         cols.append((f"q{i + 1}", np.degrees(meas.q[:, i])))
     if not np.all(np.isnan(meas.pos)):

@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 
 from ...identify.errors import InputError
 from ...identify.measurements import Measurements
-from .common import MAX_CELL_CHARS, MAX_ROWS, read_text_limited
+from .common import MAX_CELL_CHARS, MAX_ROWS, one_line, read_text_limited
 
 F = NDArray[np.float64]
 
@@ -302,11 +302,8 @@ def check_layout(layout: TrackerLayout) -> None:
             f"{OPTION['decimal']} comma with {OPTION['separator']} ',': a decimal comma in a "
             "comma-separated file is ambiguous; the file must use ';' or tabs"
         )
-    if layout.instrument is not None and any(ch < " " or ch == "\x7f" for ch in layout.instrument):
-        raise InputError(
-            f"--instrument {layout.instrument[:40]!r}: a control character (a line break would "
-            "split the written file's metadata line)"
-        )
+    if layout.instrument is not None:
+        one_line(layout.instrument, "--instrument")  # it becomes a '# instrument:' line
     if layout.deviation_sign not in (1.0, -1.0):
         raise bad("deviation_sign", layout.deviation_sign, "must be +1 or -1")
     if layout.orientation is not None:

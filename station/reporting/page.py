@@ -597,6 +597,15 @@ def _table(rows: tuple[tuple[str, ...], ...]) -> list[str]:
     return out
 
 
+def script_json(doc: object) -> str:
+    """``doc`` as JSON that can sit inside a ``<script>`` element: ``<``, ``>`` and ``&`` as
+    ``\\u003c``, ``\\u003e``, ``\\u0026`` (the same JSON to a parser), so no text in it (a CSV
+    comment holding ``<!--<script>`` or ``</script>``) can open a comment, close the element
+    or start another one."""
+    text = json.dumps(doc)
+    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
+
+
 def render_html(rep: Report) -> str:
     """One self-contained HTML page: no external files, every figure a PNG data URI."""
     e = html.escape
@@ -646,7 +655,7 @@ def render_html(rep: Report) -> str:
                 f'src="data:image/png;base64,{b64}">'
             )
         out.append("</section>")
-    payload = json.dumps(_plain(rep.to_dict())).replace("</", "<\\/")
+    payload = script_json(_plain(rep.to_dict()))
     out.append(f'<script type="application/json" id="report-json">{payload}</script>')
     out.append("</body></html>")
     return "\n".join(out)

@@ -15,6 +15,8 @@ configurations an optimal design chooses (:mod:`quickhealth.identify.design`).
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -23,7 +25,7 @@ from pathlib import Path
 from ...identify.design import DesignResult, DesignSettings, select_poses
 from ...identify.errors import InputError
 from ...identify.robot import RobotModel
-from ..formats.common import read_text_limited
+from ..formats.common import csv_cell, csv_text, read_text_limited
 from ..formats.measurements import parse_measurements
 from ..fsio import claim_output_folder, foreign_results, make_dirs, replacing_line, write_atomic
 from ..planning.cell import Cell
@@ -139,10 +141,24 @@ def select_rows(
     if len(data) != meas.n_poses:  # pragma: no cover - the parser read the same lines
         raise InputError(f"{candidates}: {len(data)} rows, the parser read {meas.n_poses}")
     rows = tuple(sorted(int(i) for i in res.indices))
+    # the chosen rows with all their columns, each text cell neutralised for spreadsheets
+    # (the file may hold =HYPERLINK(...) pose ids; read back, they are what they were)
+    head = [",".join([c[0], *(csv_cell(csv_text(x)) for x in c[1:])]) for c in (h.split(",") for h in head)]  # fmt: skip
+    chosen = []
+    for i in rows:
+        line = data[i]
+        cells = next(csv.reader([line])) if '"' in line else line.split(",")
+        neutral = [csv_cell(csv_text(c)) for c in cells]
+        if neutral == cells:
+            chosen.append(line)  # as it was (a quoted '#' first cell stays quoted)
+            continue
+        buf = io.StringIO()
+        csv.writer(buf, lineterminator="", quoting=csv.QUOTE_ALL).writerow(neutral)
+        chosen.append(buf.getvalue())
     note = (
         f"# selected: {n} of {meas.n_poses} rows by the {settings.criterion.value}-optimal "
         f"design (quickhealth plan select); predicted TCP band {res.band_mm:.4f} mm rms, "
         f"random {n}: {res.random_band_mm:.4f} mm"
     )
-    out = "\n".join([*head, note, header, *(data[i] for i in rows)]) + "\n"
+    out = "\n".join([*head, note, header, *chosen]) + "\n"
     return Selection(rows, out, res)

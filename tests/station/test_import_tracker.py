@@ -430,7 +430,11 @@ def _row(text: str, line: int, col: int, value: str) -> str:
             r"^--sigma-orientation without --orientation",
         ),  # fmt: skip
         (_SMALL, {"position": ("X", "Y")}, r"^--position 'X,Y': needs 3 columns, got 2$"),
-        (_SMALL, {"instrument": "AT960\nq1,q2"}, r"^--instrument 'AT960\\nq1,q2': a control char"),
+        (
+            _SMALL,
+            {"instrument": "AT960\nq1,q2"},
+            r"^--instrument 'AT960\\nq1,q2' holds a line break",
+        ),
         (
             _SMALL.replace("X;Y;Z", "X{0};Y;Z").replace("A;B;C", "dX;B;C"),
             {
