@@ -82,6 +82,7 @@ from .effects import (
 )
 from .errormodel import MOTION_WORDS, MOTIONS, ErrorModelSpec
 from .errors import InputError
+from .faults import Alternative, Fault, NamedChange, effect_fault, geometric_faults
 from .fit import FittedModel, linearised
 from .linearize import (
     Whitening,
@@ -110,10 +111,19 @@ class Decision(StrEnum):
 
 
 class FamilyKind(StrEnum):
-    """A joint's error motion (Chebyshev series) or a physical effect."""
+    """A physical fault of the robot (:mod:`.faults`), a physical effect, or any change of a
+    joint's error motion (its Chebyshev series: changes no single fault describes)."""
 
+    FAULT = "fault"
     MOTION = "motion"
     EFFECT = "effect"
+
+
+#: Share of a fault's TCP displacement the set-up must leave for the fault to be tested.
+MIN_OBSERVABLE = 0.02
+#: Prior weight of a change of a whole error-motion curve (no single fault; the faults'
+#: weights are :data:`~.faults.PRIOR`).
+CURVE_PRIOR = 0.5
 
 
 @dataclass(frozen=True)
@@ -134,9 +144,14 @@ class CheckSettings:
         Effect kinds whose appearance (or change) on any joint is a family of its own
         (default: every kind an effect type declares, :func:`~.effects.check_kinds`).
     setup_pos, setup_rot : float, m and rad
-        Prior standard deviation of a change of the set-up between the baseline and the
-        check (every base and tool motion): a moved camera or re-mounted target is no change
-        of the robot.
+        Prior standard deviation of a change of the instrument's set-up (every base motion)
+        between the baseline and the check: a moved camera is no change of the robot.
+    target_pos, target_rot : float, m and rad
+        The same for the target on the flange (every tool motion).  The target stays mounted
+        between a baseline and its checks, so it is held to the repeatability of a fixed
+        mount: a target free to move would take up most of a wrist joint's zero offset (on
+        the shared UR10 81 % of joint 5's); a re-mounted target is a change (measure a new
+        baseline).
     cov_scale : float
         Factor on the baseline's covariance (fits understate their own scatter: docs/monitoring.md).
     omnibus_weight : float
@@ -156,6 +171,8 @@ class CheckSettings:
     effects: tuple[str, ...] = field(default_factory=check_kinds)
     setup_pos: float = 0.01
     setup_rot: float = 0.01
+    target_pos: float = 1e-5
+    target_rot: float = 1e-5
     cov_scale: float = 1.0
     omnibus_weight: float = 0.2
     prior_scale: float = 1.0
@@ -206,16 +223,26 @@ class ChangeFamily:
     ws: F
     boundary: F
     unit: str  # "m" or "rad" (of the reported size)
+    fault: Fault | None = None  # the physical fault the family is (faults and effects)
+    direction: F | None = None  # (len(columns),): a fault's unit size in the raw columns
 
     @property
     def k(self) -> int:
         """Number of coordinates."""
         return int(self.basis.shape[1])
 
+    @property
+    def weight(self) -> float:
+        """Prior weight in the mixture: how often such a change occurs (:data:`~.faults.PRIOR`)."""
+        return self.fault.prior if self.fault is not None else CURVE_PRIOR
+
     def words(self) -> str:
-        """E.g. ``joint 2 tilt about x`` or ``backlash of joint 2``."""
+        """E.g. ``joint 2 zero offset``, ``joint 2 backlash`` or, for a whole error-motion
+        curve, ``joint 2 tilt about x curve``."""
+        if self.fault is not None:
+            return self.fault.words
         if self.kind is FamilyKind.MOTION:
-            return f"joint {self.joint} {MOTION_WORDS[self.motion]}"
+            return f"joint {self.joint} {MOTION_WORDS[self.motion]} curve"
         return f"{self.motion} of joint {self.joint}"
 
 
@@ -247,9 +274,10 @@ class ChangeModel:
 
     @property
     def weights(self) -> F:
-        """Mixture weight of every family (the omnibus has ``settings.omnibus_weight``)."""
-        n = len(self.families)
-        return np.full(n, (1.0 - self.settings.omnibus_weight) / max(n, 1))
+        """Mixture weight of every family, in proportion to its prior weight (the omnibus
+        has ``settings.omnibus_weight``)."""
+        w = np.array([f.weight for f in self.families], dtype=float)
+        return (1.0 - self.settings.omnibus_weight) * w / max(float(w.sum()), 1e-300)
 
 
 @dataclass(frozen=True)
@@ -273,6 +301,28 @@ class Change:
     tcp: float
     probability: float
     log_lr: float
+    fault: Fault | None = None
+
+    def named(self, alternatives: tuple[Alternative, ...] = ()) -> NamedChange:
+        """The change as every door names it (:class:`~.faults.NamedChange`): z from the
+        size and its σ, p from z."""
+        from .fault_test import two_sided_p
+
+        z = self.size / self.sigma if self.sigma > 0 else math.inf
+        f = self.fault
+        kind = f.kind.value if f is not None else "curve"
+        cause = (
+            f.cause
+            if f is not None
+            else "a change of the joint's error motion no single fault describes"
+        )
+        action = f.action if f is not None else "run a full assessment"
+        return NamedChange(
+            fault=self.family, kind=kind, joint=self.joint, words=self.words, size=self.size,
+            sigma=self.sigma, unit=self.unit, z=z, p_value=two_sided_p(z), significant=True,
+            probability=self.probability, prior=f.prior if f is not None else CURVE_PRIOR,
+            cause=cause, action=action, tcp=self.tcp, alternatives=alternatives, source="check",
+        )  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -324,11 +374,32 @@ class CheckStatus:
                                self.log_lr_families[i]))  # fmt: skip
         return out
 
+    def named_changes(self, min_probability: float = 0.05) -> list[NamedChange]:
+        """:meth:`changes` as every door names them (:class:`~.faults.NamedChange`), each
+        with the families that explain the evidence nearly as well (ambiguous geometry is
+        ranked by the prior weights)."""
+        ch = self.changes(min_probability=0.001)
+        out = []
+        for i, c in enumerate(ch):
+            if c.probability < min_probability:
+                break
+            alts = tuple(
+                Alternative(o.family, o.words, o.probability,
+                            o.fault.prior if o.fault is not None else CURVE_PRIOR)
+                for o in ch[i + 1 :]
+            )  # fmt: skip
+            out.append(c.named(alts))
+        return out
+
 
 def _change(fam: ChangeFamily, est: F, cov: F, prob: float, log_lr: float) -> Change:
     raw = fam.basis @ est
     raw_cov = fam.basis @ cov @ fam.basis.T
-    if fam.kind is FamilyKind.MOTION and raw.size == 2:
+    if fam.direction is not None:  # a fault: its size along its own unit direction
+        g = fam.direction / float(fam.direction @ fam.direction)
+        size = float(g @ raw)
+        sigma = float(np.sqrt(max(g @ raw_cov @ g, 0.0)))
+    elif fam.kind is FamilyKind.MOTION and raw.size == 2:
         # the series c0 + c1·u over u ∈ [-1, 1]: largest at the end where |c0 + c1 u| peaks
         u = 1.0 if raw[0] * raw[1] >= 0 else -1.0
         g = np.array([1.0, u])
@@ -338,7 +409,7 @@ def _change(fam: ChangeFamily, est: F, cov: F, prob: float, log_lr: float) -> Ch
         size, sigma = float(raw[0]), float(np.sqrt(max(raw_cov[0, 0], 0.0)))
     tcp = float(np.max(np.linalg.norm(fam.ws @ est, axis=1)))
     return Change(fam.name, fam.joint, fam.motion, fam.words(), size, sigma, fam.unit, tcp,
-                  float(prob), float(log_lr))  # fmt: skip
+                  float(prob), float(log_lr), fam.fault)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the change model
@@ -384,6 +455,18 @@ def change_model(
     Gf = G.reshape(-1, G.shape[-1])
     Greg = (Gf - R @ np.linalg.lstsq(R, Gf, rcond=None)[0]).reshape(G.shape)
     fams = []
+    # the physical faults first (the same dictionary the trend names changes by), then any
+    # change of a whole error-motion curve (what no single fault describes)
+    for f in geometric_faults(robot):
+        try:
+            rv = f.raw_vector(spec)
+        except ValueError:  # a joint scale in a constant-only change model
+            continue
+        cols = np.flatnonzero(rv)
+        fam = _family(f.key, FamilyKind.FAULT, f.joint, f.kind.value, cols, G, Greg, settings,
+                      f.unit, direction=rv[cols], fault=f)  # fmt: skip
+        if fam is not None:
+            fams.append(fam)
     idx = spec.index()
     for j in range(1, nj + 1):
         for m, mot in enumerate(MOTIONS):
@@ -402,15 +485,12 @@ def change_model(
         # between the two states: no set-up change takes up a shift whose sign follows them
         g_reg = 2.0 * G if family.jump else Greg
         fam = _family(e.name, FamilyKind.EFFECT, e.joint + 1, family.kind, cols, G, g_reg,
-                      settings, e.param_units[0])  # fmt: skip
+                      settings, e.param_units[0], fault=effect_fault(e))  # fmt: skip
         if fam is not None:
             fams.append(fam)
     labels = fitted.labels
     setup = np.array([lb.startswith(("base.", "tool.")) for lb in labels])
-    add = np.array(
-        [(settings.setup_rot if lb.split(".")[1].startswith("e") else settings.setup_pos) ** 2
-         for lb in labels]
-    )  # fmt: skip
+    add = np.array([_setup_prior(lb, settings) ** 2 for lb in labels])
     pairs: dict[str, int] = {}
     base_raw = base_cov = None
     if baseline is not None:
@@ -447,6 +527,15 @@ def change_model(
     )
 
 
+def _setup_prior(label: str, s: CheckSettings) -> float:
+    """Prior σ of a set-up change of parameter ``label`` (base: the instrument; tool: the
+    target on the flange)."""
+    rot = label.split(".")[1].startswith("e")
+    if label.startswith("tool."):
+        return s.target_rot if rot else s.target_pos
+    return s.setup_rot if rot else s.setup_pos
+
+
 def _effect_families(kinds: tuple[str, ...], robot) -> list[Effect]:  # type: ignore[no-untyped-def]
     """The effects of the families ``kinds``, as each effect type declares its quick-check
     family (:func:`~quickhealth.identify.effects.check_effects`)."""
@@ -463,17 +552,24 @@ def _family(
     Greg: F,
     settings: CheckSettings,
     unit: str,
+    direction: F | None = None,
+    fault: Fault | None = None,
 ) -> ChangeFamily | None:
-    """The family of raw columns ``cols``, reduced to the coordinates that move the TCP
-    (None when none does: a set-up change).  A direction whose TCP displacement a set-up
-    change takes up to a millionth of itself is a set-up change."""
-    g = Greg[:, :, cols]  # (n_ws, 3, k_raw)
+    """The family of raw columns ``cols`` (along ``direction`` in them: a fault), reduced to
+    the coordinates that move the TCP (None when none does: a set-up change).  A direction
+    whose TCP displacement a set-up change takes up to a millionth of itself is a set-up
+    change."""
+    D = np.eye(len(cols)) if direction is None else np.asarray(direction, float)[:, None]
+    g = Greg[:, :, cols] @ D  # (n_ws, 3, k_raw)
     n_ws = g.shape[0]
     M = np.einsum("nik,nil->kl", g, g) / n_ws  # mean squared TCP displacement metric
-    g0 = G[:, :, cols]
+    g0 = G[:, :, cols] @ D
     scale = float(np.linalg.eigvalsh(np.einsum("nik,nil->kl", g0, g0) / n_ws).max())
     w, V = np.linalg.eigh(M)
-    keep = w > 1e-12 * max(scale, 1e-300)
+    # a fault is seen when more than 2 % of its TCP displacement (RMS) is left after the
+    # set-up's registration (:meth:`~.faults.FaultImages.testable`, the trend's rule)
+    floor = (MIN_OBSERVABLE**2 if direction is not None else 1e-12) * max(scale, 1e-300)
+    keep = w > floor
     if not np.any(keep):
         return None
     V = V[:, keep]
@@ -493,7 +589,8 @@ def _family(
             raise ValueError("a family has at most two coordinates")
         h = np.max(np.linalg.norm(np.einsum("nik,bk->bni", ws, dirs), axis=2), axis=1)
         boundary = settings.detect * dirs / h[:, None]
-    return ChangeFamily(name, kind, joint, motion, cols, basis, prior, ws, boundary, unit)
+    return ChangeFamily(name, kind, joint, motion, cols, D @ basis, prior, ws, boundary, unit,
+                        fault, None if direction is None else D[:, 0])  # fmt: skip
 
 
 def _raw_columns(

@@ -3,6 +3,11 @@
     quickhealth check --cell CELL --plan PLAN.json (--baseline RUN_DIR | --robot NAME [--archive DIR])
                       --out DIR (--sim | --robot-ip IP) [--false-alarm 0.01] [--detect-mm 0.05]
                       [--power 0.95] [--resume] [--unattended]
+    quickhealth check --replay RECORDED_RUN_DIR (--baseline RUN_DIR | --robot NAME) --out DIR
+
+--replay backtests: a recorded full run serves as the robot; the check chooses among its
+rows in its own order and decides ("would the quick check have caught this?"), with robot
+time from the run's plan and journal where it has them.
 
 Measures the plan's poses one at a time, each chosen for the information it brings on a
 change per second of robot time from where the arm is, and stops as soon as a sequential test
@@ -50,8 +55,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--cell", required=True, help="cell file (TOML) or built-in name 'reference'")
-    p.add_argument("--plan", required=True, type=Path, help="plan.json (the poses to choose from)")
+    p.add_argument("--cell", help="cell file (TOML) or built-in name 'reference'")
+    p.add_argument("--plan", type=Path, help="plan.json (the poses to choose from)")
     p.add_argument("--out", required=True, type=Path, help="check folder")
     base = p.add_mutually_exclusive_group(required=True)
     base.add_argument("--baseline", type=Path, help="the fitted baseline run folder")
@@ -82,7 +87,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument(
         "--robot-name", default=None, help="robot name for the journal (default: --robot)"
     )
-    add_station_arguments(p)
+    src = add_station_arguments(p)
+    src.add_argument(
+        "--replay",
+        type=Path,
+        metavar="RECORDED_RUN_DIR",
+        help="backtest: a recorded run (its measurements.csv) serves as the robot",
+    )
     p.set_defaults(func=run)
 
 
@@ -101,15 +112,20 @@ def run(args: argparse.Namespace) -> int:
     if args.robot_name is not None:
         safe_name(args.robot_name, "robot name")
     claim_output_folder(out, foreign_results(out, "run"))
+    if args.replay is not None:
+        return _replay(args, out, checking)
+    if not args.sim and args.robot_ip is None:
+        raise InputError("one of --sim, --robot-ip IP or --replay RECORDED_RUN_DIR is required")
+    for name in ("cell", "plan"):
+        if getattr(args, name) is None:
+            raise InputError(f"--{name} is required (or --replay RECORDED_RUN_DIR)")
     refuse_overwriting_inputs(
         [("--out", out / n) for n in ("check.json", "measurements.csv", "run.json",
                                       "journal.jsonl", "run.log")],
         [p for p in (args.cell, args.plan, args.calibration) if p and Path(p).is_file()],
     )  # fmt: skip
     check_station_arguments(args)
-    settings = CheckSettings(
-        false_alarm=args.false_alarm, detect=args.detect_mm * 1e-3, power=args.power
-    )
+    settings = _settings(args)
     cell = load_cell(args.cell)
     plan = load_plan(args.plan)
     if plan.cell_sha256 != cell.sha256:
@@ -133,6 +149,43 @@ def run(args: argparse.Namespace) -> int:
         return _check_locked(args, plan, cell, baseline, settings, out)
     finally:
         run_lock.release()
+
+
+def _settings(args: argparse.Namespace) -> CheckSettings:
+    return CheckSettings(
+        false_alarm=args.false_alarm, detect=args.detect_mm * 1e-3, power=args.power
+    )
+
+
+def _replay(args: argparse.Namespace, out: Path, checking) -> int:  # type: ignore[no-untyped-def]
+    """``check --replay``: the recorded run as the robot (no station, no motion)."""
+    from ..services.replay import replay_check
+
+    if args.sim_degrade is not None:
+        raise InputError("--sim-degrade changes the simulated robot: it needs --sim")
+    if args.resume:
+        raise InputError("--resume continues a check on a robot; a replay runs again in full")
+    rec = Path(args.replay)
+    refuse_overwriting_inputs(
+        [("--out", out / "check.json")], [p for p in (rec / "measurements.csv",) if p.is_file()]
+    )
+    if rec.resolve() == out.resolve():
+        raise InputError(f"--out {out}: is the recorded run's folder: check into another folder")
+    folder = (
+        args.baseline
+        if args.baseline is not None
+        else checking.archive_baseline(args.robot, args.archive, args.db)
+    )
+    baseline = checking.load_baseline(folder)
+    run_lock = RunLock.acquire(out)
+    try:
+        res = replay_check(rec, baseline, out, settings=_settings(args))
+    finally:
+        run_lock.release()
+    for line in res.summary():
+        print(line)
+    print(f"wrote {out / 'check.json'}")
+    return 1 if res.changed else 0
 
 
 def _check_locked(args, plan, cell, baseline, settings, out) -> int:  # type: ignore[no-untyped-def]

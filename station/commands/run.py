@@ -98,10 +98,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     s.set_defaults(func=sim_controller)
 
 
-def add_station_arguments(p: argparse.ArgumentParser) -> None:
+def add_station_arguments(
+    p: argparse.ArgumentParser, required: bool = True
+) -> argparse._MutuallyExclusiveGroup:
     """The cell's hardware options, shared by ``run`` and ``check``: the simulated cell
-    (``--sim`` and its settings) or a real one (``--robot-ip``, motor, cameras, calibration)."""
-    src = p.add_mutually_exclusive_group(required=True)
+    (``--sim`` and its settings) or a real one (``--robot-ip``, motor, cameras, calibration).
+    Returns the ``--sim | --robot-ip`` group (``check`` adds ``--replay`` to it)."""
+    src = p.add_mutually_exclusive_group(required=required)
     src.add_argument("--sim", action="store_true", help="the built-in simulated cell")
     src.add_argument("--robot-ip", help="address of the UR controller")
     p.add_argument("--motor-port", default="/dev/ttyUSB0", help="pan motor serial port (real cell)")
@@ -119,6 +122,7 @@ def add_station_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="--sim only: change the simulated robot's true errors, e.g. j2.ex.c0=5e-4 (m or rad)",
     )
+    return src
 
 
 def check_station_arguments(args: argparse.Namespace) -> None:

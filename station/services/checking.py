@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 
 from ...identify import quickcheck as qc
 from ...identify.errors import HardwareError, InputError
+from ...identify.faults import NamedChange
 from ...identify.fit import FittedModel
 from ...identify.measurements import Measurements
 from ...identify.transforms import R_to_rpy
@@ -361,27 +362,7 @@ class CheckResult:
 
     def summary(self) -> list[str]:
         """The lines every door shows."""
-        d = self.document
-        lines = [
-            f"{d['verdict'].upper()} after {d['poses']} poses: {d['robot_time_s']:.1f} s of "
-            f"robot time, {100 * d['fraction_of_full_loop']:.0f} % of the full loop's "
-            f"{d['full_loop_robot_time_s']:.1f} s"
-            + ("" if d["decided"] else " (undecided at the end of the plan)")
-        ]
-        for c in d["changes"]:
-            if c["size"] is None:
-                lines.append(f"  {c['words']} ({100 * c['probability']:.0f} % of the evidence)")
-                continue
-            lines.append(
-                f"  {c['words']}: changed by {c['size']:.4g} {c['size_unit']} ± {c['sigma']:.2g} "
-                f"(TCP up to {c['tcp_mm']:.3f} mm; {100 * c['probability']:.0f} % of the evidence)"
-            )
-        if not d["decided"]:
-            lines.append(
-                f"  not decided: a change of {d['detect_mm']} mm is not excluded "
-                f"({d['test']['weakest']} least measured); run a full assessment"
-            )
-        return lines
+        return summary_lines(self.document)
 
 
 def quick_check(
@@ -500,7 +481,6 @@ def check_document(
     seq: CheckSequence,
 ) -> dict[str, Any]:
     """check.json's content (mm, mrad, s at the file boundary)."""
-    s = model.settings
     status = seq.status
     order = list(state.captured)
     q_prev = seq.q_start
@@ -519,43 +499,9 @@ def check_document(
     med = float(np.median(dwell)) if dwell else float(plan.motion.settle_s)
     robot = move + back + float(np.sum(dwell)) + med * (len(order) - len(dwell))
     full = plan_loop_s(plan, med)
-    decision = qc.Decision.CONTINUE if seq.decision is None else seq.decision[0]
-    verdict = "changed" if decision is qc.Decision.CHANGED else "unchanged"
-    changes = []
-    if status is not None and decision is qc.Decision.CHANGED:
-        changes = [_change_json(c) for c in status.changes()]
-        if status.omnibus_probability >= 0.05:
-            changes.append(
-                {
-                    "joint": None,
-                    "motion": "other",
-                    "family": "omnibus",
-                    "words": "a change no single joint motion or effect describes",
-                    "size": None,
-                    "sigma": None,
-                    "size_unit": None,
-                    "tcp_mm": None,
-                    "probability": status.omnibus_probability,
-                    "log_lr": status.log_lr_omnibus,
-                }
-            )
-            changes.sort(key=lambda c: -c["probability"])
     measured_move = sum((state.captured[i].timing or {}).get("move", 0.0) for i in order)
     return {
-        "schema": CHECK_SCHEMA,
-        "verdict": verdict,
-        "decided": decision is not qc.Decision.CONTINUE,
-        "decided_after_poses": None if seq.decision is None else seq.decision[1],
-        "poses": 0 if status is None else status.n_poses,
-        "robot_time_s": robot,
-        "full_loop_robot_time_s": full,
-        "fraction_of_full_loop": robot / full if full > 0 else math.nan,
-        "changes": changes,
-        "false_alarm": s.false_alarm,
-        "power": s.power,
-        "miss": 1.0 - s.power,
-        "detect_mm": s.detect * 1e3,
-        "design": DESIGN,
+        **decision_document(model, status, seq.decision, robot, full),
         "pose_names": [state.captured[i].name for i in order],
         "robot_time": {
             "moves_s": move,
@@ -566,14 +512,7 @@ def check_document(
             "note": "moves at the plan's joint speed and acceleration (real speed, also when "
             "the simulator runs faster); settling, pan and capture as measured",
         },
-        "test": _test_json(status, model),
-        "baseline": {
-            "folder": str(baseline.folder),
-            "run_id": baseline.run_id,
-            "plan_hash": baseline.plan_hash,
-            "model_sha256": baseline.model_sha256,
-            "paired": model.paired,
-        },
+        "baseline": baseline_json(baseline, model),
         "plan_hash": plan.hash,
         "stop_reason": seq.stop_reason,
         "skipped_no_free_leg": sorted(set(seq.skipped)),
@@ -583,20 +522,105 @@ def check_document(
     }
 
 
-def _change_json(c: qc.Change) -> dict[str, Any]:
-    k = 1e3  # m → mm, rad → mrad
-    unit = {"m": "mm", "rad": "mrad"}.get(c.unit, c.unit)
-    scale = k if c.unit in ("m", "rad") else 1.0
+def decision_document(
+    model: qc.ChangeModel,
+    status: qc.CheckStatus | None,
+    decided: tuple[qc.Decision, int] | None,
+    robot_time_s: float,
+    full_loop_s: float,
+) -> dict[str, Any]:
+    """The part of check.json every check shares, live or replayed: the verdict, the named
+    changes, the error rates and the test (mm, mrad, s at the file boundary)."""
+    s = model.settings
+    decision = qc.Decision.CONTINUE if decided is None else decided[0]
+    changes: list[dict[str, Any]] = []
+    if status is not None and decision is qc.Decision.CHANGED:
+        changes = [
+            _change_json(c, n)
+            for c, n in zip(status.changes(), status.named_changes(), strict=True)
+        ]
+        if status.omnibus_probability >= 0.05:
+            changes.append(
+                {
+                    "joint": None,
+                    "motion": "other",
+                    "family": "omnibus",
+                    "fault": None,
+                    "words": "a change no single fault, joint motion or effect describes",
+                    "size": None,
+                    "sigma": None,
+                    "size_unit": None,
+                    "tcp_mm": None,
+                    "probability": status.omnibus_probability,
+                    "log_lr": status.log_lr_omnibus,
+                    "action": "run a full assessment",
+                }
+            )
+            changes.sort(key=lambda c: -c["probability"])
     return {
-        "joint": c.joint,
+        "schema": CHECK_SCHEMA,
+        "verdict": "changed" if decision is qc.Decision.CHANGED else "unchanged",
+        "decided": decision is not qc.Decision.CONTINUE,
+        "decided_after_poses": None if decided is None else decided[1],
+        "poses": 0 if status is None else status.n_poses,
+        "robot_time_s": robot_time_s,
+        "full_loop_robot_time_s": full_loop_s,
+        "fraction_of_full_loop": robot_time_s / full_loop_s if full_loop_s > 0 else math.nan,
+        "changes": changes,
+        "false_alarm": s.false_alarm,
+        "power": s.power,
+        "miss": 1.0 - s.power,
+        "detect_mm": s.detect * 1e3,
+        "design": DESIGN,
+        "test": _test_json(status, model),
+    }
+
+
+def baseline_json(baseline: Baseline, model: qc.ChangeModel) -> dict[str, Any]:
+    """check.json's ``baseline``."""
+    return {
+        "folder": str(baseline.folder),
+        "run_id": baseline.run_id,
+        "plan_hash": baseline.plan_hash,
+        "model_sha256": baseline.model_sha256,
+        "paired": model.paired,
+    }
+
+
+def summary_lines(d: dict[str, Any]) -> list[str]:
+    """The lines every door shows of a check.json document."""
+    lines = [
+        f"{d['verdict'].upper()} after {d['poses']} poses: {d['robot_time_s']:.1f} s of "
+        f"robot time, {100 * d['fraction_of_full_loop']:.0f} % of the full loop's "
+        f"{d['full_loop_robot_time_s']:.1f} s"
+        + ("" if d["decided"] else " (undecided at the end of the plan)")
+    ]
+    for c in d["changes"]:
+        if c["size"] is None:
+            lines.append(f"  {c['words']} ({100 * c['probability']:.0f} % of the evidence)")
+            continue
+        lines.append(
+            f"  {c['words']}: changed by {c['size']:+.4g} ± {c['sigma']:.2g} {c['size_unit']} "
+            f"(z = {c['z']:+.1f}; TCP up to {c['tcp_mm']:.3f} mm; "
+            f"{100 * c['probability']:.0f} % of the evidence)"
+        )
+    if not d["decided"]:
+        lines.append(
+            f"  not decided: a change of {d['detect_mm']} mm is not excluded "
+            f"({d['test']['weakest']} least measured); run a full assessment"
+        )
+    return lines
+
+
+def _change_json(c: qc.Change, named: NamedChange) -> dict[str, Any]:
+    """One change of check.json: the named fault (:meth:`~.faults.NamedChange.to_json`:
+    ``fault``, words, size and σ in mm/mrad, z, p, the alternatives, the action) with the
+    family's test figures."""
+    return {
+        **named.to_json(),
         "motion": c.motion,
         "family": c.family,
-        "words": c.words,
-        "size": c.size * scale,
-        "sigma": c.sigma * scale,
-        "size_unit": unit,
         "tcp_mm": c.tcp * 1e3,
-        "probability": c.probability,
         "log_lr": c.log_lr,
     }
 
@@ -628,7 +652,10 @@ __all__ = [
     "CheckSequence",
     "Progress",
     "archive_baseline",
+    "baseline_json",
     "check_document",
+    "decision_document",
     "load_baseline",
     "quick_check",
+    "summary_lines",
 ]

@@ -82,7 +82,11 @@ def test_tilt_of_joint_2_is_changed_and_named(setup):
     assert run.verdict is qc.Decision.CHANGED
     assert run.decision[1] <= len(order) <= 12
     top = run.status.changes()[0]
-    assert (top.family, top.joint, top.motion) == ("j2.ex", 2, "ex")
+    # j2.ex.c0 twists link 2: joint 3's axis tilts about x, the fault the check names
+    assert (top.family, top.joint, top.motion) == ("j3.tilt_x", 3, "tilt_x")
+    named = run.status.named_changes()[0]
+    assert named.fault == "j3.tilt_x" and named.words == "joint 3 tilt about x"
+    assert named.z == pytest.approx(named.size / named.sigma) and named.source == "check"
     assert top.probability >= qc.NAME_PROBABILITY
     assert abs(top.size - 1e-4) < 4 * top.sigma + 1e-5  # the tilt's size, within its sigma
     assert 0.05e-3 < top.tcp < 0.2e-3  # moves the TCP by tens of micrometres
@@ -138,6 +142,8 @@ def test_h1_boundary_moves_the_tcp_by_the_detectable_change(setup):
         assert np.allclose(tcp, d, rtol=1e-9), fam.name
     names = {f.name for f in model.families}
     assert {"j2.ex", "j3.ey", "backlash:j2", "compliance:j3"} <= names
+    assert {"j2.zero", "j3.tilt_x", "j2.length", "j4.offset", "j5.scale"} <= names
+    assert not {"j1.zero", "j2.tilt_y", "j6.zero"} & names  # set-up changes, no faults
     assert "j1.dz" not in names or model.families[0].k >= 1  # a base shift is no family
     # a joint-1 axial constant is a base shift: only its first-order term stays in j1.dz
     j1dz = next((f for f in model.families if f.name == "j1.dz"), None)

@@ -1,6 +1,7 @@
 """``quickhealth check`` on the simulated cell with the real ur-rtde client: a baseline run of
 a short plan, then a healthy robot ("unchanged", after a kill -9 and --resume) and a robot
-whose joint 2 tilted 0.1 mrad ("changed", joint 2 named), each in a fraction of the loop's
+whose link 2 twisted 0.1 mrad (``j2.ex.c0``: joint 3's axis tilts, "changed", that fault
+named), each in a fraction of the loop's
 robot time; the archive records the check as a check.
 
 Images are 1/4 of the reference sensor and the arm moves 20× faster than life (robot time is
@@ -59,12 +60,12 @@ def test_tilted_joint_2_is_changed_and_named(baseline, tmp_path, capsys):
                  "--sim-degrade", "j2.ex.c0=0.0001"])  # fmt: skip
     text = capsys.readouterr()
     assert code == 1, text.err
-    assert "CHANGED after" in text.out and "joint 2 tilt about x" in text.out
+    assert "CHANGED after" in text.out and "joint 3 tilt about x" in text.out
     assert "recorded as check worn of robot ur5-sim" in text.out
     doc = json.loads((out / "check.json").read_text())
     assert doc["verdict"] == "changed" and doc["decided"]
     top = doc["changes"][0]
-    assert (top["joint"], top["motion"]) == (2, "ex") and top["size_unit"] == "mrad"
+    assert (top["fault"], top["joint"], top["size_unit"]) == ("j3.tilt_x", 3, "mrad")
     assert 0.05 < top["size"] < 0.2 and top["sigma"] > 0
     assert doc["false_alarm"] == 0.01 and doc["detect_mm"] == 0.05 and doc["power"] == 0.95
     assert 0 < doc["robot_time_s"] < doc["full_loop_robot_time_s"]
