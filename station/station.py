@@ -7,8 +7,9 @@ assembles it on real hardware; the simulated cell (:mod:`.sim.cell`) assembles t
 on its simulators.
 
 SYNOPSIS
-    >>> station = real_station("cell.toml", "192.168.0.10", motor_port="/dev/ttyUSB0",
-    ...                        cameras=(0, 1), calibration="cal.json")   # doctest: +SKIP
+    >>> config = HardwareConfig.from_options("cell.toml", robot_ip="192.168.0.10",
+    ...     cameras="pylon", calibration="cal.json")                     # doctest: +SKIP
+    >>> station = real_station(config)                                    # doctest: +SKIP
     >>> station.close()                                                   # doctest: +SKIP
 """
 
@@ -22,16 +23,21 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from ..identify.errors import InputError
 from ..identify.robot import builtin_robot
 from ..identify.transforms import inv_T
 from ..vision.boards import TargetDescription
 from .formats.vision import read_rig
-from .hardware.cameras import OpenCvStereoCamera, StereoCamera
+from .hardware.cameras import CameraIdentity, StereoCamera
+from .hardware.cameras import identities as camera_identities
+from .hardware.cameras.config import CameraConfig
+from .hardware.cameras.config import choose as choose_cameras
+from .hardware.cameras.registry import open_cameras
 from .hardware.motor import PanMotor, SerialPanMotor
 from .hardware.owner import DeviceOwner, owned
 from .hardware.robot import Robot, UrRobot
 from .hardware.target import T_target_plate, reference_board, reference_target
-from .planning.cell import load_cell
+from .planning.cell import Cell, load_cell
 
 F = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -61,6 +67,9 @@ class Station:
         The cell this station is (pre-flight checks the plan against it).
     instrument : str
         For the CSV metadata.
+    camera_ids : tuple of CameraIdentity
+        The cameras that take the images (vendor, model, serial number, firmware) for the
+        run's records; empty when the backend does not say.
     """
 
     robot: Robot
@@ -76,8 +85,11 @@ class Station:
     instrument: str = "stereo camera"
     robot_name: str = ""
     closers: list[Callable[[], None]] = field(default_factory=list)
+    camera_ids: tuple[CameraIdentity, ...] = ()
 
     def __post_init__(self) -> None:
+        if not self.camera_ids:
+            self.camera_ids = camera_identities(self.camera)
         # One owner per device: the run, the pre-flight and the TUI's polls all go through a
         # worker thread and its queue (the robot's owner is its client process).
         self.motor = owned(self.motor, "pan motor")
@@ -122,25 +134,83 @@ class Station:
         self.closers.clear()
 
 
-def real_station(
-    cell: str,
-    robot_ip: str,
-    *,
-    motor_port: str,
-    cameras: tuple[int | str, int | str],
-    calibration: str,
-) -> Station:
-    """A :class:`Station` on real hardware: UR robot, serial pan motor, two OpenCV cameras."""
-    c = load_cell(cell)
-    rig = read_rig(Path(calibration))
+@dataclass(frozen=True)
+class HardwareConfig:
+    """The cell's hardware as every door configures it: built once from the cell file and the
+    command line's options (:meth:`from_options`), then given to :func:`real_station` or to
+    the simulated cell (:func:`quickhealth.station.sim.cell.sim_station`).
+
+    Attributes
+    ----------
+    cell : Cell
+        The cell file, loaded and checked.
+    cameras : CameraConfig
+        The stereo pair: the cell's ``[cameras]`` section changed by ``--cameras``.
+    robot_ip : str or None
+        The UR controller (None: the simulated cell).
+    motor_port : str
+        The pan motor's serial port.
+    calibration : Path or None
+        The stereo calibration (real cameras).
+    robot_name : str or None
+        The robot's name in the journal and the archive.
+    """
+
+    cell: Cell
+    cameras: CameraConfig
+    robot_ip: str | None = None
+    motor_port: str = "/dev/ttyUSB0"
+    calibration: Path | None = None
+    robot_name: str | None = None
+
+    @property
+    def simulated(self) -> bool:
+        return self.robot_ip is None
+
+    @classmethod
+    def from_options(
+        cls,
+        cell: str | Cell,
+        *,
+        robot_ip: str | None = None,
+        motor_port: str | None = None,
+        cameras: str | None = None,
+        calibration: str | Path | None = None,
+        robot_name: str | None = None,
+    ) -> HardwareConfig:
+        """The configuration of the doors' options (``--robot-ip``, ``--motor-port``,
+        ``--cameras``, ``--calibration``): one line (InputError) for what cannot work."""
+        c = cell if isinstance(cell, Cell) else load_cell(cell)
+        cams = choose_cameras(c.cameras, cameras)
+        if robot_ip is not None and calibration is None:
+            raise InputError(
+                "--robot-ip needs --calibration CAL.json (quickhealth vision calibrate)"
+            )
+        return cls(
+            cell=c,
+            cameras=cams,
+            robot_ip=robot_ip,
+            motor_port=motor_port or "/dev/ttyUSB0",
+            calibration=None if calibration is None else Path(calibration),
+            robot_name=robot_name,
+        )
+
+
+def real_station(config: HardwareConfig) -> Station:
+    """A :class:`Station` on real hardware: UR robot, serial pan motor, the configured stereo
+    pair (any backend of :mod:`.hardware.cameras.registry`)."""
+    c = config.cell
+    if config.robot_ip is None or config.calibration is None:
+        raise InputError("a real station needs --robot-ip and --calibration")
+    rig = read_rig(config.calibration)
     closers: list[Callable[[], None]] = []
     try:
         arm = builtin_robot(c.robot.name)  # the cell's arm with its own limits; its stream rate
-        robot = UrRobot(robot_ip, model=arm, frequency=arm.control_hz or 125.0)
+        robot = UrRobot(config.robot_ip, model=arm, frequency=arm.control_hz or 125.0)
         closers.append(robot.close)
-        motor = SerialPanMotor(motor_port)
+        motor = SerialPanMotor(config.motor_port)
         closers.append(motor.close)
-        camera = OpenCvStereoCamera(cameras[0], cameras[1], rig)
+        camera = open_cameras(config.cameras, rig)
         closers.append(camera.close)
     except BaseException:
         for f in reversed(closers):
@@ -157,6 +227,7 @@ def real_station(
         T_instr_board=None,
         cell_name=c.name,
         cell_sha256=c.sha256,
-        instrument=f"stereo camera {calibration}",
+        instrument=f"stereo camera {config.calibration} ({config.cameras.describe()})",
+        robot_name=config.robot_name or f"ur-{config.robot_ip}",
         closers=closers,
     )

@@ -61,8 +61,32 @@ def detector_parameters(
     return p
 
 
+def grey_levels(
+    image: NDArray[np.uint8] | NDArray[np.uint16], bits: int | None = None
+) -> tuple[NDArray[np.uint8], NDArray[np.float32] | NDArray[np.uint8]]:
+    """An image of any depth as detection and refinement need it.
+
+    ArUco's candidate search takes 8 bits only: the first image is the picture rounded to
+    8 bits.  Corner refinement measures edge profiles: the second image keeps every bit of a
+    10- to 16-bit camera as float32 on the 8-bit scale (0..255, the extra bits as fractions),
+    so thresholds in 8-bit grey levels hold at any depth.  An 8-bit image is returned as is
+    (twice).
+
+    ``bits``: significant bits of a uint16 image (LSB-aligned; default 16)."""
+    if image.dtype == np.uint8:
+        return image, image
+    if image.dtype != np.uint16:
+        raise ValueError(f"expected a uint8 or uint16 grey image, got {image.dtype}")
+    b = 16 if bits is None else int(bits)
+    if not 9 <= b <= 16:
+        raise ValueError(f"a uint16 image holds 9 to 16 bits, not {b}")
+    levels = image.astype(np.float32) * np.float32(255.0 / ((1 << b) - 1))
+    u8 = np.clip(np.rint(levels), 0, 255).astype(np.uint8)
+    return u8, levels
+
+
 def detect_markers(
-    image: NDArray[np.uint8],
+    image: NDArray[np.uint8] | NDArray[np.uint16],
     dictionary: str,
     *,
     roi: Box | None = None,
@@ -77,7 +101,8 @@ def detect_markers(
 
     Parameters
     ----------
-    image : ndarray, shape (h, w), uint8
+    image : ndarray, shape (h, w), uint8 (or uint16: detected on its 8-bit rounding,
+        :func:`grey_levels` with 16 bits)
     dictionary : str
         OpenCV dictionary name.
     roi : (x0, y0, x1, y1), optional
@@ -93,6 +118,8 @@ def detect_markers(
     """
     if image.ndim != 2:
         raise ValueError(f"expected a grey image (h, w), got shape {image.shape}")
+    if image.dtype != np.uint8:
+        image = grey_levels(image)[0]
     h, w = image.shape
     x0, y0, x1, y1 = (0, 0, w, h) if roi is None else _clip_box(roi, w, h)
     box = None if roi is None else (x0, y0, x1, y1)
@@ -150,7 +177,7 @@ def _clip_box(box: Box, w: int, h: int) -> Box:
 
 
 def refine_marker_corners(
-    image: NDArray[np.uint8],
+    image: NDArray[np.uint8] | NDArray[np.float32],
     corners: F,
     *,
     cell_px: F | None = None,
@@ -167,7 +194,8 @@ def refine_marker_corners(
 
     Parameters
     ----------
-    image : ndarray, shape (h, w), uint8
+    image : ndarray, shape (h, w), uint8, or float32 on the 8-bit scale (a deeper camera's
+        image from :func:`grey_levels`: its extra bits sharpen the edge crossings)
     corners : ndarray, shape (n, 4, 2), px
         Corners from :func:`detect_markers`.
     cell_px : ndarray, shape (n,), optional

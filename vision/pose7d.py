@@ -31,7 +31,7 @@ from quickhealth.identify.transforms import R_to_rpy, exp_so3, log_so3, make_T
 
 from .boards import TargetDescription
 from .camera import CameraModel, StereoRig
-from .markers import Box, detect_markers, refine_marker_corners
+from .markers import Box, detect_markers, grey_levels, refine_marker_corners
 
 F = NDArray[np.float64]
 
@@ -184,13 +184,20 @@ def search_boxes(rig: StereoRig, T_left_target: F, target: TargetDescription) ->
 
 
 def detect_target(
-    camera: CameraModel, target: TargetDescription, image: NDArray[np.uint8], roi: Box | None = None
+    camera: CameraModel,
+    target: TargetDescription,
+    image: NDArray[np.uint8] | NDArray[np.uint16],
+    roi: Box | None = None,
+    *,
+    bits: int | None = None,
 ) -> tuple[F, F]:
     """Target corners seen in one image: (object points (k, 3) m, pixels (k, 2)).
 
-    Unknown ids are ignored; corners are refined by line fits in the ideal image.
+    Unknown ids are ignored; corners are refined by line fits in the ideal image, at the
+    image's full depth (``bits`` of a uint16 image, :func:`~.markers.grey_levels`).
     """
-    det = detect_markers(image, target.dictionary, roi=roi)
+    u8, levels = grey_levels(image, bits)
+    det = detect_markers(u8, target.dictionary, roi=roi)
     pos = {int(i): k for k, i in enumerate(target.ids)}
     keep = [k for k, i in enumerate(det.ids) if int(i) in pos]
     if not keep:
@@ -205,7 +212,7 @@ def detect_target(
     def from_ideal(x: F) -> F:
         return camera.project(np.concatenate([x / f, np.ones((*x.shape[:-1], 1))], -1))
 
-    refined = refine_marker_corners(image, corners, to_ideal=to_ideal, from_ideal=from_ideal)
+    refined = refine_marker_corners(levels, corners, to_ideal=to_ideal, from_ideal=from_ideal)
     obj = target.corners[[pos[int(i)] for i in ids]].reshape(-1, 3)
     return obj, refined.reshape(-1, 2)
 
@@ -213,9 +220,10 @@ def detect_target(
 def measure_stereo(
     rig: StereoRig,
     target: TargetDescription,
-    img_left: NDArray[np.uint8],
-    img_right: NDArray[np.uint8],
+    img_left: NDArray[np.uint8] | NDArray[np.uint16],
+    img_right: NDArray[np.uint8] | NDArray[np.uint16],
     *,
+    bits: int | None = None,
     roi_hint: F | tuple[Box, Box] | None = None,
     pan: float | None = None,
     time: float | None = None,
@@ -227,7 +235,10 @@ def measure_stereo(
     ----------
     rig : StereoRig
     target : TargetDescription
-    img_left, img_right : ndarray, shape (h, w), uint8
+    img_left, img_right : ndarray, shape (h, w), uint8 or uint16
+        A 10- to 16-bit camera's images are measured at their depth (``bits``: significant
+        bits of uint16 images, LSB-aligned; default 16).
+    bits : int, optional
     roi_hint : ndarray (4, 4) or ((x0, y0, x1, y1), (x0, y0, x1, y1)), optional
         Predicted ``T_left_target`` (the search regions are grown around its image) or the
         search boxes themselves; None searches the whole images.  A camera whose region
@@ -250,9 +261,9 @@ def measure_stereo(
             rois = (tuple(roi_hint[0]), tuple(roi_hint[1]))  # type: ignore[assignment,index]
     seen = []
     for cam, img, roi in zip(rig.cameras, (img_left, img_right), rois, strict=True):
-        found = detect_target(cam, target, img, roi)
+        found = detect_target(cam, target, img, roi, bits=bits)
         if roi is not None and len(found[0]) < settings.min_corners:
-            found = detect_target(cam, target, img, None)  # the prediction was off: whole image
+            found = detect_target(cam, target, img, None, bits=bits)  # the prediction was off
         seen.append(found)
     return solve_stereo_pose(rig, seen, pan=pan, time=time, settings=settings)
 

@@ -51,6 +51,10 @@ class Imaging:
         Reflectance of the scene around the plate.
     supersample : int
         Samples per pixel along each axis.
+    bits : int
+        The sensor's depth: 8 gives uint8 images; 10 to 16 give uint16 images with that many
+        significant bits (LSB-aligned), the same scene with finer steps (``white_dn``,
+        ``dark_dn`` and ``noise_dn`` stay on the 8-bit scale).
     """
 
     blur_px: float = 0.7
@@ -61,6 +65,12 @@ class Imaging:
     gradient: tuple[float, float] = (0.0, 0.0)
     background: float = 0.35
     supersample: int = 2
+    bits: int = 8
+
+    @property
+    def full_scale(self) -> int:
+        """The sensor's largest value (255 at 8 bits, 4095 at 12)."""
+        return (1 << self.bits) - 1
 
 
 def render_target(
@@ -166,9 +176,23 @@ def render_layers(
         img[y0:y1, x0:x1] = patch
     if im.noise_dn > 0:
         img += rng.standard_normal(img.shape, dtype=np.float32) * np.float32(im.noise_dn)
+    return quantize(img, im.bits)
+
+
+def quantize(img: NDArray[np.float32], bits: int = 8) -> U8:
+    """A float image on the 8-bit scale as a ``bits``-deep sensor reads it out (rounded,
+    clipped; uint8 at 8 bits, uint16 above).  Changes ``img``."""
+    if bits == 8:
+        np.rint(img, out=img)
+        np.clip(img, 0, 255, out=img)
+        return img.astype(np.uint8)
+    if not 9 <= bits <= 16:
+        raise ValueError(f"a sensor of {bits} bits: 8 to 16 only")
+    full = (1 << bits) - 1
+    img *= np.float32(full / 255.0)
     np.rint(img, out=img)
-    np.clip(img, 0, 255, out=img)
-    return img.astype(np.uint8)
+    np.clip(img, 0, full, out=img)
+    return img.astype(np.uint16)  # type: ignore[return-value]
 
 
 def _plate_bbox(

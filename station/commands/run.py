@@ -43,6 +43,8 @@ from ..fsio import (
     refuse_overwriting_inputs,
     result_files,
 )
+from ..hardware.cameras.config import OPTION_HELP as CAMERAS_HELP
+from ..hardware.cameras.config import for_simulation, parse_cameras_option
 from ..run import lock
 from ..run.lock import RunLock
 from ..services.fitting import fit_folder
@@ -51,7 +53,7 @@ from ..sim.process import run_from_args
 
 if TYPE_CHECKING:  # the types only: the planner loads the collision library, run the drivers
     from ..planning.planfile import Plan
-    from ..station import Station
+    from ..station import HardwareConfig, Station
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -108,9 +110,7 @@ def add_station_arguments(
     src.add_argument("--sim", action="store_true", help="the built-in simulated cell")
     src.add_argument("--robot-ip", help="address of the UR controller")
     p.add_argument("--motor-port", default="/dev/ttyUSB0", help="pan motor serial port (real cell)")
-    p.add_argument(
-        "--cameras", default="0,1", help="left,right OpenCV camera indices or paths (real cell)"
-    )
+    p.add_argument("--cameras", default=None, help=CAMERAS_HELP)
     p.add_argument("--calibration", default=None, help="stereo CAL.json (real cell)")
     # the simulated hardware's size and clock; None: QUICKHEALTH_SIM_IMAGE_SCALE /
     # QUICKHEALTH_SIM_SPEED_FACTOR from the environment, else 0.5 and 1 (docs/station.md)
@@ -140,12 +140,29 @@ def check_station_arguments(args: argparse.Namespace) -> None:
     one_line(Path(args.out).name, "--out: the run folder's name (its run id)")
     if args.calibration is not None:
         one_line(args.calibration, "--calibration")
+    if args.cameras is not None:
+        parse_cameras_option(args.cameras)  # a bad --cameras is one line before anything starts
     if args.sim_degrade is not None and not args.sim:
         raise InputError("--sim-degrade changes the simulated robot: it needs --sim")
 
 
+def hardware_config(args: argparse.Namespace, robot_name: str | None) -> HardwareConfig:
+    """The typed hardware configuration of :func:`add_station_arguments`' options."""
+    from ..station import HardwareConfig  # the drivers' types: OpenCV-free, but numpy
+
+    return HardwareConfig.from_options(
+        args.cell,
+        robot_ip=None if args.sim else args.robot_ip,
+        motor_port=args.motor_port,
+        cameras=args.cameras,
+        calibration=args.calibration,
+        robot_name=robot_name,
+    )
+
+
 def open_station(args: argparse.Namespace, robot_name: str | None) -> Station:
     """The station of :func:`add_station_arguments`' options (simulated or real)."""
+    config = hardware_config(args, robot_name)
     if args.sim:
         from ..sim.cell import sim_station  # the simulation (and the twin), only under --sim
         from ..sim.world import parse_degradation  # (the same)
@@ -156,24 +173,14 @@ def open_station(args: argparse.Namespace, robot_name: str | None) -> Station:
             image_scale=args.sim_image_scale,
             speed_factor=args.sim_speed_factor,
             degrade=parse_degradation(args.sim_degrade),
+            cameras=for_simulation(config.cell.cameras, args.cameras),
         )
         if robot_name:
             station.robot_name = robot_name
         return station
-    from ..station import real_station  # the drivers: ur-rtde, OpenCV
+    from ..station import real_station  # the drivers: ur-rtde, the camera SDK
 
-    cams = tuple(c if not c.isdigit() else int(c) for c in args.cameras.split(","))
-    if len(cams) != 2:
-        raise InputError("--cameras needs two entries: left,right")
-    station = real_station(
-        args.cell,
-        args.robot_ip,
-        motor_port=args.motor_port,
-        cameras=cams,
-        calibration=args.calibration,
-    )
-    station.robot_name = robot_name or f"ur-{args.robot_ip}"
-    return station
+    return real_station(config)
 
 
 def sim_controller(args: argparse.Namespace) -> int:

@@ -9,10 +9,12 @@ from typing import TYPE_CHECKING
 
 from ...identify.errors import InputError
 from .. import options
+from ..hardware.cameras.config import OPTION_HELP as CAMERAS_HELP
+from ..hardware.cameras.config import parse_cameras_option
 from ..services.options import TUI_THRESHOLD_MM
 
 if TYPE_CHECKING:  # the type only: the App's station loads textual, the fit and the drivers
-    from ..tui.facade import Station
+    from ..tui.facade import Facade
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -41,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--robot-ip", help="the real robot's address (without --sim)")
     p.add_argument("--motor-port", help="serial port of the pan motor (real station)")
-    p.add_argument("--cameras", help="left,right camera ids or devices (real station)")
+    p.add_argument("--cameras", help=CAMERAS_HELP)
     p.add_argument("--calibration", help="stereo calibration CAL.json (real station)")
     p.add_argument(
         "--archive",
@@ -65,10 +67,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..tui.facade import Station  # textual, the fit, the drivers: --help must not wait
+    from ..tui.facade import Facade  # textual, the fit, the drivers: --help must not wait
 
     if args.data is not None:
-        station = Station.from_data(
+        station = Facade.from_data(
             args.data,
             args.heldout,
             robot_name=args.robot_name or "ur5-sim",
@@ -81,8 +83,11 @@ def run(args: argparse.Namespace) -> int:
             "tui: give --sim for the simulated cell, --robot-ip IP for a real robot, "
             "or --data MEAS.csv"
         )
+    if args.cameras is not None:
+        parse_cameras_option(args.cameras)  # one line for a bad --cameras, before anything starts
     common = dict(
         cell=args.cell,
+        cameras=args.cameras,
         plan=args.plan,
         archive=args.archive,
         robot_name=args.robot_name,
@@ -95,17 +100,16 @@ def run(args: argparse.Namespace) -> int:
 
         station = open_simulated(**common)
     else:
-        station = Station.open(
+        station = Facade.open(
             robot_ip=args.robot_ip,
             motor_port=args.motor_port,
-            cameras=None if not args.cameras else tuple(args.cameras.split(",", 1)),
             calibration=args.calibration,
             **common,
         )
     return _run_app(station)
 
 
-def _run_app(station: Station) -> int:
+def _run_app(station: Facade) -> int:
     from ..tui.app import QuickhealthApp  # textual
 
     try:

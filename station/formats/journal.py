@@ -70,7 +70,14 @@ class Captured:
 
     ``timing`` (s, absent in older journals): where the robot's time at the pose went,
     ``move`` (the leg, wall clock), ``settle`` (until the joint stream showed rest), ``pan``
-    (the motor's remaining turn), ``capture`` (every capture and its detection check)."""
+    (the motor's remaining turn), ``capture`` (every capture and its detection check), and
+    ``start`` (when the move began, s since the run's epoch).
+
+    ``camera`` (absent in older journals): what the cameras reported about the pair: ``bits``
+    (8 to 16: the stored images' depth), ``trigger``, ``left`` / ``right`` (``frame_id``,
+    ``timestamp_ns``, ``exposure_us``, ``gain_db``, ``temperature_c`` where the camera says),
+    ``exposure`` (the markers' white level as a fraction of full scale and ``ok``,
+    ``saturated`` or ``dark``)."""
 
     index: int
     name: str
@@ -83,12 +90,17 @@ class Captured:
     markers: tuple[int, ...] = ()
     search: tuple[Box, Box] | None = None
     timing: dict[str, float] | None = None
+    camera: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class Measured:
     """The 7D measurement of a captured pose: the target frame at pan 0 (``position`` m,
-    ``rpy`` rad) with its standard uncertainties, or why the vision library rejected it."""
+    ``rpy`` rad) with its standard uncertainties, or why the vision library rejected it.
+
+    ``timing`` (s, absent in older journals): ``start`` and ``end`` of the worker's work on
+    the pair (s since the run's epoch: it overlaps the arm's move to the next pose),
+    ``images`` (writing them) and ``measure`` (the 7D measurement)."""
 
     index: int
     name: str
@@ -101,6 +113,7 @@ class Measured:
     rms_px: float | None = None
     n_corners: tuple[int, ...] = ()
     n_outliers: int = 0
+    timing: dict[str, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,6 +175,7 @@ def encode(rec: Record) -> dict[str, Any]:
             "markers": list(rec.markers),
             **({} if rec.search is None else {"search_px": [list(b) for b in rec.search]}),
             **({} if rec.timing is None else {"timing_s": dict(rec.timing)}),
+            **({} if rec.camera is None else {"camera": dict(rec.camera)}),
         }
     if isinstance(rec, Measured):
         out = {
@@ -170,6 +184,8 @@ def encode(rec: Record) -> dict[str, Any]:
             "name": rec.name,
             "ok": rec.ok,
         }
+        if rec.timing is not None:
+            out["timing_s"] = dict(rec.timing)
         if not rec.ok:
             return {**out, "reason": rec.reason}
         return {
@@ -225,6 +241,18 @@ def _timing(v: object) -> dict[str, float] | None:
     return out
 
 
+def _camera(v: object) -> dict[str, Any] | None:
+    """A capture's ``camera`` object, or None when not recorded."""
+    if v is None:
+        return None
+    if not isinstance(v, Mapping):
+        raise ValueError("camera must be an object")
+    bits = v.get("bits", 8)
+    if not isinstance(bits, int) or not 8 <= bits <= 16:
+        raise ValueError(f"camera.bits must be an integer in 8..16, got {bits!r}")
+    return dict(v)
+
+
 def decode(obj: Mapping[str, Any]) -> Record:
     """The typed record of a journal line's JSON object (SI); ``start``, ``resume``, ``stop``
     and ``end`` stay objects.
@@ -262,10 +290,17 @@ def decode(obj: Mapping[str, Any]) -> Record:
             markers=tuple(int(m) for m in obj.get("markers", ())),
             search=_boxes(obj.get("search_px")),
             timing=_timing(obj.get("timing_s")),
+            camera=_camera(obj.get("camera")),
         )
     if kind is RecordKind.MEASURED:
         if not obj["ok"]:
-            return Measured(int(obj["index"]), str(obj["name"]), False, str(obj.get("reason", "")))
+            return Measured(
+                int(obj["index"]),
+                str(obj["name"]),
+                False,
+                str(obj.get("reason", "")),
+                timing=_timing(obj.get("timing_s")),
+            )
         return Measured(
             index=int(obj["index"]),
             name=str(obj["name"]),
@@ -277,6 +312,7 @@ def decode(obj: Mapping[str, Any]) -> Record:
             rms_px=obj.get("rms_px"),
             n_corners=tuple(int(c) for c in obj.get("n_corners", ())),
             n_outliers=int(obj.get("n_outliers", 0)),
+            timing=_timing(obj.get("timing_s")),
         )
     if kind is RecordKind.FAILED:
         pan = obj.get("pan_deg")

@@ -32,6 +32,8 @@ from numpy.typing import NDArray
 from ...identify.errors import InputError
 from ...identify.robot import BUILTIN_ROBOTS, RobotModel, builtin_robot, with_payload
 from ...identify.transforms import inv_T, make_T, rpy_to_R
+from ..hardware.cameras.config import CameraConfig
+from ..hardware.cameras.config import from_cell_table as camera_config
 
 F = NDArray[np.float64]
 
@@ -140,6 +142,7 @@ class Cell:
     home: F | None = None  # (6,) rad: where the loop starts; the first leg is checked from it
     target_mass: float = 0.0  # kg, the smart target on the flange; 0: not stated
     target_com: F | None = None  # (3,) m, its centre of mass in the flange frame
+    cameras: CameraConfig | None = None  # the [cameras] section: backend, ids, trigger
 
     def robot_with_target(self, robot: RobotModel | None = None) -> RobotModel:
         """``robot`` (default: the cell's arm) carrying the cell's smart target on its flange:
@@ -346,6 +349,7 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
     obstacles = _obstacles(top, label)
     motion = _motion(top.sub("motion"))
     planner = _planner(top.sub("planner") if top.has("planner") else _Tab({}, label, "planner."))
+    cameras = camera_config(top.sub("cameras")) if top.has("cameras") else None
     top.done()
 
     return Cell(
@@ -376,6 +380,7 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         home=home,
         target_mass=mass,
         target_com=com,
+        cameras=cameras,
     )
 
 

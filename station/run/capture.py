@@ -3,14 +3,16 @@ measurement of a pair, and its journal record."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
 from ...vision.boards import TargetDescription
-from ...vision.markers import Box, detect_markers
+from ...vision.markers import Box, detect_markers, grey_levels
 from ...vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
 from ..formats.journal import Measured
-from ..hardware.cameras import StereoFrame
+from ..hardware.cameras import Image, StereoFrame
 from ..hardware.target import target0_from_plate
 from ..station import Station
 
@@ -30,7 +32,7 @@ def quick_check(
         (rig.right, frame.right, rig.T_right_left @ T_pred),
     ):
         roi = roi_from_pose(cam, T, target, margin=0.5)
-        det = detect_markers(img, target.dictionary, roi=roi)
+        det = detect_markers(grey_levels(img, frame.bits)[0], target.dictionary, roi=roi)
         counts.append(sum(1 for i in det.ids if int(i) in ids))
     c = (counts[0], counts[1])
     if min(c) >= min_markers:
@@ -44,11 +46,72 @@ def quick_check(
 
 
 def measure_frame(
-    station: Station, target: TargetDescription, left: U8, right: U8, search: tuple[Box, Box]
+    station: Station,
+    target: TargetDescription,
+    left: Image,
+    right: Image,
+    search: tuple[Box, Box],
+    bits: int = 8,
 ) -> PoseMeasurement | Rejection:
-    """Full 7D measurement of one stereo pair (the vision library), searched first in the
-    boxes ``search`` (px) that the capture record keeps."""
-    return measure_stereo(station.camera.rig, target, left, right, roi_hint=search)
+    """Full 7D measurement of one stereo pair (the vision library) at the images' depth
+    (``bits``), searched first in the boxes ``search`` (px) that the capture record keeps."""
+    return measure_stereo(
+        station.camera.rig, target, left, right, roi_hint=search, bits=bits if bits > 8 else None
+    )
+
+
+#: The markers' white as a fraction of full scale: the exposure search aims at ``WHITE_AIM``;
+#: a pose whose white is outside ``WHITE_OK`` is flagged (``dark`` / ``saturated``), and so is
+#: one with more than ``CLIP_FRACTION`` of the target's pixels at full scale.
+WHITE_AIM = 0.80
+WHITE_OK = (0.45, 0.95)
+CLIP_FRACTION = 0.001
+
+
+def exposure_report(
+    station: Station, frame: StereoFrame, T_pred: F, target: TargetDescription
+) -> dict[str, Any]:
+    """How well exposed the target is in each image of ``frame``: ``white`` (the 99th
+    percentile of the target's region as a fraction of full scale, the brighter image),
+    ``clipped`` (fraction of its pixels at full scale) and ``verdict`` (``ok``, ``dark``,
+    ``saturated``)."""
+    rig = station.camera.rig
+    whites, clips = [], []
+    for cam, img, T in (
+        (rig.left, frame.left, T_pred),
+        (rig.right, frame.right, rig.T_right_left @ T_pred),
+    ):
+        x0, y0, x1, y1 = (int(v) for v in roi_from_pose(cam, T, target, margin=0.0))
+        h, w = img.shape
+        sub = img[max(y0, 0) : min(y1, h), max(x0, 0) : min(x1, w)]
+        if sub.size == 0:
+            continue
+        whites.append(float(np.percentile(sub, 99.0)) / frame.full_scale)
+        clips.append(float(np.mean(sub >= frame.full_scale)))
+    if not whites:
+        return {"white": None, "clipped": None, "verdict": "not in view"}
+    white, clipped = max(whites), max(clips)
+    verdict = "ok"
+    if clipped > CLIP_FRACTION or white > WHITE_OK[1]:
+        verdict = "saturated"
+    elif white < WHITE_OK[0]:
+        verdict = "dark"
+    return {"white": round(white, 4), "clipped": round(clipped, 5), "verdict": verdict}
+
+
+def camera_record(frame: StereoFrame, exposure: dict[str, Any]) -> dict[str, Any]:
+    """The capture record's ``camera`` object: depth, trigger, what each camera reported, the
+    exposure check."""
+    rec: dict[str, Any] = {"bits": frame.bits, "trigger": frame.trigger}
+    for side, info in zip(("left", "right"), frame.info, strict=True):
+        got = info.to_json()
+        if got:
+            rec[side] = got
+    problems = frame.meta.get("attempt_problems")
+    if problems:
+        rec["recaptured"] = list(problems)
+    rec["exposure"] = exposure
+    return rec
 
 
 def measured_record(index: int, name: str, meas: PoseMeasurement, pan: float) -> Measured:

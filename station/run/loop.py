@@ -158,7 +158,8 @@ def run_plan(
         if resume:
             r.t_epoch = float(state.start["epoch"])
             r.append({"type": RecordKind.RESUME, "at_utc": _utc(), "done": len(done),
-                      "truncated_tail": state.truncated_tail})  # fmt: skip
+                      "truncated_tail": state.truncated_tail,
+                      "cameras": [c.to_json() for c in station.camera_ids]})  # fmt: skip
             r.emit(ProgressKind.RESUME, message=f"{len(done)} of {r.n} poses done; "
                    f"{len(unmeasured)} to measure from images")  # fmt: skip
             r.remeasure(state, unmeasured)
@@ -227,6 +228,7 @@ def _start_record(
         "robot": station.robot_name or station.robot.model.name, "n_poses": r.n,
         "started_utc": _utc(), "epoch": r.t_epoch, "software": f"quickhealth {software_version()}",
         "instrument": station.instrument,
+        "cameras": [c.to_json() for c in station.camera_ids],
         **(extra or {}),
     }  # fmt: skip
 

@@ -127,6 +127,7 @@ def write_outputs(
         "stopped": state.stops[-1]["reason"] if state.stops and not state.ended else None,
         "complete": state.ended,
         "resumes": state.resumes,
+        "cameras": start.get("cameras", []),
         "selfcheck": {
             "drift_mm": None if drift is None else drift[0],
             "drift_deg": None if drift is None else drift[1],

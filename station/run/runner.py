@@ -6,8 +6,9 @@ from __future__ import annotations
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -18,9 +19,11 @@ from ...vision.markers import Box
 from ...vision.pose7d import Rejection, measure_stereo, search_boxes
 from ..formats.journal import Captured, Failed, Measured, Record, SelfCheck
 from ..fsio import fsync_dir
+from ..hardware.cameras import Image
 from ..hardware.robot import Leg
 from ..station import Station
-from .capture import measure_frame, measured_record, quick_check
+from .capture import camera_record, exposure_report, measure_frame, measured_record, quick_check
+from .exposure import search_exposure
 from .journal import Journal, JournalState, write_bytes_atomic
 from .progress import Progress, ProgressFn, ProgressKind
 from .settings import RunSettings
@@ -66,6 +69,8 @@ class PoseRunner:
         self.worker_error: BaseException | None = None
         self.t_epoch = time.time()
         self.timings: dict[str, list[float]] = {}
+        self.exposure_search: dict[str, Any] | None = None
+        self.exposure_logged = False
 
     def tick(self, key: str, dt: float) -> None:
         self.timings.setdefault(key, []).append(dt)
@@ -116,6 +121,7 @@ class PoseRunner:
         leg = Leg(pose.leg)
         self.emit(ProgressKind.MOVE, pose.index, pose.name)
         t0 = time.monotonic()
+        t_start = time.time() - self.t_epoch
         s.robot.move(pose.q, leg, **plan_speed(self.plan, leg))
         t1 = time.monotonic()
         s.motor.move_to(pose.pan, wait=False)  # turns while the arm settles
@@ -127,6 +133,8 @@ class PoseRunner:
         self.tick("settle_s", t2 - t1)
         self.tick("pan_wait_s", t3 - t2)
         T_pred = s.predicted_plate(q_read, pan)
+        if self.exposure_search is None:
+            self.exposure_search = search_exposure(s, T_pred)
         reason = ""
         attempt = 0
         while attempt < cfg.capture_attempts:
@@ -151,22 +159,32 @@ class PoseRunner:
         images = [f"images/{pose.index:04d}_{pose.name}_{side}.png" for side in "LR"]
         t_capture = time.time() - (time.monotonic() - frame.time) - self.t_epoch
         search = search_boxes(s.camera.rig, T_pred, s.target)
-        timing = {"move": t1 - t0, "settle": t2 - t1, "pan": t3 - t2, "capture": td - t3}
+        timing = {"move": t1 - t0, "settle": t2 - t1, "pan": t3 - t2, "capture": td - t3,
+                  "start": t_start}  # fmt: skip
+        camera = camera_record(frame, exposure_report(s, frame, T_pred, s.target))
+        if self.exposure_search and not self.exposure_logged:
+            camera["exposure_search"] = self.exposure_search
+            self.exposure_logged = True
         self.append(Captured(
             pose.index, pose.name, q_read, pan, t_capture, tuple(images),
             q_cmd=pose.q, attempts=attempt, markers=counts, search=search, timing=timing,
+            camera=camera,
         ))  # fmt: skip
         te = time.monotonic()
         self.tick("journal_s", te - td)
         # Images are written (atomically) and measured by the worker while the arm moves on;
         # a capture whose images never reached the disk is revisited on resume.
         self.submit_measure(
-            pose.index, pose.name, frame.left, frame.right, pan, search, write=images
-        )
-        self.emit(ProgressKind.POSE, pose.index, pose.name, "captured", f"attempt {attempt}")
+            pose.index, pose.name, frame.left, frame.right, pan, search, write=images,
+            bits=frame.bits,
+        )  # fmt: skip
+        verdict = camera["exposure"]["verdict"]
+        note = f"attempt {attempt}" + ("" if verdict == "ok" else f"; the target is {verdict}")
+        self.emit(ProgressKind.POSE, pose.index, pose.name, "captured", note)
 
-    def write_images(self, names: list[str], left: U8, right: U8) -> None:
-        """Both images, each atomically, then the folder entry made durable."""
+    def write_images(self, names: list[str], left: Image, right: Image) -> None:
+        """Both images, each atomically, then the folder entry made durable (PNG keeps a
+        10- to 16-bit camera's images losslessly as 16-bit PNG)."""
         for name, img in zip(names, (left, right), strict=True):
             ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, self.cfg.png_level])
             if not ok:
@@ -178,11 +196,12 @@ class PoseRunner:
         self,
         index: int,
         name: str,
-        left: U8,
-        right: U8,
+        left: Image,
+        right: Image,
         pan: float,
         search: tuple[Box, Box],
         write: list[str] | None = None,
+        bits: int = 8,
     ) -> None:
         # At most two poses in flight: the worker never falls far behind the arm.
         while sum(1 for f in self.pending if not f.done()) >= 2:
@@ -190,17 +209,25 @@ class PoseRunner:
 
         def job() -> None:
             try:
+                start = time.time() - self.t_epoch
+                t_images = 0.0
                 if write is not None:
                     t0 = time.monotonic()
                     self.write_images(write, left, right)
-                    self.tick("images_s", time.monotonic() - t0)
+                    t_images = time.monotonic() - t0
+                    self.tick("images_s", t_images)
                 t0 = time.monotonic()
-                m = measure_frame(self.s, self.s.target, left, right, search)
-                self.tick("measure_s", time.monotonic() - t0)
+                m = measure_frame(self.s, self.s.target, left, right, search, bits)
+                t_measure = time.monotonic() - t0
+                self.tick("measure_s", t_measure)
+                timing = {"start": start, "end": time.time() - self.t_epoch,
+                          "images": t_images, "measure": t_measure}  # fmt: skip
                 if isinstance(m, Rejection):
-                    rec = Measured(index, name, False, f"{m.reason.value}: {m.detail}")
+                    rec = Measured(
+                        index, name, False, f"{m.reason.value}: {m.detail}", timing=timing
+                    )
                 else:
-                    rec = measured_record(index, name, m, pan)
+                    rec = replace(measured_record(index, name, m, pan), timing=timing)
                 self.append(rec)
                 status = "measured" if rec.ok else "failed"
                 self.emit(ProgressKind.MEASURED, index, name, status, rec.reason)
@@ -220,11 +247,20 @@ class PoseRunner:
     def remeasure(self, state: JournalState, unmeasured: list[int]) -> None:
         for i in unmeasured:
             rec = state.captured[i]
-            imgs = [cv2.imread(str(self.dir / p), cv2.IMREAD_GRAYSCALE) for p in rec.images]
+            imgs = [read_image(self.dir / p) for p in rec.images]
             if any(im is None for im in imgs):
                 raise InputError(f"{self.dir}: image of pose {rec.name} is missing or unreadable")
             search = rec.search or search_boxes(
                 self.s.camera.rig, self.s.predicted_plate(rec.q, rec.pan), self.s.target
             )
-            self.submit_measure(i, rec.name, imgs[0], imgs[1], rec.pan, search)
+            bits = int((rec.camera or {}).get("bits", 8))
+            self.submit_measure(i, rec.name, imgs[0], imgs[1], rec.pan, search, bits=bits)
         self.drain()
+
+
+def read_image(path: Path) -> Image | None:
+    """A stored image at its depth (8-bit, or 16-bit PNG/TIFF of a deeper camera)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.ndim != 2 or img.dtype not in (np.uint8, np.uint16):
+        return None
+    return img  # type: ignore[no-any-return]

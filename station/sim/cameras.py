@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -17,8 +18,8 @@ from numpy.typing import NDArray
 
 from ...vision.boards import TargetDescription
 from ...vision.camera import CameraModel, StereoRig
-from ...vision.render import Imaging, render_target
-from ..hardware.cameras import StereoFrame
+from ...vision.render import Imaging, quantize, render_target
+from ..hardware.cameras import CameraIdentity, StereoFrame
 
 F = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -61,13 +62,30 @@ class SimStereoCamera:
         self.rig = rig
         self._scene = target
         self._imaging = imaging or Imaging()
-        self._quiet = Imaging(**{**self._imaging.__dict__, "noise_dn": 0.0})
+        self._quiet = replace(self._imaging, noise_dn=0.0)
         self._rng = np.random.default_rng(seed)
+        self._static_objs = list(static)
         self._static = [
             self._render_static(cam, [(self._to_cam(i, T), d) for T, d in static])
             for i, cam in enumerate(rig.cameras)
         ]
         self.n_captures = 0
+        self.identities = (
+            CameraIdentity(model="simulated renderer", serial="sim-left"),
+            CameraIdentity(model="simulated renderer", serial="sim-right"),
+        )
+
+    def set_gain(self, gain: float) -> None:
+        """The scene's brightness relative to nominal (an exposure change of the emulated
+        cameras): the static board is rendered again when it changes."""
+        if abs(gain - self._imaging.gain) < 1e-9:
+            return
+        self._imaging = replace(self._imaging, gain=float(gain))
+        self._quiet = replace(self._imaging, noise_dn=0.0)
+        self._static = [
+            self._render_static(cam, [(self._to_cam(i, T), d) for T, d in self._static_objs])
+            for i, cam in enumerate(self.rig.cameras)
+        ]
 
     def _to_cam(self, i: int, T_left: F) -> F:
         return T_left if i == 0 else self.rig.T_right_left @ T_left
@@ -109,19 +127,28 @@ class SimStereoCamera:
             if st is not None:
                 simg, smask = st
                 m = smask & ~tmask
-                noisy = simg.astype(np.float32) + self._rng.normal(
+                scale = np.float32(255.0 / self._imaging.full_scale)
+                noisy = simg.astype(np.float32) * scale + self._rng.normal(
                     0.0, self._imaging.noise_dn, simg.shape
                 ).astype(np.float32)
-                img = np.where(m, np.clip(np.rint(noisy), 0, 255).astype(np.uint8), img)
+                img = np.where(m, quantize(noisy, self._imaging.bits), img)
             out.append(img)
         self.n_captures += 1
-        return StereoFrame(out[0], out[1], times[0], times[1], {"simulated": True})
+        return StereoFrame(
+            out[0],
+            out[1],
+            times[0],
+            times[1],
+            {"simulated": True},
+            bits=self._imaging.bits,
+            trigger="software",
+        )
 
     def _background(self, h: int, w: int) -> U8:
         im = self._imaging
         level = im.dark_dn + im.background * (im.white_dn - im.dark_dn) * im.gain
-        noise = self._rng.normal(0.0, im.noise_dn, (h, w))
-        return np.clip(np.rint(level + noise), 0, 255).astype(np.uint8)
+        noise = self._rng.normal(0.0, im.noise_dn, (h, w)).astype(np.float32)
+        return quantize(noise + np.float32(level), im.bits)
 
     def close(self) -> None:
         pass
@@ -147,3 +174,31 @@ def _plate_mask(cam: CameraModel, T_cam_obj: F, d: TargetDescription) -> NDArray
     cv2.fillConvexPoly(mask, np.round(px).astype(np.int32), 1)
     mask = cv2.dilate(mask, np.ones((5, 5), np.uint8))
     return mask.astype(bool)
+
+
+#: The emulated cameras' exposure that gives the renderer's nominal brightness (µs).
+NOMINAL_EXPOSURE_US = 10_000.0
+
+
+class EmulatorFeed:
+    """Puts the rendered scene in front of a camera SDK's emulated cameras.
+
+    The ``prepare`` hook of :class:`~quickhealth.station.hardware.cameras.genicam.TriggeredStereoCamera`:
+    before each trigger it renders the pair (:class:`SimStereoCamera`, at the brightness of
+    the emulated cameras' exposure) and hands each image to its emulated device
+    (``device.show(image)``), which serves it on the trigger.  ``shown`` keeps the last pair
+    put in front of the cameras (a test compares the delivered frames with it)."""
+
+    def __init__(self, renderer: SimStereoCamera) -> None:
+        self.renderer = renderer
+        self.shown: tuple[np.ndarray, np.ndarray] | None = None
+        self.n = 0
+
+    def __call__(self, devices: Sequence[object]) -> None:
+        exposure = getattr(devices[0], "exposure_us", None)
+        self.renderer.set_gain(1.0 if not exposure else float(exposure) / NOMINAL_EXPOSURE_US)
+        frame = self.renderer.capture()
+        for dev, img in zip(devices, (frame.left, frame.right), strict=True):
+            dev.show(img)  # type: ignore[attr-defined]
+        self.shown = (frame.left, frame.right)
+        self.n += 1

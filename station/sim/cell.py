@@ -24,14 +24,19 @@ SYNOPSIS
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from ...identify.errors import InputError
 from ...identify.transforms import inv_T
+from ...vision.render import Imaging
 from ..hardware.cameras import StereoCamera
+from ..hardware.cameras.config import CameraConfig
+from ..hardware.cameras.registry import open_cameras
 from ..hardware.motor import PanMotor, SerialPanMotor
 from ..hardware.robot import Robot, UrRobot
 from ..hardware.target import T_target_plate
@@ -39,7 +44,7 @@ from ..planning import load_cell
 from ..planning.cell import Cell
 from ..station import Station
 from .arm import controller_arm
-from .cameras import SimStereoCamera, scaled_rig
+from .cameras import EmulatorFeed, SimStereoCamera, scaled_rig
 from .fake_robot import FakeRobot
 from .motor_emulator import MotorEmulator
 from .process import SimControllerHandle, start_sim_controller
@@ -56,7 +61,7 @@ class SimCell:
     emulator: MotorEmulator
     robot: UrRobot
     motor: SerialPanMotor
-    camera: SimStereoCamera
+    camera: StereoCamera  # the renderer, or the backend that sees it (emulated cameras)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def true_plate(self) -> np.ndarray:
@@ -103,6 +108,7 @@ def start_sim_cell(
     speed_factor: float = 1.0,
     degrade: dict[str, float] | None = None,
     sim_options: dict[str, Any] | None = None,
+    cameras: CameraConfig | None = None,
 ) -> SimCell:
     """Start the simulated cell and connect the real drivers to it.
 
@@ -120,6 +126,9 @@ def start_sim_cell(
         More options of the controller simulator (:func:`~.process.start_sim_controller`):
         ``calibration``, ``delays`` (short ones for tests: ``states.TESTING.spec()``),
         ``controller_version``, ``powered_off``, ``programs``, ``payload_kg``.
+    cameras : CameraConfig, optional
+        The camera backend the station sees through (:func:`emulated_cameras`); None: the
+        rendered pair directly.
     """
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
     sim = start_sim_controller(
@@ -144,9 +153,16 @@ def start_sim_cell(
             pan = math.radians(emu.position_deg())
             return [(T0 @ T_target_plate(pan), world.target)]
 
-        camera = SimStereoCamera(
-            rig, scene, static=[(world.T_instr_board, world.board)], seed=camera_seed
+        renderer = SimStereoCamera(
+            rig,
+            scene,
+            static=[(world.T_instr_board, world.board)],
+            seed=camera_seed,
+            imaging=Imaging(bits=cameras.bits) if cameras is not None else None,
         )
+        camera: StereoCamera = renderer
+        if cameras is not None:
+            camera = emulated_cameras(cameras, renderer)
     except BaseException:
         if robot is not None:
             robot.close()
@@ -156,6 +172,20 @@ def start_sim_cell(
         emu.stop()
         raise
     return SimCell(world, sim, emu, robot, motor, camera)
+
+
+def emulated_cameras(cfg: CameraConfig, renderer: SimStereoCamera) -> StereoCamera:
+    """The simulated cell seen through a real camera backend: the renderer's pair is put in
+    front of the SDK's own emulated cameras (:class:`~.cameras.EmulatorFeed`), which the
+    backend triggers and checks as real ones (``pylon``: pypylon's camera emulation;
+    ``aravis``: Aravis' fake GigE Vision cameras), or a recorded folder (``files``)."""
+    if cfg.backend == "opencv":
+        raise InputError("--sim cannot see through webcams: choose pylon, aravis or files")
+    if cfg.backend == "pylon":
+        os.environ.setdefault("PYLON_CAMEMU", "2")  # before pylon lists its cameras
+    if cfg.backend == "files":
+        return open_cameras(cfg, renderer.rig)
+    return open_cameras(cfg, renderer.rig, prepare=EmulatorFeed(renderer))
 
 
 def sim_station(
@@ -168,6 +198,7 @@ def sim_station(
     degrade: dict[str, float] | None = None,
     camera_seed: int = 0,
     sim_options: dict[str, Any] | None = None,
+    cameras: CameraConfig | None = None,
 ) -> tuple[Station, SimCell]:
     """A run's :class:`~quickhealth.station.station.Station` on the built-in simulated cell, and
     the :class:`SimCell` behind it.
@@ -187,15 +218,18 @@ def sim_station(
         degrade=degrade,
         camera_seed=camera_seed,
         sim_options=sim_options,
+        cameras=cameras,
     )
     w = sc.world
+    through = "" if cameras is None else f" through {cameras.describe()}"
     st = station_in_world(
         c,
         w,
         sc.robot,
         sc.motor,
         sc.camera,
-        instrument=f"simulated stereo camera ({w.rig.left.image_size[0] * image_scale:.0f} px wide)",
+        instrument=f"simulated stereo camera ({w.rig.left.image_size[0] * image_scale:.0f} px wide)"
+        + through,
         robot_name=sim_robot_name(c),
         closers=[sc.stop_simulators],
     )

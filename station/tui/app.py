@@ -10,7 +10,7 @@ technician moves between them with the number keys::
     5 Diagnose  measured vs model, candidate effects, add one and refit
     6 History   this robot's runs over time
 
-The App talks only to a :class:`~quickhealth.station.tui.facade.Station`, given to it in
+The App talks only to a :class:`~quickhealth.station.tui.facade.Facade`, given to it in
 ``__init__``.  Everything slow (robot motion, fits, diagnosis) runs in thread workers on the
 screens, which update the UI with ``call_from_thread``: the UI never blocks.
 """
@@ -20,7 +20,7 @@ from __future__ import annotations
 from textual.app import App
 from textual.binding import Binding
 
-from .facade import Station
+from .facade import Facade
 from .screens.confirm import ConfirmScreen
 from .screens.diagnose import DiagnoseScreen
 from .screens.history import HistoryScreen
@@ -57,7 +57,7 @@ class QuickhealthApp(App[int]):
         Binding("question_mark", "toggle_help", "Keys"),
     ]
 
-    def __init__(self, station: Station) -> None:
+    def __init__(self, station: Facade) -> None:
         super().__init__()
         self.station = station
         self.sub_title = station.title()

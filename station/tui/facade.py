@@ -1,4 +1,4 @@
-"""The Station facade: the only thing the technician's App talks to.
+"""The facade: the only thing the technician's App talks to.
 
 It wraps the pieces the screens show and returns the small frozen records of
 :mod:`quickhealth.station.tui.views`:
@@ -47,8 +47,8 @@ from ..run.settings import RunSettings
 from ..services.checking import load_baseline, quick_check
 from ..services.fitting import write_fit
 from ..services.options import TUI_THRESHOLD_MM, FitOptions
+from ..station import HardwareConfig, real_station
 from ..station import Station as Hardware
-from ..station import real_station
 from . import jobs
 from .cell import CellControl
 from .offload import offload, warm_up
@@ -266,7 +266,7 @@ class Analysis:
 # ------------------------------------------------------------------------------------------
 
 
-class Station:
+class Facade:
     """Everything the technician's App can ask of the station (see the module docstring).
 
     Build it with :meth:`open` (the real cell), :func:`.simulated.open_simulated` /
@@ -333,29 +333,36 @@ class Station:
         robot_name: str | None = None,
         robot_ip: str | None = None,
         motor_port: str | None = None,
-        cameras: tuple[str, str] | None = None,
+        cameras: str | None = None,
         calibration: str | None = None,
         n_poses: int = 40,
         threshold_mm: float = TUI_THRESHOLD_MM,
         run_id: str | None = None,
         say: Callable[[str], None] | None = None,
-    ) -> Station:
-        """The station for ``quickhealth tui`` on the real cell: UR robot, serial pan motor,
-        two cameras (``quickhealth tui --sim``: :func:`~.simulated.open_simulated`).
+    ) -> Facade:
+        """The facade for ``quickhealth tui`` on the real cell: UR robot, serial pan motor,
+        the configured stereo pair (``quickhealth tui --sim``: :func:`~.simulated.open_simulated`).
 
-        ``say`` receives a line before each slow step (planning, connecting).  The robot is
-        the cell's arm carrying the cell's smart target, named ``robot_name`` (default: the
-        arm's name) in the archive."""
+        The hardware is the run's :class:`~quickhealth.station.station.Station`, assembled
+        from the same :class:`~quickhealth.station.station.HardwareConfig` as ``run`` and
+        ``check`` (``cameras``: ``--cameras`` as they take it).  ``say`` receives a line
+        before each slow step (planning, connecting).  The robot is the cell's arm carrying
+        the cell's smart target, named ``robot_name`` (default: the arm's name) in the
+        archive."""
         tell = say or (lambda line: None)
+        if not (robot_ip and motor_port and calibration):
+            raise InputError("tui: a real station needs --robot-ip, --motor-port and --calibration")
+        config = HardwareConfig.from_options(
+            cell,
+            robot_ip=robot_ip,
+            motor_port=motor_port,
+            cameras=cameras,
+            calibration=calibration,
+            robot_name=robot_name,
+        )
         c, the_plan = cell_and_plan(cell, plan, n_poses, tell)
         tell(f"connecting to the robot at {robot_ip}…")
-        if not (robot_ip and motor_port and cameras and calibration):
-            raise InputError(
-                "tui: a real station needs --robot-ip, --motor-port, --cameras and --calibration"
-            )
-        hw = real_station(
-            cell, robot_ip, motor_port=motor_port, cameras=cameras, calibration=calibration
-        )
+        hw = real_station(config)
         return cls(
             robot=c.robot_with_target(),
             robot_name=robot_name or c.robot.name,
@@ -382,8 +389,8 @@ class Station:
         run_id: str | None = None,
         threshold_mm: float = TUI_THRESHOLD_MM,
         max_order: int = FitOptions.max_order,
-    ) -> Station:
-        """A station on an existing measurement file (CSV v1): results, diagnose, history."""
+    ) -> Facade:
+        """A facade on an existing measurement file (CSV v1): results, diagnose, history."""
         model = load_robot(robot)
         meas = read_measurements(measurements, model.n_joints)
         held = None if heldout is None else read_measurements(heldout, model.n_joints)

@@ -1,7 +1,7 @@
 """The technician's App on the built-in simulated cell (``quickhealth tui --sim``, tests, demos).
 
 The App's real path (:mod:`.app`, :mod:`.facade`, the screens) never imports the simulation;
-this module builds a :class:`~.facade.Station` on a simulated cell of
+this module builds a :class:`~.facade.Facade` on a simulated cell of
 :mod:`quickhealth.station.sim.cell` instead of the real hardware:
 
 - :func:`open_simulated`: the UR controller simulator in its own process behind the real
@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..hardware.cameras.config import for_simulation
 from ..hardware.target import reference_target
 from ..planning.cell import Cell
 from ..planning.planfile import Plan
 from ..run.settings import RunSettings
 from ..sim.cell import inprocess_sim_station, sim_station
-from .facade import Station, cell_and_plan, make_plan, new_run_id
+from .facade import Facade, cell_and_plan, make_plan, new_run_id
 
 
 def open_simulated(
@@ -38,7 +39,8 @@ def open_simulated(
     say: Callable[[str], None] | None = None,
     speed_factor: float = 1.0,
     image_scale: float | None = None,
-) -> Station:
+    cameras: str | None = None,
+) -> Facade:
     """The station for ``quickhealth tui --sim``: controller simulator subprocess, emulated pan
     motor, rendered cameras.  ``say`` receives a line before each slow step.  The simulated
     sensor is ``image_scale`` of the reference one, by default :func:`sensor_scale` of the
@@ -49,8 +51,13 @@ def open_simulated(
     c, the_plan = cell_and_plan(cell, plan, n_poses, tell)
     tell("starting the simulated cell (UR controller simulator, pan motor, cameras)…")
     scale = sensor_scale(c, the_plan) if image_scale is None else image_scale
-    hw, simcell = sim_station(cell, image_scale=scale, speed_factor=speed_factor)
-    station = Station(
+    hw, simcell = sim_station(
+        cell,
+        image_scale=scale,
+        speed_factor=speed_factor,
+        cameras=for_simulation(c.cameras, cameras),  # as run --sim: one parser for every door
+    )
+    station = Facade(
         robot=c.robot_with_target(),
         robot_name=robot_name or f"{c.robot.name}-sim",
         archive_root=Path(archive),
@@ -99,7 +106,7 @@ def in_process(
     robot_name: str = "sim-ur5",
     threshold_mm: float = 2.0,
     max_order: int | None = None,
-) -> Station:
+) -> Facade:
     """The built-in simulated cell, in this process (fast; for tests and demos).
 
     The arm is the pure-Python :class:`~quickhealth.station.sim.fake_robot.FakeRobot`
@@ -114,7 +121,7 @@ def in_process(
     )
     if plan is None:
         plan = make_plan(cell, n_candidates, plan_seed)
-    return Station(
+    return Facade(
         robot=cell.robot_with_target(),
         robot_name=robot_name,
         archive_root=Path(archive_root),

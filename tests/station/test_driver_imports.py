@@ -30,6 +30,11 @@ DRIVERS = [
     "quickhealth.station.hardware.owner",
     "quickhealth.station.hardware.motor",
     "quickhealth.station.hardware.cameras",
+    "quickhealth.station.hardware.cameras.registry",
+    "quickhealth.station.hardware.cameras.genicam",
+    "quickhealth.station.hardware.cameras.pylon",
+    "quickhealth.station.hardware.cameras.files",
+    "quickhealth.station.hardware.cameras.opencv",
     "quickhealth.station.hardware.urtypes",
     "quickhealth.station.hardware.target",
     "quickhealth.station.hardware.legs",
@@ -142,12 +147,14 @@ def test_world_emulator_and_simulated_cameras_live_in_the_simulation() -> None:
         assert (ROOT / "station" / "sim" / f"{name}.py").is_file(), name
     for name in ("world", "motor_emulator"):
         assert not (ROOT / "station" / "hardware" / f"{name}.py").exists(), name
-    assert "class SimStereoCamera" not in (ROOT / "station/hardware/cameras.py").read_text()
+    for path in (ROOT / "station/hardware/cameras").glob("*.py"):
+        assert "class SimStereoCamera" not in path.read_text(), path
 
 
 def test_the_old_simulator_modules_are_gone_from_the_drivers() -> None:
     hw = ROOT / "station" / "hardware"
-    for path in sorted(hw.glob("*.py")):
-        mod = f"quickhealth.station.hardware.{path.stem}"
+    for path in sorted(hw.rglob("*.py")):
+        rel = path.relative_to(hw).with_suffix("")
+        mod = ".".join(("quickhealth.station.hardware", *rel.parts)).removesuffix(".__init__")
         hits = [m for m in imports_of(mod, path) if m == SIM or m.startswith(SIM + ".")]
         assert not hits, f"{path.relative_to(ROOT)} imports {hits}"

@@ -85,7 +85,7 @@ def test_twin_diagnose_fit_predict_through_the_cli(case: str, tmp_path: Path, ca
 def _other_doors(case: str, effects: str, truth: set[str], meas: Path, tmp_path: Path) -> None:
     """compare, reprocess and the TUI's "add effect" with the same effects on the same data."""
     from quickhealth.station.reprocess import ReprocessJob, reprocess_run
-    from quickhealth.station.tui.facade import Station
+    from quickhealth.station.tui.facade import Facade
 
     heldout = tmp_path / "meas.heldout.csv"
     # compare: the model without and with the effects, judged on the held-out poses
@@ -111,7 +111,7 @@ def _other_doors(case: str, effects: str, truth: set[str], meas: Path, tmp_path:
     # and test_tui_adds_thermal_and_drift_and_writes_the_report: every family, ~1 s per effect)
     if case not in TUI_CASES:
         return
-    station = Station.from_data(meas, heldout, archive_root=tmp_path / "arch", run_id=case)
+    station = Facade.from_data(meas, heldout, archive_root=tmp_path / "arch", run_id=case)
     for effect in sorted(truth):
         refit = station.add_effect(effect)
         assert effect in refit.effects_after and refit.after_mm < refit.before_mm, (case, refit)
@@ -141,11 +141,11 @@ def test_predict_names_the_conditions_it_assumed(tmp_path: Path, capsys) -> None
 
 @pytest.mark.slow
 def test_tui_adds_thermal_and_drift_and_writes_the_report(tmp_path: Path) -> None:
-    from quickhealth.station.tui.facade import Station
+    from quickhealth.station.tui.facade import Facade
 
     meas = tmp_path / "run" / "measurements.csv"
     _qh("twin", "--effects", "thermal=5e-5,drift=2e-4", "--n", 80, "--seed", 6, "--out", meas)
-    station = Station.from_data(meas, archive_root=tmp_path / "archive", run_id="t1")
+    station = Facade.from_data(meas, archive_root=tmp_path / "archive", run_id="t1")
     for effect in ("thermal", "drift"):
         refit = station.add_effect(effect)
         assert effect in refit.effects_after

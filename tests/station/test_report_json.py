@@ -20,7 +20,7 @@ from quickhealth.station.formats import check_report, write_measurements
 from quickhealth.station.reporting.verdict import HealthVerdict, Threshold
 from quickhealth.station.reprocess import jobs_for_archive, reprocess
 from quickhealth.station.tui.app import QuickhealthApp
-from quickhealth.station.tui.facade import Station
+from quickhealth.station.tui.facade import Facade
 
 MAX_ORDER = 2
 ROBOT, RUN = "ur5-a", "r1"
@@ -88,7 +88,7 @@ async def test_every_door_gives_one_verdict_and_one_report(tmp_path: Path, capsy
     cli = json.loads((archived / "report.json").read_text())
 
     # 2. the TUI's analysis (Results screen) on the same file, in its own archive
-    station = Station.from_data(
+    station = Facade.from_data(
         meas_csv, archive_root=tmp_path / "archive-tui", robot_name=ROBOT, max_order=MAX_ORDER
     )
     station.analysis.effects = ("thermal",)

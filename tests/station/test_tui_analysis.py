@@ -16,7 +16,7 @@ from textual.worker import WorkerState
 from quickhealth.identify.twin import make_twin, random_joints
 from quickhealth.station.formats import write_measurements
 from quickhealth.station.tui.app import QuickhealthApp
-from quickhealth.station.tui.facade import Station
+from quickhealth.station.tui.facade import Facade
 
 
 def hidden_effect_files(tmp: Path, n_train: int = 60, n_held: int = 60) -> tuple[Path, Path]:
@@ -34,7 +34,7 @@ def hidden_effect_files(tmp: Path, n_train: int = 60, n_held: int = 60) -> tuple
 @pytest.mark.slow
 async def test_diagnose_loop_on_hidden_effect_lowers_heldout_error(tmp_path: Path) -> None:
     train, held = hidden_effect_files(tmp_path)
-    station = Station.from_data(train, held, archive_root=tmp_path / "archive", robot_name="ur5-t")
+    station = Facade.from_data(train, held, archive_root=tmp_path / "archive", robot_name="ur5-t")
     app = QuickhealthApp(station)
     async with app.run_test(size=(120, 40)) as pilot:
         await pilot.press("5")
@@ -71,7 +71,7 @@ async def test_diagnose_loop_on_hidden_effect_lowers_heldout_error(tmp_path: Pat
 @pytest.mark.slow
 async def test_results_history_and_ui_live_while_the_fit_runs(tmp_path: Path) -> None:
     train, held = hidden_effect_files(tmp_path, n_train=60, n_held=10)
-    station = Station.from_data(train, held, archive_root=tmp_path / "archive", threshold_mm=5.0)
+    station = Facade.from_data(train, held, archive_root=tmp_path / "archive", threshold_mm=5.0)
     app = QuickhealthApp(station)
     async with app.run_test(size=(120, 40)) as pilot:
         await pilot.press("4")  # Results: starts the fit (a worker, the fit in a child process)

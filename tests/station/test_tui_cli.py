@@ -8,7 +8,7 @@ from quickhealth.identify.twin import make_twin, random_joints
 from quickhealth.station.cli import main
 from quickhealth.station.formats import write_measurements
 from quickhealth.station.tui.app import QuickhealthApp
-from quickhealth.station.tui.facade import Station
+from quickhealth.station.tui.facade import Facade
 
 
 def test_tui_needs_a_station(capsys) -> None:  # type: ignore[no-untyped-def]
@@ -31,7 +31,7 @@ async def test_q_quits_from_any_screen_and_help_lists_keys(tmp_path: Path) -> No
     q = random_joints(twin.robot, 12, seed=4, T_instr_base=twin.truth.T_instr_base)
     (tmp_path / "r").mkdir()
     write_measurements(tmp_path / "r" / "measurements.csv", twin.measure(q, seed=5))
-    station = Station.from_data(tmp_path / "r" / "measurements.csv", archive_root=tmp_path / "a")
+    station = Facade.from_data(tmp_path / "r" / "measurements.csv", archive_root=tmp_path / "a")
     app = QuickhealthApp(station)
     async with app.run_test(size=(80, 24)) as pilot:
         await pilot.press("3")

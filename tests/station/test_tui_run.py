@@ -14,7 +14,7 @@ from qh_tui import ended, journal_indices, run_until_first_pose, settle, start_r
 from quickhealth.station.planning import load_cell
 from quickhealth.station.run.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.tui.app import QuickhealthApp
-from quickhealth.station.tui.facade import Station, make_plan
+from quickhealth.station.tui.facade import Facade, make_plan
 from quickhealth.station.tui.screens.confirm import ConfirmScreen
 from quickhealth.station.tui.simulated import in_process
 
@@ -27,7 +27,7 @@ def plan():  # type: ignore[no-untyped-def]
     return p
 
 
-def sim_station(tmp: Path, plan) -> Station:  # type: ignore[no-untyped-def]
+def sim_station(tmp: Path, plan) -> Facade:  # type: ignore[no-untyped-def]
     return in_process(tmp / "archive", plan=plan, max_order=1, threshold_mm=5.0)
 
 
@@ -207,7 +207,7 @@ def test_a_protective_stop_is_named_with_what_to_do() -> None:
 async def test_station_screen_refuses_preflight_and_connect_during_a_run(
     tmp_path: Path, plan
 ) -> None:  # type: ignore[no-untyped-def]
-    """f and c on the Station screen would reach into the devices the run is using: while a
+    """f and c on the Facade screen would reach into the devices the run is using: while a
     run goes (here: paused between poses) both refuse, and neither touches a device."""
     station = sim_station(tmp_path, plan)
     cell = station.cell

@@ -19,7 +19,7 @@ import pytest
 from quickhealth.identify.twin import make_twin, random_joints
 from quickhealth.station.formats import write_measurements
 from quickhealth.station.tui.app import QuickhealthApp
-from quickhealth.station.tui.facade import Station
+from quickhealth.station.tui.facade import Facade
 
 SNAPSHOTS = Path(__file__).parent / "__snapshots__" / "test_tui_snapshots"
 SIZES = [(80, 24), (120, 40)]
@@ -41,7 +41,7 @@ def assert_snapshot(app: QuickhealthApp, name: str, tmp: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def data_station(tmp_path_factory: pytest.TempPathFactory) -> Station:
+def data_station(tmp_path_factory: pytest.TempPathFactory) -> Facade:
     """A station on a twin data set (hidden backlash of joint 2), fitted once for all sizes."""
     tmp = tmp_path_factory.mktemp("snap")
     twin = make_twin(seed=21, effects={"backlash:j2": 4e-4})
@@ -51,7 +51,7 @@ def data_station(tmp_path_factory: pytest.TempPathFactory) -> Station:
     meta = {"run_id": "2026-11-01-nightly", "time_utc": "2026-11-01T02:00:00Z"}
     write_measurements(run / "measurements.csv", twin.measure(q[:30], seed=23, meta=meta))
     write_measurements(tmp / "heldout.csv", twin.measure(q[30:], seed=24))
-    return Station.from_data(
+    return Facade.from_data(
         run / "measurements.csv",
         tmp / "heldout.csv",
         archive_root=tmp / "archive",
@@ -70,7 +70,7 @@ async def visit(app: QuickhealthApp, pilot, key: str) -> None:  # type: ignore[n
 
 @pytest.mark.slow
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
-async def test_main_screens(data_station: Station, size: tuple[int, int], tmp_path: Path) -> None:
+async def test_main_screens(data_station: Facade, size: tuple[int, int], tmp_path: Path) -> None:
     tag = f"{size[0]}x{size[1]}"
     app = QuickhealthApp(data_station)
     async with app.run_test(size=size) as pilot:

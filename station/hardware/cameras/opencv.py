@@ -1,78 +1,26 @@
-"""Stereo cameras: the :class:`StereoCamera` interface and two real cameras through OpenCV.
-
-A camera implements :class:`StereoCamera`: ``capture()`` returns a :class:`StereoFrame` (two
-8-bit grey images, each with its capture time) and ``rig`` is the calibrated
-:class:`~quickhealth.vision.camera.StereoRig` the measurement uses.
+"""Webcams through OpenCV (``--cameras opencv``, or ``LEFT,RIGHT``).
 
 - :class:`OpenCvStereoCamera` — two ``cv2.VideoCapture`` devices.  Synchronised as far as
   the hardware allows: both sensors are latched with ``grab()`` back to back, then decoded
   with ``retrieve()``; the skew between the two grabs is recorded, and a pair whose skew
   exceeds ``max_skew_s`` is captured again.  Cameras with a hardware trigger input should be
   wired to one trigger line; the grab order then only selects the frames.
-
-The simulated pair (rendered images of the digital twin's true poses) is
-:class:`quickhealth.station.sim.cameras.SimStereoCamera`: real hardware never imports it.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ...identify.errors import HardwareError
-from ...vision.camera import StereoRig
+from ....identify.errors import HardwareError
+from ....vision.camera import StereoRig
+from . import CameraIdentity, StereoFrame
+from .config import CameraConfig
 
 F = NDArray[np.float64]
 U8 = NDArray[np.uint8]
-
-
-@dataclass(frozen=True, eq=False)
-class StereoFrame:
-    """One stereo capture.
-
-    Attributes
-    ----------
-    left, right : ndarray (h, w) uint8
-    t_left, t_right : float
-        Capture times, s (``time.monotonic`` clock of this computer).
-    meta : dict
-        Extra facts (device names, exposure, skew).
-    """
-
-    left: U8
-    right: U8
-    t_left: float
-    t_right: float
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def time(self) -> float:
-        """Mid-point of the two capture times, s."""
-        return 0.5 * (self.t_left + self.t_right)
-
-    @property
-    def skew(self) -> float:
-        """Time between the two captures, s."""
-        return abs(self.t_right - self.t_left)
-
-
-@runtime_checkable
-class StereoCamera(Protocol):
-    """A calibrated stereo pair that captures on request."""
-
-    rig: StereoRig
-
-    def capture(self) -> StereoFrame:
-        """Capture both images now (raises HardwareError when a camera fails)."""
-        ...
-
-    def close(self) -> None:
-        """Release the devices."""
-        ...
 
 
 class OpenCvStereoCamera:
@@ -103,6 +51,9 @@ class OpenCvStereoCamera:
         self.max_skew_s = max_skew_s
         self.attempts = attempts
         self._names = (str(left), str(right))
+        self.identities = tuple(
+            CameraIdentity(model="OpenCV VideoCapture", serial=n) for n in self._names
+        )
         self._caps = []
         for dev, cam in ((left, rig.left), (right, rig.right)):
             cap = cv2.VideoCapture(dev)
@@ -142,7 +93,12 @@ class OpenCvStereoCamera:
                 imgs.append(img)
             if len(imgs) == 2:
                 return StereoFrame(
-                    imgs[0], imgs[1], t0, t1, {"devices": self._names, "skew_s": t1 - t0}
+                    imgs[0],
+                    imgs[1],
+                    t0,
+                    t1,
+                    {"devices": self._names, "skew_s": t1 - t0},
+                    trigger="free",
                 )
         raise HardwareError(
             f"cameras {self._names[0]}/{self._names[1]} gave no synchronised pair in "
@@ -153,3 +109,11 @@ class OpenCvStereoCamera:
         for cap in self._caps:
             cap.release()
         self._caps = []
+
+
+def open_opencv(cfg: CameraConfig, rig: StereoRig, **kw: object) -> OpenCvStereoCamera:
+    """The pair of ``cfg`` through OpenCV (ids: device indices or paths)."""
+    dev = [int(i) if i.isdigit() else i for i in cfg.ids]
+    return OpenCvStereoCamera(
+        dev[0], dev[1], rig, max_skew_s=max(cfg.max_skew_s, 0.005), attempts=cfg.attempts
+    )
