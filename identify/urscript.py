@@ -2,18 +2,23 @@
 
 A pure reader of a program's *text* (no files): it knows comments (``#`` to the end of the
 line), string literals (``"…"`` and ``'…'`` with backslash escapes), brackets nested to any
-depth, and whitespace or comments between a function name and its ``(``.  A move command
-(``movej``, ``movel``, ``movep``, ``servoj``) whose first argument is a literal joint list
-``[q1, …, qN]`` (numbers in rad, an optional sign each) is a *readable* target.  Every
-other first argument -- a variable, a pose literal ``p[…]``, an expression, a list of the
-wrong length -- is an *unreadable* target, reported with its line and column and never
-guessed.  Text inside comments and strings is never a target.
+depth, and whitespace or comments between a function name and its ``(``.  Every motion
+command of the URScript manual is known (:data:`MOTIONS`).  A move to a target
+(:data:`TARGET_MOVES`: ``movej``, ``movel``, ``movep``, ``movec``, ``servoj``, ``servoc``,
+``optimovej``, ``optimovel``) whose target argument is a literal joint list ``[q1, …, qN]``
+(numbers in rad, an optional sign each) is a *readable* target; ``movec`` has two, its via
+point and its end point, in that order.  Every other target -- a variable, a pose literal
+``p[…]``, an expression, a list of the wrong length -- and every motion without a joint
+target (:data:`UNTARGETED_MOTIONS`: ``speedj``, ``speedl``, ``force_mode`` …) is
+*unreadable*, reported with its line and column and never guessed or skipped: the robot
+would otherwise move where nobody compensated, and every later approach direction would be
+taken as if that move had not happened.  Text inside comments and strings is never a target.
 
 SYNOPSIS::
 
     t = joint_targets(text, n_joints=6)
     t.q, t.lines, t.spans          # readable targets (rad), their lines, their list contents
-    t.unreadable                   # (line, column, command, why) of every other move
+    t.unreadable                   # (line, column, command, why) of every other motion
     new_text = replace_targets(text, t.spans, q_new)
 """
 
@@ -30,7 +35,25 @@ from .errors import InputError
 
 F = NDArray[np.float64]
 
-MOVES = ("movej", "movel", "movep", "servoj")
+#: Moves to a target given as their first argument (``movec``: via and end point, the first
+#: two); a literal joint list there is rewritten by ``compensate``.
+TARGET_MOVES = ("movej", "movel", "movep", "movec", "servoj", "servoc", "optimovej", "optimovel")
+#: Motions that take the arm somewhere without a joint target to rewrite (speeds, forces,
+#: hand guiding, offsets and conveyor tracking added to the path).
+UNTARGETED_MOTIONS = (
+    "speedj",
+    "speedl",
+    "force_mode",
+    "freedrive_mode",
+    "teach_mode",
+    "path_offset_enable",
+    "path_offset_set",
+    "track_conveyor_linear",
+    "track_conveyor_circular",
+    "screw_driving",
+)
+MOTIONS = TARGET_MOVES + UNTARGETED_MOTIONS
+MOVES = TARGET_MOVES  # the name earlier versions exported
 
 _TOKEN = re.compile(
     r"""
@@ -108,8 +131,9 @@ class JointTargets:
 
     ``q`` shape (n, n_joints) rad, ``lines`` / ``commands`` / ``spans`` per readable target
     (``spans``: character span of the list's contents, for :func:`replace_targets`);
-    ``unreadable``: ``(line, column, command, why)`` of every move whose target is not a
-    literal joint list of the robot's length.
+    ``unreadable``: ``(line, column, command, why)`` of every motion whose target is not a
+    literal joint list of the robot's length, or that has no joint target.  ``left``: those
+    of them the caller chose to leave as written (``compensate --leave``).
     """
 
     q: F
@@ -117,6 +141,7 @@ class JointTargets:
     commands: tuple[str, ...]
     spans: tuple[tuple[int, int], ...]
     unreadable: tuple[tuple[int, int, str, str], ...]
+    left: tuple[tuple[int, int, str, str], ...] = ()
 
 
 def _close_of(toks: list[Token], i: int) -> int:
@@ -158,8 +183,48 @@ def _literal_list(toks: list[Token]) -> list[float] | None:
     return vals
 
 
+def _top_level_args(args: list[Token]) -> list[list[Token]]:
+    """A call's argument tokens split at its top-level commas."""
+    out: list[list[Token]] = [[]]
+    depth = 0
+    for a in args:
+        if a.kind == "op" and a.text in _OPEN:
+            depth += 1
+        elif a.kind == "op" and a.text in _CLOSE:
+            depth -= 1
+        if depth == 0 and a.kind == "op" and a.text == ",":
+            out.append([])
+        else:
+            out[-1].append(a)
+    return out
+
+
+def _target(
+    text: str, arg: list[Token], n_joints: int
+) -> tuple[list[float], tuple[int, int]] | str:
+    """A literal joint list argument's values and the span of its contents, or why not."""
+    if not arg:
+        return "has no target"
+    first = arg[0]
+    if first.kind == "name" and first.text == "p" and len(arg) > 1 and arg[1].text == "[":
+        return "to a Cartesian pose p[...] has no joint target; use joint lists"
+    if first.text != "[":
+        what = text[first.start : arg[-1].end]
+        what = what if len(what) <= 40 else what[:37] + "..."
+        return f"target {what!r} is not a literal joint list"
+    lclose = _close_of(arg, 0)
+    if lclose != len(arg) - 1:
+        return "target is an expression, not a literal list"
+    vals = _literal_list(arg[1:lclose])
+    if vals is None:
+        return "joint list holds something other than numbers"
+    if len(vals) != n_joints:
+        return f"has {len(vals)} joint values, the robot has {n_joints}"
+    return vals, (arg[0].end, arg[lclose].start)
+
+
 def joint_targets(text: str, n_joints: int) -> JointTargets:
-    """Every ``movej/movel/movep/servoj`` call of a URScript program (see the module doc).
+    """Every motion command of a URScript program (see the module doc).
 
     Raises
     ------
@@ -173,7 +238,7 @@ def joint_targets(text: str, n_joints: int) -> JointTargets:
     spans: list[tuple[int, int]] = []
     bad: list[tuple[int, int, str, str]] = []
     for i, t in enumerate(toks):
-        if t.kind != "name" or t.text not in MOVES:
+        if t.kind != "name" or t.text not in MOTIONS:
             continue
         if i > 0 and toks[i - 1].kind == "name" and toks[i - 1].text == "def":
             continue  # a program defining its own function of that name
@@ -182,49 +247,26 @@ def joint_targets(text: str, n_joints: int) -> JointTargets:
         if i + 1 >= len(toks) or toks[i + 1].text != "(":
             bad.append((t.line, t.col, t.text, "not called with arguments"))
             continue
-        close = _close_of(toks, i + 1)
-        args = toks[i + 2 : close]
-        if not args:
-            bad.append((t.line, t.col, t.text, "has no target"))
-            continue
-        first = args[0]
-        if first.kind == "name" and first.text == "p" and len(args) > 1 and args[1].text == "[":
+        if t.text in UNTARGETED_MOTIONS:
             bad.append(
-                (
-                    t.line,
-                    t.col,
-                    t.text,
-                    "to a Cartesian pose p[...] has no joint target; use joint lists",
-                )
+                (t.line, t.col, t.text, "moves the arm without a joint target to compensate")
             )
             continue
-        if first.text != "[":
-            end = next(
-                (k for k, a in enumerate(args) if a.kind == "op" and a.text == ","), len(args)
-            )
-            what = text[first.start : args[end - 1].end]
-            what = what if len(what) <= 40 else what[:37] + "..."
-            bad.append((t.line, t.col, t.text, f"target {what!r} is not a literal joint list"))
+        args = _top_level_args(toks[i + 2 : _close_of(toks, i + 1)])
+        parts = [("", args[0])] if t.text != "movec" else [("via point ", args[0])]
+        if t.text == "movec":
+            parts.append(("end point ", args[1] if len(args) > 1 else []))
+        found = [(name, _target(text, arg, n_joints)) for name, arg in parts]
+        why = [f"{name}{r}" if name else r for name, r in found if isinstance(r, str)]
+        if why:  # a movec is compensated whole or refused whole
+            bad.append((t.line, t.col, t.text, "; ".join(why)))
             continue
-        lclose = _close_of(args, 0)
-        inner = args[1:lclose]
-        after = args[lclose + 1] if lclose + 1 < len(args) else None
-        if after is not None and after.text != ",":
-            bad.append((t.line, t.col, t.text, "target is an expression, not a literal list"))
-            continue
-        vals = _literal_list(inner)
-        if vals is None:
-            bad.append((t.line, t.col, t.text, "joint list holds something other than numbers"))
-            continue
-        if len(vals) != n_joints:
-            bad.append(
-                (t.line, t.col, t.text, f"has {len(vals)} joint values, the robot has {n_joints}")
-            )
-            continue
-        q.append(vals)
-        lines.append(t.line)
-        cmds.append(t.text)
-        spans.append((args[0].end, args[lclose].start))
+        for _, r in found:
+            assert not isinstance(r, str)
+            q.append(r[0])
+            lines.append(t.line)
+            cmds.append(t.text)
+            spans.append(r[1])
     return JointTargets(
         q=np.array(q, dtype=float).reshape(-1, n_joints),
         lines=tuple(lines),

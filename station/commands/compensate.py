@@ -19,8 +19,9 @@ import numpy as np
 
 from ...identify.errors import InputError
 from ...identify.fit import FittedModel
-from ...identify.urscript import replace_targets
+from ...identify.urscript import MOTIONS, replace_targets
 from .. import formats
+from ..formats import excerpt
 from ..fsio import refuse_overwriting_inputs
 
 if TYPE_CHECKING:  # types only: the compensation loads scipy.optimize, --help must not wait
@@ -60,6 +61,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--leave-out",
         default=None,
         help="comma-separated effects of the model not to compensate (e.g. drift)",
+    )
+    c.add_argument(
+        "--leave",
+        metavar="MOVE",
+        action="append",
+        default=[],
+        help="motion commands to keep as written where their target cannot be compensated "
+        "(a p[...] pose, a variable, speedl, force_mode ...; comma-separated or repeated): "
+        "listed in the summary; without it such a program is refused",
     )
     c.set_defaults(func=_compensate)
 
@@ -105,10 +115,18 @@ def _compensate(args: argparse.Namespace) -> int:
         raise InputError(f"--tcp-mm must be X,Y,Z in mm (finite, within 2000), got {args.tcp_mm!r}")
     T_tcp = np.eye(4)
     T_tcp[:3, 3] = tcp
+    leave = [m.strip() for x in args.leave for m in x.split(",") if m.strip()]
+    unknown = [m for m in leave if m not in MOTIONS]
+    if unknown:
+        raise InputError(
+            f"--leave {excerpt(unknown[0])}: not a URScript motion command ({', '.join(MOTIONS)})"
+        )
     prog = Path(args.program)
     is_script = prog.suffix.lower() in (".script", ".urscript", ".urp")
+    if leave and not is_script:
+        raise InputError("--leave is for URScript programs; a CSV of joints has no commands")
     if is_script:
-        text, targets = formats.read_urscript(prog, nj)
+        text, targets = formats.read_urscript(prog, nj, leave)
         q = targets.q
         where = [f"{prog}:{ln}: target {k + 1}" for k, ln in enumerate(targets.lines)]
     else:
@@ -152,8 +170,27 @@ def _compensate(args: argparse.Namespace) -> int:
     )
     for line in _compensation_notes(fm, comp, args):
         print(line)
+    if is_script and targets.left:
+        print(_left_as_written(targets.left))
     print(f"wrote {args.out}" + (f", {args.errors}" if args.errors else ""))
     return 0
+
+
+def _left_as_written(left: Sequence[tuple[int, int, str, str]]) -> str:
+    """The summary line of the motions ``--leave`` kept as written (never silently)."""
+    by: dict[str, list[str]] = {}
+    for line, _, cmd, _ in left:
+        by.setdefault(cmd, []).append(str(line))
+    what = "; ".join(
+        f"{cmd} at line{'s' if len(ls) > 1 else ''} {', '.join(ls[:8])}"
+        + (" …" if len(ls) > 8 else "")
+        for cmd, ls in by.items()
+    )
+    return (
+        f"left as written (--leave): {len(left)} motion(s), not compensated: {what}; where "
+        "the arm is after them is not modelled, and the next target's approach is taken from "
+        "the target before them"
+    )
 
 
 def _refusals(refused: Sequence[Refused], where: Sequence[str], cap: float) -> list[str]:

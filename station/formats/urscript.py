@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -16,12 +18,17 @@ from .common import findings, read_text_limited
 F = NDArray[np.float64]
 
 
-def read_urscript(path: str | os.PathLike[str], n_joints: int) -> tuple[str, Any]:
+def read_urscript(
+    path: str | os.PathLike[str], n_joints: int, leave: Sequence[str] | None = None
+) -> tuple[str, Any]:
     """A URScript program's text and its joint targets (:mod:`quickhealth.identify.urscript`).
 
-    The one reader of programs for ``predict`` and ``compensate``.  Every move whose target
-    cannot be read (a variable, a pose literal ``p[...]``, an expression, a wrong length) is
-    refused, one line per target (``file:line:column: what``): nothing is guessed.
+    The one reader of programs for ``predict`` and ``compensate``.  Every motion whose
+    target cannot be read (a variable, a pose literal ``p[...]``, an expression, a wrong
+    length) or that has none (``speedl``, ``force_mode`` …) is refused, one line per motion
+    naming it (``file:line:column: what``): nothing is guessed or skipped; except the
+    commands named in ``leave`` (``compensate --leave``; None: the caller has no such
+    option), which stay as written and come back in the targets' ``left``.
 
     Raises
     ------
@@ -38,8 +45,16 @@ def read_urscript(path: str | os.PathLike[str], n_joints: int) -> tuple[str, Any
         t = joint_targets(text, n_joints)
     except InputError as exc:
         raise InputError(f"{p}:{exc}") from None
-    if t.unreadable:
-        raise findings([f"{p}:{line}:{col}: {cmd} {why}" for line, col, cmd, why in t.unreadable])
+    refused = [u for u in t.unreadable if leave is None or u[2] not in leave]
+    if refused:
+        raise findings(
+            [
+                f"{p}:{line}:{col}: {cmd} {why}"
+                + ("" if leave is None else f" (or --leave {cmd} to keep it as written)")
+                for line, col, cmd, why in refused
+            ]
+        )
+    t = replace(t, unreadable=(), left=tuple(u for u in t.unreadable if u[2] in (leave or ())))
     if not len(t.q):
         raise InputError(f"{p}:1:1: no movej/movel with a joint target found")
     return text, t

@@ -2614,6 +2614,53 @@ def _(b, t):
                 r"report\.html", [run / "measurements.csv"], [], check=check)  # fmt: skip
 
 
+# issue 32, failure 5: compensate skipped movec and optimovej and said "0.000000 mm after"
+_Q3 = [0.1, -1.4, 1.3, -0.8, 1.0, 0.1]
+
+
+@case("compensate-every-move-kind-is-compensated")
+def _(b, t):
+    p = _script(t, f"def prog():\n  movej({_list(GOOD_Q)}, a=1.0, v=0.2)\n"
+                   f"  movec({_list(_Q3)}, {_list(GOOD_Q2)}, a=1.0, v=0.1, r=0)\n"
+                   f"  optimovej({_list(GOOD_Q)}, 0.3, 0.3)\n  movej({_list(GOOD_Q2)})\nend\n")  # fmt: skip
+    out = t / "comp.script"
+
+    def check() -> None:
+        before, after = joint_targets(p.read_text(), 6), joint_targets(out.read_text(), 6)
+        assert before.commands == ("movej", "movec", "movec", "optimovej", "movej")
+        assert after.commands == before.commands and not after.unreadable
+        assert np.all(np.abs(after.q - before.q).max(axis=1) > 1e-7)  # every target moved
+
+    return _with(_comp(b, t, None, p), r"^5 targets: predicted TCP error", code=0, absent=[],
+                 check=check)  # fmt: skip
+
+
+@case("compensate-refuses-motions-it-cannot-rewrite")
+def _(b, t):
+    p = _script(t, f"movej({_list(GOOD_Q)})\nmovec(p[0.3, 0, 0.4, 0, 3.14, 0], {_list(GOOD_Q2)})\n"
+                   "speedl([0, 0, 0.05, 0, 0, 0], 0.5, 2.0)\n"
+                   f"servoc(p[0.3, 0.1, 0.4, 0, 3.14, 0])\nmovej({_list(GOOD_Q2)})\n")  # fmt: skip
+    c = _with(_comp(b, t, None, p), r"p\.script:3:1: speedl moves the arm without a joint target "
+              r"to compensate \(or --leave speedl to keep it as written\)")  # fmt: skip
+    c.n_lines = 3  # one line per motion, each naming its command
+    return c
+
+
+@case("compensate-leave-lists-what-was-left")
+def _(b, t):
+    p = _script(t, f"movej({_list(GOOD_Q)})\nspeedl([0, 0, 0.05, 0, 0, 0], 0.5, 2.0)\n"
+                   f"movel(p[0.3, 0, 0.4, 0, 3.14, 0])\nmovej({_list(GOOD_Q2)})\n")  # fmt: skip
+    out = t / "comp.script"
+
+    def check() -> None:
+        new = out.read_text().splitlines()
+        assert new[1:3] == p.read_text().splitlines()[1:3]  # kept as written
+
+    return _with(_comp(b, t, None, p, "--leave", "speedl", "--leave", "movel"),
+                 r"left as written \(--leave\): 2 motion\(s\), not compensated: speedl at line 2; "
+                 r"movel at line 3", code=0, absent=[], check=check)  # fmt: skip
+
+
 # ------------------------------------------------------------------------------ runner
 
 
