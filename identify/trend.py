@@ -268,7 +268,8 @@ class TrendResult:
         return [f for f, c in self.charts.items() if i < len(c.alarms) and c.alarms[i]]
 
     def flags(self, index: int | None = None) -> list[str]:
-        """Reasons a run is flagged, in words; empty = healthy."""
+        """Reasons a run is flagged, in words: the threshold breached, then
+        :meth:`change_flags`; empty = healthy."""
         i = self.latest if index is None else index
         out = []
         if self.breaches[i]:
@@ -277,6 +278,16 @@ class TrendResult:
                 f"{FIGURE_WORDS[self.threshold_figure]} {v:.3f} mm is above the threshold "
                 f"{self.threshold_mm:g} mm"
             )
+        return out + self.change_flags(i)
+
+    def change_flags(self, index: int | None = None) -> list[str]:
+        """How a run changed since the baseline, in words: control-chart alarms, then error
+        curves that changed (largest first).  Always empty for the baseline run itself: a run
+        is never flagged against itself."""
+        i = self.latest if index is None else index
+        out: list[str] = []
+        if i == self.baseline_index:
+            return out
         for f in self.alarms(i):
             c = self.charts[f]
             k = i - self.baseline_index

@@ -50,7 +50,7 @@ from .archive import INDEX_FILE, Archive, safe_name
 from .formats.journal import Captured
 from .formats.vision import read_gray, read_rig
 from .hardware.target import T_target_plate, reference_target, target0_from_plate
-from .reporting.verdict import HealthVerdict, Threshold, ThresholdFigure
+from .reporting.verdict import HealthVerdict, Spec, ThresholdFigure
 from .run.journal import JOURNAL, read_journal
 from .services import fitting, report
 from .services.options import FitOptions, ReportOptions
@@ -72,8 +72,8 @@ class ReprocessJob:
     max_order: int = MAX_ORDER
     workspace_samples: int = WORKSPACE_SAMPLES
     report: bool = False  # add the report's sections and verdict to report.json
-    threshold_mm: float | None = None  # the report's threshold (of ``threshold_figure``)
-    threshold_figure: str = "max"
+    spec_mm: float | None = None  # the report's spec instead of the run's (``spec_figure``)
+    spec_figure: str = "max"
     archive_root: str | None = None  # the archive of the trend (with ``report``)
     # The index of that archive as it may be shown (its URL without the password; None: the
     # archive's own SQLite file).  A job never carries credentials: a worker reads the URL
@@ -98,6 +98,7 @@ class ReprocessResult:
     coeffs: tuple[float, ...] = ()
     verdict: HealthVerdict | None = None  # with the job's ``report``
     reason: str = ""
+    fit_as_baseline: bool | None = None  # with ``report``: the archive's healthy flag
 
     def line(self) -> str:
         """One line for the command line."""
@@ -123,10 +124,11 @@ def jobs_for_archive(
     max_order: int = MAX_ORDER,
     workspace_samples: int = WORKSPACE_SAMPLES,
     report: bool = False,
-    threshold: Threshold | None = None,
+    spec: Spec | None = None,
 ) -> list[ReprocessJob]:
     """Jobs for every run of ``robot`` (or of every robot), output in ``RUN/reprocessed/TAG``;
-    with ``report``, each reports its run against ``archive`` (``threshold``: its limit)."""
+    with ``report``, each reports its run against ``archive`` (``spec``: instead of the
+    run's own accuracy spec)."""
     tag = safe_name(tag, "tag")
     if orders not in ("keep", "select"):
         raise InputError(f"--orders must be keep or select, got {orders!r}")
@@ -153,8 +155,8 @@ def jobs_for_archive(
                     max_order=max_order,
                     workspace_samples=workspace_samples,
                     report=report,
-                    threshold_mm=None if threshold is None else threshold.mm,
-                    threshold_figure=ThresholdFigure.MAX if threshold is None else threshold.figure,
+                    spec_mm=None if spec is None else spec.mm,
+                    spec_figure=ThresholdFigure.MAX if spec is None else spec.figure,
                     archive_root=str(archive.root) if report else None,
                     archive_index=_shown_index(archive) if report else None,
                 )
@@ -326,26 +328,26 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
         whole_folder=True,
     )
     doc = files.report  # the figures as report.json holds them (mm)
-    verdict, reason = None, ""
+    verdict, reason, fit = None, "", None
     if job.report:
         arch = Archive.open(job.archive_root, url) if job.archive_root else None
-        threshold = (
+        spec = (
             None
-            if job.threshold_mm is None
-            else Threshold(job.threshold_mm, ThresholdFigure(job.threshold_figure))
+            if job.spec_mm is None
+            else Spec(job.spec_mm, ThresholdFigure(job.spec_figure), "--threshold-mm")
         )
         j = report.report_run(
             out,
             archive=arch,
             robot=job.robot,
             run_id=job.run_id,
-            options=ReportOptions(threshold=threshold, workspace_samples=job.workspace_samples),
+            options=ReportOptions(accuracy_spec=spec, workspace_samples=job.workspace_samples),
             meas=meas,
             write_html=False,
             in_place_of_archived=True,
             record_verdict=False,  # the index keeps the archived run's (--update-index: this)
         ).report.judgement
-        verdict, reason = j.verdict, j.reason
+        verdict, reason, fit = j.verdict, j.reason, j.fit_as_baseline
     return ReprocessResult(
         robot=job.robot,
         run_id=job.run_id,
@@ -358,6 +360,7 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
         coeffs=tuple(map(float, a.fitted.coeffs)),
         verdict=verdict,
         reason=reason,
+        fit_as_baseline=fit,
     )
 
 

@@ -49,6 +49,7 @@ from .. import formats, options, workers
 from ..fsio import claim_output_folder, refuse_overwriting_inputs
 from ..planning.cell import load_cell
 from ..progress import Progress
+from ..reporting.verdict import Spec, ThresholdFigure, spec_of_meta
 from ..run import lock
 from ..services.fitting import FigureRenderer, claim_fit_folder, fit_folder
 from ..services.options import FitOptions
@@ -119,6 +120,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--auto-rescale",
         action="store_true",
         help="rerun once with the suspected uncertainty raised if the chi2 check fails",
+    )
+    f.add_argument(
+        "--spec-mm",
+        type=options.LENGTH_MM,
+        default=None,
+        help="the accuracy spec: the TCP error (mm, workspace maximum) the application "
+        "accepts, recorded in report.json for every verdict (default: the --cell's, the "
+        "robot file's or the run's spec_mm)",
     )
     f.add_argument("--plots", action="store_true", help="also write PNG figures into DIR")
     f.add_argument(
@@ -203,6 +212,7 @@ def _fit(args: argparse.Namespace) -> int:
     forced = claim_output_folder(out, other, force=args.force)
     meas = formats.read_measurements(args.meas, robot.n_joints)
     formats.check_poses_for_fit(meas, robot, args.meas)
+    spec = _fit_spec(args, meas)
     default = FitOptions().noise
     options = FitOptions(
         effects=() if args.effects is None else tuple(args.effects.split(",")),
@@ -232,6 +242,7 @@ def _fit(args: argparse.Namespace) -> int:
             plots=args.plots,
             forced=forced,
             progress=say,
+            spec=None if spec is None else spec.as_dict(),
         )
     finally:
         say.close()  # the bar is cleared before the summary
@@ -241,6 +252,22 @@ def _fit(args: argparse.Namespace) -> int:
         print(line)
     print(f"wrote {out / 'model.json'}, {out / 'report.json'}, {out / 'residuals.csv'}")
     return 0
+
+
+def _fit_spec(args: argparse.Namespace, meas: Measurements) -> Spec | None:
+    """The accuracy spec a fit records: --spec-mm, else the --cell's, the robot file's, or
+    the one the run recorded from its cell (the measurement file's ``# spec_mm``)."""
+    if args.spec_mm is not None:
+        _positive("--spec-mm", args.spec_mm)
+        return Spec(args.spec_mm, ThresholdFigure.MAX, "--spec-mm")
+    if args.cell is not None:
+        mm = load_cell(args.cell).spec_mm
+        if mm is not None:
+            return Spec(mm, ThresholdFigure.MAX, f"cell {args.cell}")
+    mm = formats.robot_spec_mm(args.robot)
+    if mm is not None:
+        return Spec(mm, ThresholdFigure.MAX, f"robot file {Path(args.robot).name}")
+    return spec_of_meta(meas.meta)
 
 
 def csv_cells(values: Iterable[str]) -> list[str]:

@@ -16,7 +16,7 @@ import time
 from ...identify.assess import MAX_ORDER, WORKSPACE_SAMPLES
 from ...identify.errors import InputError
 from .. import options, workers
-from ..reporting.verdict import HealthVerdict, Threshold, ThresholdFigure
+from ..reporting.verdict import Spec, ThresholdFigure
 from .archive import add_archive_options, open_archive
 
 
@@ -70,13 +70,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--threshold-mm",
         type=options.LENGTH_MM,
         default=None,
-        help="with --report: the threshold",
+        help="with --report: the accuracy spec (mm) instead of each run's own",
     )
     rp.add_argument(
         "--figure",
         choices=[f.value for f in ThresholdFigure],
         default=ThresholdFigure.MAX.value,
-        help="figure the threshold applies to (max)",
+        help="figure the spec applies to (max)",
     )
     rp.set_defaults(func=_reprocess)
 
@@ -109,9 +109,9 @@ def _reprocess(args: argparse.Namespace) -> int:
         max_order=args.max_order,
         workspace_samples=args.workspace_samples,
         report=args.report,
-        threshold=None
+        spec=None
         if args.threshold_mm is None
-        else Threshold(args.threshold_mm, ThresholdFigure(args.figure)),
+        else Spec(args.threshold_mm, ThresholdFigure(args.figure), "--threshold-mm"),
     )
     if args.scheduler_timeout <= 0:
         raise InputError(f"--scheduler-timeout must be > 0, got {args.scheduler_timeout}")
@@ -142,8 +142,8 @@ def _reprocess(args: argparse.Namespace) -> int:
         print(r.line())
         if r.ok and args.update_index:
             arch.update_figures(r.robot, r.run_id, r.figures_mm)
-            if r.verdict is not None:  # --report: the reprocessed run's verdict
-                arch.set_healthy(r.robot, r.run_id, r.verdict is HealthVerdict.HEALTHY)
+            if r.fit_as_baseline is not None:  # --report: the reprocessed run's verdict
+                arch.set_healthy(r.robot, r.run_id, r.fit_as_baseline)
     failed = sum(not r.ok for r in results)
     if failed:
         print(f"{failed} of {len(results)} runs failed", file=sys.stderr)

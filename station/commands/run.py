@@ -221,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--archive needs --robot-name (the robot's name in the archive)")
     lock = RunLock.acquire(out)
     try:
-        return _run_locked(args, plan, out)
+        return _run_locked(args, plan, out, cell.spec_mm)
     finally:
         lock.release()
 
@@ -256,7 +256,9 @@ def _sim_setting(
     return float(value)
 
 
-def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
+def _run_locked(
+    args: argparse.Namespace, plan: Plan, out: Path, spec_mm: float | None = None
+) -> int:
     from ..run.loop import run_plan  # the drivers: ur-rtde, OpenCV
     from ..run.progress import Progress
 
@@ -283,7 +285,11 @@ def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
                     f"The arm will move through {len(plan.poses)} poses. Clear the cell, then press Enter (Ctrl-C aborts). "
                 )
         try:
-            res = run_plan(station, plan, out, resume=args.resume, progress=progress)
+            # the cell's accuracy spec travels with the run (run.json, measurements.csv)
+            extra = {} if spec_mm is None else {"spec_mm": spec_mm}
+            res = run_plan(
+                station, plan, out, resume=args.resume, progress=progress, start_extra=extra
+            )
         finally:
             station.close()
         if res.stopped:

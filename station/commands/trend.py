@@ -1,18 +1,20 @@
 """``quickhealth trend``: a robot's runs over time against its baseline; exit 1 when flagged.
 
 quickhealth trend ROBOT [--threshold-mm X] [--figure max] [--tolerance-mm X] [--json OUT] [--plot PNG]
-    Workspace error figures, error-curve changes judged against the combined uncertainty,
-    EWMA control limits, prognosis and root-cause hints, and the latest run's verdict
-    (:func:`quickhealth.station.reporting.verdict.judge`, as its report judges it).  Exit 1 when the
-    latest run is flagged: above the threshold, outside its control limits, or with an error
-    curve that changed beyond the combined uncertainty (--fail-on threshold: only the
-    threshold counts).
+    First the latest run's verdict in words (:func:`quickhealth.station.reporting.verdict.judge`,
+    the same lines its report and the TUI show), then the runs with their workspace error
+    figures and verdicts, warnings, prognosis and quick checks.  The spec is the latest run's
+    (its cell or robot file's ``spec_mm``); --threshold-mm overrides it.  Exit 1 when the
+    latest run is flagged: above the spec, or changed since the baseline (an error curve
+    beyond the combined uncertainty, a control-chart alarm); --fail-on threshold: only the
+    spec counts.  A baseline is never flagged against itself.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from typing import TYPE_CHECKING
 
 from ...identify.errors import InputError
 from .. import options
@@ -22,12 +24,18 @@ from ..fsio import refuse_outputs_inside, refuse_overwriting_inputs, write_figur
 from ..reporting.verdict import (
     Figures,
     HealthVerdict,
-    Threshold,
+    Judgement,
+    Spec,
     ThresholdFigure,
     judge,
     missing_effect_in,
+    spec_of_run,
 )
 from .archive import add_archive_options, open_archive
+
+if TYPE_CHECKING:  # types only: the archive loads SQLAlchemy, the trend scipy.stats
+    from ...identify.trend import TrendResult
+    from ..archive import Archive, RunRecord
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -44,19 +52,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     t.add_argument("robot")
     add_archive_options(t)
     t.add_argument(
-        "--threshold-mm", type=options.LENGTH_MM, default=None, help="flag a run above this"
+        "--threshold-mm",
+        type=options.LENGTH_MM,
+        default=None,
+        help="the accuracy spec (mm) instead of the latest run's (its cell or robot file's)",
     )
     t.add_argument(
         "--figure",
         choices=[f.value for f in ThresholdFigure],
         default=ThresholdFigure.MAX.value,
-        help="figure the threshold applies to (max)",
+        help="figure the spec applies to (max)",
     )
     t.add_argument(
         "--tolerance-mm",
         type=options.LENGTH_MM,
         default=None,
-        help="level the prognosis extrapolates to (default: the threshold)",
+        help="level the prognosis extrapolates to (default: the spec)",
     )
     t.add_argument(
         "--alpha",
@@ -80,7 +91,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--fail-on",
         choices=("any", "threshold"),
         default="any",
-        help="what makes the exit status 1 (any flag)",
+        help="what makes the exit status 1 (any: a flagged verdict; threshold: above the spec)",
     )
     t.add_argument("--json", default=None, help="write the trend as JSON here")
     t.add_argument("--plot", default=None, help="write the trend figure (PNG) here")
@@ -105,25 +116,44 @@ def _trend(args: argparse.Namespace) -> int:
     arch = open_archive(args)
     # the archive (its index, its run folders) is this command's input
     refuse_outputs_inside([("--json", args.json), ("--plot", args.plot)], arch.root, "the archive")
+    recs, missing = trend_runs(arch, args.robot)  # the runs the trend judges
+    latest = recs[-1]
+    override = (
+        None
+        if args.threshold_mm is None
+        else Spec(args.threshold_mm, ThresholdFigure(args.figure), "--threshold-mm")
+    )
+    spec = spec_of_run(arch.folder(latest), override)  # the latest run's, as its report's
     res = trend_for(
         arch,
         args.robot,
-        threshold_mm=args.threshold_mm,
-        threshold_figure=args.figure,
+        threshold_mm=None if spec is None else spec.mm,
+        threshold_figure=ThresholdFigure.MAX.value if spec is None else spec.figure.value,
         tolerance_mm=args.tolerance_mm,
         alpha=args.alpha,
         min_change_m=args.min_change_mm * 1e-3,
         min_change_rad=args.min_change_mrad * 1e-3,
     )
-    recs, missing = trend_runs(arch, args.robot)  # the runs trend_for judged
-    print(f"{args.robot}: {len(recs)} runs, baseline {res.run_ids[res.baseline_index]}")
+    b = res.baseline_index
+    j = judge(
+        Figures.of_trend(res, res.latest),
+        trend=res,
+        missing=missing_effect_in(arch.folder(latest)),
+        spec=spec,
+        baseline_time=recs[b].time_utc,
+    )
+    # the words first: the latest run's verdict, as its report and the TUI say it
+    print(f"{args.robot}: latest run {latest.run_id} ({latest.time_utc})")
+    for line in j.lines():
+        print(line)
+    print(f"\nruns ({len(recs)}; baseline {res.run_ids[b]}; TCP error over the workspace, mm):")
     print(f"  {'run':<24} {'time (UTC)':<21} {'mean':>7} {'std':>7} {'max':>7}  verdict")
     for i, r in enumerate(recs):
-        v = (
-            "baseline"
-            if i == res.baseline_index
-            else ("-" if i < res.baseline_index else ("FLAGGED" if res.flags(i) else "ok"))
-        )
+        if i < b:
+            v = "- (before the baseline)"
+        else:
+            ji = j if i == res.latest else _judge_earlier(arch, r, res, i, override)
+            v = ji.verdict.value + (" (baseline)" if i == b else "")
         f = res.figures_mm
         print(
             f"  {r.run_id:<24} {r.time_utc:<21} {f['mean'][i]:7.3f} {f['std'][i]:7.3f} "
@@ -131,27 +161,10 @@ def _trend(args: argparse.Namespace) -> int:
         )
     for w in [*missing_words(arch, missing), *res.warnings]:
         print(f"warning: {w}")
-    latest = recs[-1]
-    j = judge(
-        Figures.of_trend(res, res.latest),
-        trend=res,
-        missing=missing_effect_in(arch.folder(latest)),
-        threshold=None
-        if args.threshold_mm is None
-        else Threshold(args.threshold_mm, ThresholdFigure(args.figure)),
-    )
-    flags = res.flags()
-    words = {HealthVerdict.FLAGGED: "FLAGGED", HealthVerdict.HEALTHY: "healthy"}
-    print(
-        f"latest run {res.run_ids[-1]}: "
-        + words.get(j.verdict, f"{j.verdict.value.upper()} ({j.reason})")
-    )
-    for line in flags:
-        print(f"  - {line}")
     for p in res.prognoses.values():
         print(f"prognosis: {p.words()}")
     # quick checks are listed apart: a verdict against the baseline, not an assessment
-    checks = [c for c in arch.checks(args.robot) if c.time_utc >= recs[res.baseline_index].time_utc]
+    checks = [c for c in arch.checks(args.robot) if c.time_utc >= recs[b].time_utc]
     for line in check_lines(checks):
         print(line)
     if checks and checks[-1].verdict == "changed" and checks[-1].time_utc > latest.time_utc:
@@ -161,6 +174,7 @@ def _trend(args: argparse.Namespace) -> int:
         )
     if args.json:
         doc = json_plain(trend_to_json(res))
+        doc["verdict"] = j.as_dict()
         doc["checks"] = [
             {k: v for k, v in c.__dict__.items() if k not in ("root", "path")} for c in checks
         ]
@@ -170,5 +184,20 @@ def _trend(args: argparse.Namespace) -> int:
 
         write_figure(trend_figure(res), args.plot, dpi=100)
     if args.fail_on == "threshold":
-        return 1 if res.breaches[-1] else 0
-    return 1 if flags else 0
+        return 1 if j.out_of_spec else 0
+    return 1 if j.verdict is HealthVerdict.FLAGGED else 0
+
+
+def _judge_earlier(
+    arch: Archive, rec: RunRecord, res: TrendResult, i: int, override: Spec | None
+) -> Judgement:
+    """Run ``i``'s verdict as the trend gave it when it was the latest (its own spec and
+    diagnosis; the trend's verdicts use only the runs up to each run)."""
+    folder = arch.folder(rec)
+    return judge(
+        Figures.of_trend(res, i),
+        trend=res,
+        missing=missing_effect_in(folder),
+        spec=spec_of_run(folder, override),
+        index=i,
+    )

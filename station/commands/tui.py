@@ -11,7 +11,6 @@ from ...identify.errors import InputError
 from .. import options
 from ..hardware.cameras.config import OPTION_HELP as CAMERAS_HELP
 from ..hardware.cameras.config import parse_cameras_option
-from ..services.options import TUI_THRESHOLD_MM
 
 if TYPE_CHECKING:  # the type only: the App's station loads textual, the fit and the drivers
     from ..tui.facade import Facade
@@ -38,8 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--n",
         type=options.PLAN_POSES,
-        default=40,
-        help="poses to generate when planning now (default 40)",
+        default=150,
+        help="candidate targets when planning now (default 150: the tutorial's plan; the "
+        "planner keeps those it can reach and see, and warns when too few remain)",
     )
     p.add_argument("--robot-ip", help="the real robot's address (without --sim)")
     p.add_argument("--motor-port", help="serial port of the pan motor (real station)")
@@ -48,8 +48,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--archive",
         type=Path,
-        default=Path("archive"),
-        help="archive folder: runs and baselines (default ./archive)",
+        default=None,
+        help="archive folder: runs and baselines (default: $QUICKHEALTH_ARCHIVE, else "
+        "~/quickhealth-archive, as every command)",
     )
     p.add_argument(
         "--robot-name",
@@ -59,9 +60,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--threshold-mm",
         type=options.LENGTH_MM,
-        default=TUI_THRESHOLD_MM,
-        help=f"degraded when the workspace max TCP error is above this (mm, default "
-        f"{TUI_THRESHOLD_MM:g})",
+        default=None,
+        help="the accuracy spec (mm, workspace max TCP error) instead of the cell's spec_mm",
     )
     p.set_defaults(func=run)
 

@@ -82,6 +82,7 @@ from .robot import (
     read_ur_calibration,
     read_urdf,
     robot_from_json,
+    robot_spec_mm,
     robot_to_json,
 )
 from .tracker import PRESETS as TRACKER_PRESETS
@@ -122,6 +123,7 @@ __all__ = [
     "format_measurements",
     "load_json_limited",
     "load_robot",
+    "robot_spec_mm",
     "model_from_json",
     "model_to_json",
     "one_line",

@@ -265,9 +265,11 @@ def write_report_json(
     *,
     source: str | None = None,
     run: Mapping[str, Any] | None = None,
+    extra: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write report.json of assessment ``a`` (atomically); returns the content written."""
-    rep = report_of(a, source=source, run=run)
+    """Write report.json of assessment ``a`` (atomically); returns the content written
+    (``extra``: more top-level keys, e.g. the accuracy ``spec``)."""
+    rep = {**report_of(a, source=source, run=run), **(extra or {})}
     write_report(path, rep)
     return rep
 
@@ -293,10 +295,11 @@ def with_sections(
     sections: Mapping[str, Mapping[str, Any]],
     *,
     run: Mapping[str, Any] | None = None,
+    extra: Mapping[str, Any] | None = None,
 ) -> str:
     """report.json ``doc`` with the sections of the report added, as the text to write: each
-    section's data, or ``{"missing": why}`` / ``{"not_applicable": why}``; and ``run`` (run
-    id, robot name, verdict, healthy, threshold) when given.
+    section's data, or ``{"missing": why}`` / ``{"not_applicable": why}``; ``run`` (run
+    id, robot name, verdict, healthy, spec) when given; ``extra`` top-level keys (``spec``).
 
     The document keeps its ``schema`` (a version 1 file stays version 1: it lacks keys of
     version 2, and relabelling it would make it claim what it does not hold) and every key
@@ -313,6 +316,7 @@ def with_sections(
             new[key] = s["data"]
     if run is not None:
         new["run"] = dict(run)
+    new.update(extra or {})
     new["provenance"] = provenance()
     return json.dumps(json_plain(new), indent=1, allow_nan=False) + "\n"
 

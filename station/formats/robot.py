@@ -15,6 +15,8 @@ DH table format (TOML)::
                              #   row i holds a_{i-1}, α_{i-1}, d_i
     length_unit = "mm"       # "mm" or "m"
     angle_unit = "deg"       # "deg" or "rad"
+    spec_mm = 1.5            # optional: the accuracy spec, the TCP error (mm, workspace
+                             #   maximum) the application accepts; every verdict uses it
 
     [[joint]]                # one table per joint, base to flange
     name = "j1"
@@ -93,6 +95,30 @@ def load_robot(spec: str, calibration: str | os.PathLike[str] | None = None) -> 
     if calibration is None:
         return robot
     return calibrated_robot(robot, calibration, robot_label=s)
+
+
+def robot_spec_mm(spec: str) -> float | None:
+    """The accuracy spec a robot description file states (``[robot] spec_mm``: the TCP error
+    in mm the application accepts), None for a built-in name, a URDF or a file without one.
+
+    Raises
+    ------
+    InputError
+        A ``spec_mm`` that is not a number in (0, 1000] mm.
+    """
+    p = Path(spec.strip())
+    if p.suffix.lower() != ".toml" or not p.is_file():
+        return None
+    try:
+        head = tomllib.loads(read_text_limited(p, "robot")).get("robot", {})
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{p}: not valid TOML: {exc}") from None
+    v = head.get("spec_mm") if isinstance(head, dict) else None
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v <= 1000:
+        raise InputError(f"{p}: [robot] spec_mm must be a number of mm in (0, 1000], got {v!r}")
+    return float(v)
 
 
 def read_ur_calibration(path: str | os.PathLike[str]) -> tuple[UrKinematics, str]:

@@ -143,6 +143,14 @@ class Cell:
     target_mass: float = 0.0  # kg, the smart target on the flange; 0: not stated
     target_com: F | None = None  # (3,) m, its centre of mass in the flange frame
     cameras: CameraConfig | None = None  # the [cameras] section: backend, ids, trigger
+    # m: the TCP error the application accepts (``spec_mm``, the workspace maximum); None:
+    # not stated (runs are then judged against their baseline only)
+    tcp_tolerance: float | None = None
+
+    @property
+    def spec_mm(self) -> float | None:
+        """The accuracy spec as the cell file states it (mm), None when it states none."""
+        return None if self.tcp_tolerance is None else self.tcp_tolerance * 1e3
 
     def robot_with_target(self, robot: RobotModel | None = None) -> RobotModel:
         """``robot`` (default: the cell's arm) carrying the cell's smart target on its flange:
@@ -341,6 +349,7 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         raise top.err("schema", f"expected {SCHEMA!r}, got {schema!r}")
     name = top.text("name", pattern=r"[A-Za-z0-9_\-]{1,64}")
     top.text("description", "", pattern=r"[^\x00-\x1f\x7f]{0,500}")
+    spec_mm = top.num("spec_mm", lo=0.0, hi=1000.0, strict_lo=True) if top.has("spec_mm") else None
     robot, T_world_base, home = _robot(top.sub("robot"))
     top_z, tmin, tmax, thick = _table(top.sub("table"))
     wmin, wmax, spread = _workspace(top.sub("workspace"), top_z)
@@ -381,6 +390,7 @@ def _build(top: _Tab, label: str, sha: str) -> Cell:
         target_mass=mass,
         target_com=com,
         cameras=cameras,
+        tcp_tolerance=None if spec_mm is None else spec_mm / 1000.0,
     )
 
 

@@ -58,7 +58,7 @@ from ...identify.workspace import JointCurves, WorkspaceError  # noqa: E402
 from ..formats.common import json_plain as _plain  # noqa: E402
 from ..formats.report import trend_to_json  # noqa: E402
 from .iso9283 import PoseStats  # noqa: E402
-from .verdict import Judgement  # noqa: E402
+from .verdict import HealthVerdict, Judgement  # noqa: E402
 
 F = NDArray[np.float64]
 
@@ -257,7 +257,7 @@ def trend_figure(result: TrendResult) -> Figure:
         ax.axvline(t[b], color="0.5", ls=":", lw=1)
         seen = [v for v in (*result.figures_mm[f], *ch.ewma_mm) if math.isfinite(v)]
         if result.threshold_mm is not None and f == result.threshold_figure:
-            ax.axhline(result.threshold_mm, color="k", lw=1, label="threshold")
+            ax.axhline(result.threshold_mm, color="k", lw=1, label="spec")
             seen.append(result.threshold_mm)
         # with 2-3 runs the limit's σ comes from the runs' own differences and can sit far
         # above the data (8 mm over 1 mm figures): the axis follows the data, not the limit
@@ -287,30 +287,26 @@ def trend_figure(result: TrendResult) -> Figure:
 # ------------------------------------------------------------------------ sections
 
 
-def verdict_section(j: Judgement) -> Section:
-    """Healthy, degraded or flagged, the one-line reason, the TCP error against the baseline
-    and the top missing effect (:func:`quickhealth.station.reporting.verdict.judge`)."""
-    f, b = j.figures, j.baseline
-    if b is not None:
-        err = (
-            f"TCP error: mean {f.mean_mm:.3f} mm (baseline {b.mean_mm:.3f} mm, "
-            f"{f.mean_mm - b.mean_mm:+.3f}), max {f.max_mm:.3f} mm (baseline {b.max_mm:.3f} mm, "
-            f"{f.max_mm - b.max_mm:+.3f}) against baseline run {j.baseline_run}"
-        )
-    else:
-        err = (
-            f"TCP error: mean {f.mean_mm:.3f} mm, max {f.max_mm:.3f} mm "
-            "(no baseline: run not archived)"
-        )
-    if j.conditions:
-        err += f"; {j.conditions}"
+def verdict_section(j: Judgement, previous: tuple[HealthVerdict, str] | None = None) -> Section:
+    """The verdict in the technician's words (:meth:`~.verdict.Judgement.lines`, the same at
+    every door): against the spec, against the baseline, what to do; then the top missing
+    effect and the reference conditions.  ``previous``: the verdict report.json carried
+    before, when this report turned it around (said, never silent)."""
+    lines = list(j.lines())
     top = j.top_missing_effect
-    lines = (
-        f"{j.verdict.value.upper()}: {j.reason}" + (f"; {j.uncertainty}" if j.uncertainty else ""),
-        err,
-        f"top missing effect: {top.effect}" if top is not None else "top missing effect: none",
+    lines.append(
+        f"top missing effect: {top.effect}" if top is not None else "top missing effect: none"
     )
-    return Section("verdict", "Verdict", lines, data=j.as_dict())
+    if j.conditions:
+        lines.append(j.conditions)
+    if j.uncertainty:
+        lines.append(j.uncertainty)
+    data = j.as_dict()
+    if previous is not None:
+        was, why = previous
+        lines.insert(1, f"(this report changed the verdict from {was.value.upper()}: {why})")
+        data["previous"] = {"verdict": was.value, "reason": why}
+    return Section("verdict", "Verdict", tuple(lines), data=data)
 
 
 def summary_section(

@@ -101,6 +101,8 @@ def write_outputs(
         "started_utc": str(start.get("started_utc", "")),
         "frame": "target frame at pan 0 (plan convention), instrument = left camera",
     }
+    if isinstance(start.get("spec_mm"), int | float):  # the cell's accuracy spec, if it has one
+        meta["spec_mm"] = f"{float(start['spec_mm']):g}"
     if drift is not None:
         meta["selfcheck_drift_mm"] = f"{drift[0]:.4f}"
         meta["selfcheck_drift_deg"] = f"{drift[1]:.5f}"

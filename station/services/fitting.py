@@ -106,6 +106,7 @@ def fit_folder(
     plots: bool = False,
     forced: str = "",
     progress: Progress | None = None,
+    spec: Mapping[str, Any] | None = None,
 ) -> FitResult:
     """Assess ``meas`` and write the fit into ``out`` (see the module docstring).
 
@@ -117,6 +118,9 @@ def fit_folder(
         Also write the PNG figures (workspace histogram, residuals, each joint's curves).
     forced : str
         What ``--force`` overrode in ``out`` (:func:`claim_fit_folder`), for the line.
+    spec : mapping, optional
+        The accuracy spec (:meth:`~..reporting.verdict.Spec.as_dict`), recorded in
+        report.json's ``spec`` for every verdict.
 
     Raises
     ------
@@ -131,7 +135,7 @@ def fit_folder(
         if render is not None:
             render.close()
         raise _with_source(exc, source) from None
-    files = write_fit(out, a, source=source, render=render)
+    files = write_fit(out, a, source=source, render=render, spec=spec)
     line = replacing_line(out, files.replaced, "the earlier fit of this data", forced)
     return FitResult(a, files, line)
 
@@ -144,6 +148,7 @@ def write_fit(
     render: FigureRenderer | None = None,
     extra: Mapping[str, str] | None = None,
     whole_folder: bool = False,
+    spec: Mapping[str, Any] | None = None,
 ) -> FitFiles:
     """Write model.json, report.json and residuals.csv of assessment ``a`` into ``out``.
 
@@ -169,7 +174,10 @@ def write_fit(
             render.run(a, tmp)
         model_file.write_model(tmp / "model.json", a.fitted)
         doc = report_file.write_report_json(
-            tmp / "report.json", a, source=None if source is None else str(source)
+            tmp / "report.json",
+            a,
+            source=None if source is None else str(source),
+            extra=None if spec is None else {"spec": dict(spec)},
         )
         write_text_atomic(tmp / "residuals.csv", residual_table(a.fitted, a.measurements))
         for name, text in (extra or {}).items():

@@ -14,11 +14,7 @@ from ...identify.assess import MAX_ORDER, WORKSPACE_SAMPLES
 from ...identify.errormodel import ErrorModelSpec
 from ...identify.fit import ParameterPrior
 from ...identify.linearize import InstrumentNoise
-from ..reporting.verdict import Threshold
-
-#: The TUI's threshold of the workspace max TCP error (mm, as the monitoring figures): its
-#: Results screen always judges against one (``report`` and ``trend`` only when given one).
-TUI_THRESHOLD_MM = 2.0
+from ..reporting.verdict import Spec
 
 
 @dataclass(frozen=True)
@@ -60,15 +56,15 @@ class ReportOptions:
 
     Attributes
     ----------
-    threshold : Threshold or None
-        The limit of one workspace figure (drawn in the trend; above it the run is degraded,
-        or flagged by the trend).
+    accuracy_spec : Spec or None
+        The accuracy spec this report judges against instead of the run's own (a command's
+        ``--threshold-mm``; None: the run's, :func:`~..reporting.verdict.spec_of_run`).
     diagnose_if_missing : bool
         Run the diagnosis when the run folder has no ``diagnosis.json``.
     workspace_samples : int
         Joint commands of the report's workspace error map.
     """
 
-    threshold: Threshold | None = None
+    accuracy_spec: Spec | None = None
     diagnose_if_missing: bool = True
     workspace_samples: int = WORKSPACE_SAMPLES

@@ -10,9 +10,8 @@ screen, ``reprocess``): it writes report.html and adds the sections, the verdict
 
 SYNOPSIS::
 
-    res = report_run(Path("runs/r1"), archive=Archive.open(), robot="ur5-cell3",
-                     options=ReportOptions(threshold=Threshold(0.5)))
-    res.judgement.verdict, res.judgement.reason
+    res = report_run(Path("runs/r1"), archive=Archive.open(), robot="ur5-cell3")
+    res.report.judgement.lines()
 """
 
 from __future__ import annotations
@@ -40,7 +39,16 @@ from ..fsio import write_atomic
 from ..planning.planfile import plan_joints
 from ..reporting import page
 from ..reporting.iso9283 import run_pose_stats
-from ..reporting.verdict import Figures, Judgement, MissingEffect, judge
+from ..reporting.verdict import (
+    Figures,
+    HealthVerdict,
+    Judgement,
+    MissingEffect,
+    Spec,
+    judge,
+    recorded_verdict,
+    spec_of_run,
+)
 from .options import ReportOptions
 
 #: The report's sections that report.json keeps (beside the fit's keys).
@@ -55,6 +63,7 @@ class RunReport:
     judgement: Judgement
     run_id: str
     robot: str | None
+    previous: tuple[HealthVerdict, str] | None = None  # the verdict it turned around, if any
 
 
 @dataclass(frozen=True)
@@ -66,6 +75,18 @@ class ReportFiles:
     html: Path | None
     report_json: Path
     doc: dict[str, Any]
+    previous: tuple[HealthVerdict, str] | None = None  # the verdict report.json had, if other
+
+    def turned_words(self) -> str | None:
+        """One line when this report turned the verdict report.json carried around, else None."""
+        if self.previous is None:
+            return None
+        was, why = self.previous
+        now = self.report.judgement
+        return (
+            f"note: the verdict changed from {was.value.upper()} ({why}) to "
+            f"{now.verdict.value.upper()}: {now.reason}"
+        )
 
 
 def build_report(
@@ -78,6 +99,7 @@ def build_report(
     meas: Measurements | None = None,
     plots: bool = True,
     in_place_of_archived: bool = False,
+    previous: tuple[HealthVerdict, str] | None = None,
 ) -> RunReport:
     """Gather every section of a run's report and judge the run.
 
@@ -97,6 +119,9 @@ def build_report(
     in_place_of_archived : bool
         The folder stands for the archived run in the trend (a reprocessed copy): the trend
         reads this run's figures and model from the folder, not from the archive.
+    previous : (HealthVerdict, str), optional
+        The verdict and reason the run's report.json carried: when this report turns it
+        around, the verdict section says so (never silently).
 
     Raises
     ------
@@ -125,17 +150,21 @@ def build_report(
     if diag is None and options.diagnose_if_missing and meas is not None:
         diag = diagnose(state_from_fitted(fitted), meas).to_dict(top=8)
     own = d if in_place_of_archived else None
-    trend, runs, why = _trend(archive, robot, rid, options, own)
+    spec = spec_of_run(d, options.accuracy_spec)
+    trend, runs, why = _trend(archive, robot, rid, spec, own)
     judgement = judge(
         Figures.of_report({"workspace": ws.as_dict()}),
         trend=trend,
         missing=MissingEffect.of_diagnosis(diag),
-        threshold=options.threshold,
+        spec=spec,
         conditions=ws.conditions.describe(),
         uncertainty=_uncertainty_words(fitted),
+        baseline_time=_baseline_time(trend, runs),
+        no_baseline=why,
     )
+    turned = previous if previous is not None and previous[0] is not judgement.verdict else None
     sections = (
-        page.verdict_section(judgement),
+        page.verdict_section(judgement, turned),
         page.summary_section(fitted, rid, robot, meta),
         page.coverage_section(fitted, q_plan, plan_source, plots=plots),
         page.workspace_section(ws, plots=plots),
@@ -150,7 +179,7 @@ def build_report(
         run_dir=str(d),
         sections=sections,
     )
-    return RunReport(report, judgement, rid, robot)
+    return RunReport(report, judgement, rid, robot, turned)
 
 
 def report_run(
@@ -193,6 +222,7 @@ def report_run(
             report_file.check_report(doc, str(rp))
         except InputError as exc:
             raise InputError(f"{exc}: not a complete report.json ({fit_first})") from None
+    before = recorded_verdict(doc)
     rep = build_report(
         d,
         archive=archive,
@@ -202,19 +232,23 @@ def report_run(
         meas=meas,
         plots=write_html,
         in_place_of_archived=in_place_of_archived,
+        previous=before,
     )
     sections = rep.page.to_dict()["sections"]
     j = rep.judgement
-    threshold = options.threshold
+    spec = j.spec
     run = {
         "run_id": rep.run_id,
         "robot_name": robot,
         "verdict": j.verdict.value,
         "healthy": j.healthy,
-        "threshold_mm": None if threshold is None else threshold.mm,
-        "threshold_figure": None if threshold is None else threshold.figure.value,
+        "threshold_mm": None if spec is None else spec.mm,
+        "threshold_figure": None if spec is None else spec.figure.value,
     }
-    text = report_file.with_sections(doc, {k: sections[k] for k in JSON_SECTIONS}, run=run)
+    extra = {"spec": spec.as_dict()} if spec is not None else {}
+    text = report_file.with_sections(
+        doc, {k: sections[k] for k in JSON_SECTIONS}, run=run, extra=extra
+    )
     out = None
     if write_html:
         out = Path(html) if html is not None else d / "report.html"
@@ -225,8 +259,8 @@ def report_run(
         # a row whose archive folder was deleted behind the index is left as it is (the
         # trend refuses to judge that run): the verdict here was made without it
         if rec is not None and archive.folder(rec).is_dir():
-            archive.set_healthy(robot, rep.run_id, j.healthy)
-    return ReportFiles(rep, out, rp, json.loads(text))
+            archive.set_healthy(robot, rep.run_id, j.fit_as_baseline)
+    return ReportFiles(rep, out, rp, json.loads(text), rep.previous)
 
 
 def _json(path: Path) -> dict[str, Any] | None:
@@ -261,17 +295,24 @@ def _uncertainty_words(fitted: FittedModel) -> str:
     )
 
 
+def _baseline_time(trend: TrendResult | None, runs: list[tuple[str, str]]) -> str:
+    """When the trend's baseline run was measured (ISO 8601), "" without a trend."""
+    if trend is None:
+        return ""
+    return runs[trend.baseline_index][1] if trend.baseline_index < len(runs) else ""
+
+
 def _trend(
     archive: Archive | None,
     robot: str | None,
     rid: str,
-    options: ReportOptions,
+    spec: Spec | None,
     folder: Path | None = None,
 ) -> tuple[TrendResult | None, list[tuple[str, str]], str]:
     """The robot's trend up to run ``rid``, each run's id and time; or why there is none
     (``folder``: where run ``rid``'s fit is read from instead of its archive folder)."""
     if archive is None or robot is None:
-        return None, [], "run not archived: quickhealth archive add RUN_DIR --robot NAME"
+        return None, [], "the run is not archived (quickhealth archive add RUN_DIR --robot NAME)"
     if rid not in [r.run_id for r in archive.runs(robot)]:
         return None, [], f"run {rid} is not in the archive of robot {robot}"
     try:  # runs whose archive folders are missing are left out, and said so
@@ -283,12 +324,11 @@ def _trend(
         return None, [], f"robot {robot} has no baseline before this run"
     states = [run_state(archive, r, like=recs[b]) for r in recs[:-1]]
     states.append(run_state(archive, recs[-1], like=recs[b], folder=folder))
-    threshold = options.threshold
     res = assess_trend(
         states,
         b,
-        threshold_mm=None if threshold is None else threshold.mm,
-        threshold_figure="max" if threshold is None else threshold.figure.value,
+        threshold_mm=None if spec is None else spec.mm,
+        threshold_figure="max" if spec is None else spec.figure.value,
     )
     if missing:
         res = replace(res, warnings=(*missing_words(archive, missing), *res.warnings))

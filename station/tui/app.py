@@ -8,7 +8,8 @@ technician moves between them with the number keys::
     3 Run       progress, current pose, last measurement, pause / resume / abort
     4 Results   workspace error, verdict, per-joint curves, worst regions
     5 Diagnose  measured vs model, candidate effects, add one and refit
-    6 History   this robot's runs over time
+    6 History   this robot's runs and quick checks over time, with their verdicts
+    ?           what the screens are for and their keys
 
 The App talks only to a :class:`~quickhealth.station.tui.facade.Facade`, given to it in
 ``__init__``.  Everything slow (robot motion, fits, diagnosis) runs in thread workers on the
@@ -23,6 +24,7 @@ from textual.binding import Binding
 from .facade import Facade
 from .screens.confirm import ConfirmScreen
 from .screens.diagnose import DiagnoseScreen
+from .screens.help import HelpScreen
 from .screens.history import HistoryScreen
 from .screens.plan import PlanScreen
 from .screens.results import ResultsScreen
@@ -54,7 +56,7 @@ class QuickhealthApp(App[int]):
         Binding("5", "switch_mode('diagnose')", "Diagnose", show=False),
         Binding("6", "switch_mode('history')", "History", show=False),
         Binding("q", "quit", "Quit", priority=True, show=False),
-        Binding("question_mark", "toggle_help", "Keys"),
+        Binding("question_mark", "toggle_help", "Help"),
     ]
 
     def __init__(self, station: Facade) -> None:
@@ -67,11 +69,11 @@ class QuickhealthApp(App[int]):
         self.theme = "textual-dark"
 
     def action_toggle_help(self) -> None:
-        """``?``: the keys of this screen with what they do, beside the screen."""
-        if self.screen.query("HelpPanel"):
-            self.action_hide_help_panel()
+        """``?``: what this application's screens are for and their keys (``?`` closes it)."""
+        if isinstance(self.screen, HelpScreen):
+            self.screen.dismiss()
         else:
-            self.action_show_help_panel()
+            self.push_screen(HelpScreen())
 
     def action_quit(self) -> None:  # type: ignore[override]
         """Quit; a running plan is stopped first so the arm never moves unattended."""

@@ -36,17 +36,17 @@ from ...identify.measurements import Measurements
 from ...identify.robot import RobotModel
 from ...identify.trend import assess_trend
 from ..archive import Archive, check_lines, run_state
-from ..formats import format_measurements, load_robot, read_measurements
+from ..formats import format_measurements, load_robot, read_measurements, read_report
 from ..hardware.legs import Leg
 from ..planning import load_cell, load_plan
 from ..planning.cell import Cell
 from ..planning.planfile import Plan, plan_from_dict, plan_to_dict
 from ..planning.planner import plan_loop
-from ..reporting.verdict import HealthVerdict, Judgement, Threshold, ThresholdFigure
+from ..reporting.verdict import Judgement, Spec, ThresholdFigure, recorded_verdict, spec_of_meta
 from ..run.settings import RunSettings
 from ..services.checking import load_baseline, quick_check
 from ..services.fitting import write_fit
-from ..services.options import TUI_THRESHOLD_MM, FitOptions
+from ..services.options import FitOptions
 from ..station import HardwareConfig, real_station
 from ..station import Station as Hardware
 from . import jobs
@@ -145,9 +145,7 @@ class Analysis:
         return self.assessment().fitted
 
     # ----- screens ---------------------------------------------------------------------------
-    def health(
-        self, *, run_id: str, robot_name: str, judgement: Judgement, threshold: Threshold
-    ) -> Health:
+    def health(self, *, run_id: str, robot_name: str, judgement: Judgement) -> Health:
         """The health summary of the current model, with the verdict of its report."""
         a = self.assessment()
         fitted, ws = a.fitted, a.workspace
@@ -175,10 +173,11 @@ class Analysis:
             mean_mm=ws.mean * 1e3,
             std_mm=ws.std * 1e3,
             max_mm=ws.max * 1e3,
-            threshold_mm=threshold.mm,
-            threshold_figure=threshold.figure,
+            spec_mm=None if judgement.spec is None else judgement.spec.mm,
+            spec_figure=ThresholdFigure.MAX if judgement.spec is None else judgement.spec.figure,
             verdict=judgement.verdict,
             reason=judgement.reason,
+            verdict_lines=judgement.lines(),
             baseline_mean_mm=None if base is None or judgement.this_is_baseline else base.mean_mm,
             hist_counts=tuple(int(c) for c in ws.hist_counts),
             hist_edges_mm=tuple(float(e) * 1e3 for e in ws.hist_edges),
@@ -279,11 +278,10 @@ class Facade:
         *,
         robot: RobotModel,
         robot_name: str,
-        archive_root: Path,
+        archive_root: Path | None,
         run_id: str,
         cell_name: str = "reference",
-        threshold_mm: float = TUI_THRESHOLD_MM,
-        threshold_figure: ThresholdFigure = ThresholdFigure.MAX,
+        spec: Spec | None = None,
         analysis: Analysis | None = None,
         sim: bool = True,
         hardware: Hardware | None = None,
@@ -296,12 +294,11 @@ class Facade:
         self.robot = robot
         self.cell_spec = cell_spec  # the cell's geometry (a quick check's collision checks)
         self.robot_name = robot_name
-        self.archive = Archive.open(archive_root)
+        self.archive = Archive.open(archive_root)  # None: every door's default (docs)
         self.run_id = run_id
         self.run_dir = self.archive.run_path(robot_name, run_id)
         self.cell_name = cell_name
-        self.threshold_mm = float(threshold_mm)
-        self.threshold_figure = ThresholdFigure(threshold_figure)
+        self.spec = spec  # the accuracy spec every verdict here judges against (None: none)
         self.sim = sim
         self.analysis = analysis
         if analysis is not None:
@@ -329,14 +326,14 @@ class Facade:
         *,
         cell: str = "reference",
         plan: Path | None = None,
-        archive: Path = Path("archive"),
+        archive: Path | None = None,
         robot_name: str | None = None,
         robot_ip: str | None = None,
         motor_port: str | None = None,
         cameras: str | None = None,
         calibration: str | None = None,
-        n_poses: int = 40,
-        threshold_mm: float = TUI_THRESHOLD_MM,
+        n_poses: int = 150,
+        threshold_mm: float | None = None,
         run_id: str | None = None,
         say: Callable[[str], None] | None = None,
     ) -> Facade:
@@ -366,10 +363,10 @@ class Facade:
         return cls(
             robot=c.robot_with_target(),
             robot_name=robot_name or c.robot.name,
-            archive_root=Path(archive),
+            archive_root=archive,
             run_id=run_id or new_run_id(),
             cell_name=c.name,
-            threshold_mm=threshold_mm,
+            spec=spec_for(c, threshold_mm),
             sim=False,
             hardware=hw,
             plan=the_plan,
@@ -385,9 +382,9 @@ class Facade:
         *,
         robot: str = "ur5",
         robot_name: str = "ur5",
-        archive_root: str | Path = "archive",
+        archive_root: str | Path | None = None,
         run_id: str | None = None,
-        threshold_mm: float = TUI_THRESHOLD_MM,
+        threshold_mm: float | None = None,
         max_order: int = FitOptions.max_order,
     ) -> Facade:
         """A facade on an existing measurement file (CSV v1): results, diagnose, history."""
@@ -398,10 +395,10 @@ class Facade:
         return cls(
             robot=model,
             robot_name=robot_name,
-            archive_root=Path(archive_root),
+            archive_root=None if archive_root is None else Path(archive_root),
             run_id=rid,
             cell_name=meas.meta.get("cell", "–"),
-            threshold_mm=threshold_mm,
+            spec=spec_for(None, threshold_mm, meas.meta),
             analysis=Analysis(model, meas, held, max_order=max_order, source=measurements),
             sim=False,
         )
@@ -412,8 +409,10 @@ class Facade:
         return f"{self.robot_name} · {self.cell_name} cell · {'simulated' if self.sim else 'real'}"
 
     def cell_line(self) -> str:
-        """The Station screen's first line: cell, plan, run folder (Rich markup)."""
+        """The Station screen's first lines: cell, run, spec, archive, plan (Rich markup)."""
         line = f"Robot [b]{self.robot_name}[/b] · cell [b]{self.cell_name}[/b] · run [b]{self.run_id}[/b]"
+        line += f"\n{self.spec_words()}"
+        line += f"\nArchive [b]{shown_path(self.archive.root)}[/b]"
         if self.plan is not None:
             where = self.plan_path.name if self.plan_path is not None else "planned now"
             line += (
@@ -534,9 +533,11 @@ class Facade:
             h is None or h.n_poses != a.meas.n_poses or h.effects != a.effects
         )
 
-    def threshold(self) -> Threshold:
-        """The threshold the Results screen judges against."""
-        return Threshold(self.threshold_mm, self.threshold_figure)
+    def spec_words(self) -> str:
+        """The accuracy spec the verdicts here judge against, in words."""
+        if self.spec is None:
+            return "Spec: none set (runs are judged against their baseline only)"
+        return f"Spec: {self.spec.words()}"
 
     def results(self) -> Health:
         """Fit the run and write it as ``identify fit`` does (model.json, report.json,
@@ -562,27 +563,23 @@ class Facade:
             )
         write_fit(d, a, source=self.analysis.source, extra=extra)
         self.archive.add_run(self.robot_name, d, run_id=self.run_id)
-        judgement = offload(
+        judgement = offload(  # the report writes the verdict and the index's healthy flag
             jobs.report_job,
             str(d),
             str(self.archive.root),
             self.archive.url,
             self.robot_name,
             self.run_id,
-            self.threshold(),
+            self.spec,
         )
-        self.archive.set_healthy(self.robot_name, self.run_id, judgement.healthy)
         h = self.analysis.health(
-            run_id=self.run_id,
-            robot_name=self.robot_name,
-            judgement=judgement,
-            threshold=self.threshold(),
+            run_id=self.run_id, robot_name=self.robot_name, judgement=judgement
         )
         pngs = offload(
             jobs.results_pngs_job,
             h.hist_counts,
             h.hist_edges_mm,
-            self.threshold_mm,
+            h.spec_mm,
             h.curves,
             str(d),
         )
@@ -605,10 +602,11 @@ class Facade:
         return self.analysis.add_effect(effect, on_step)
 
     # ----- quick check -----------------------------------------------------------------------
-    def quick_check(self, on_line: Callable[[str], None] | None = None) -> list[str]:
+    def quick_check(self, on_step: Callable[[int, int, str], None] | None = None) -> list[str]:
         """The quick check of this robot against its archived baseline (the arm moves): the
         check's summary lines; recorded in the archive as a check, not as a run
-        (:func:`~quickhealth.station.services.checking.quick_check`)."""
+        (:func:`~quickhealth.station.services.checking.quick_check`).  ``on_step(done, total,
+        line)``: the check's own poses measured so far of the most it may take (the plan's)."""
         if self.cell is None or self.plan is None or self.cell_spec is None:
             raise InputError("no station attached: start with --sim or --robot-ip")
         try:
@@ -617,64 +615,120 @@ class Facade:
             rec = None
         if rec is None:
             raise InputError(
-                f"robot {self.robot_name} has no baseline run in the archive: run and fit the "
-                "full loop first (3, then 4)"
+                f"robot {self.robot_name} has no baseline run in the archive "
+                f"{self.archive.root}: run the full loop (3, r), fit it (4), then check; "
+                "or set one with b on History (6)"
             )
         baseline = load_baseline(self.archive.folder(rec))
         check_id = f"check-{new_run_id()}"
         out = self.archive.check_path(self.robot_name, check_id)
-        tell = on_line or (lambda line: None)
+        step = on_step or (lambda done, total, line: None)
+        total = len(self.plan.poses)
+        measured = [0]
 
         def progress(p: object) -> None:
             kind = getattr(p, "kind", "")
-            if kind in ("pose", "stop", "done"):
-                tell(f"{kind}: {getattr(p, 'name', '')} {getattr(p, 'status', '')}".rstrip())
+            if kind == "measured" and getattr(p, "status", "") == "measured":
+                measured[0] += 1
+            if kind in ("pose", "measured", "stop", "done"):
+                line = f"{kind}: {getattr(p, 'name', '')} {getattr(p, 'status', '')}".rstrip()
+                step(measured[0], total, line)
+
+        def say(line: str) -> None:
+            step(measured[0], total, line)
 
         def work(hw: Hardware, cancel: threading.Event) -> object:
             return quick_check(
                 hw, self.plan, self.cell_spec, baseline, out, run_settings=self.cell.settings,
-                progress=progress, cancel=cancel, say=tell,
+                progress=progress, cancel=cancel, say=say,
             )  # fmt: skip
 
+        step(0, total, f"quick check against the baseline {rec.run_id}")
         res = self.cell.exclusive(work)
         self.archive.add_check(self.robot_name, out, check_id=check_id)
         return res.summary()  # type: ignore[attr-defined, no-any-return]
 
-    # ----- history ---------------------------------------------------------------------------
+    # ----- baseline and history --------------------------------------------------------------
+    def set_baseline(self, run_id: str | None = None) -> str:
+        """Make ``run_id`` (default: this run) the robot's baseline in the archive; one line."""
+        rid = run_id or self.run_id
+        self.archive.set_baseline(self.robot_name, rid)  # the run must be archived
+        return f"baseline of {self.robot_name}: run {rid} (later runs and checks compare with it)"
+
     def history(self) -> History:
-        """This robot's archived runs, oldest first, and the trend of the main figures."""
+        """This robot's archived runs and quick checks, oldest first, each with the verdict its
+        report (a check: its own) gave; the latest run's verdict lines; the trend's words."""
+        root = shown_path(self.archive.root)
         try:
             recs = self.archive.runs(self.robot_name)
         except InputError:
-            return History(self.robot_name, (), "no runs archived yet")
-        rows = tuple(
-            HistoryRow(
-                run_id=r.run_id,
-                when=r.time_utc[:16].replace("T", " "),
-                mean_mm=r.mean_mm,
-                std_mm=r.std_mm,
-                max_mm=r.max_mm,
-                verdict=HealthVerdict.HEALTHY if r.healthy is not False else HealthVerdict.DEGRADED,
-                baseline=r.baseline,
+            return History(self.robot_name, (), "no runs archived yet", archive=root)
+        rows = []
+        latest: tuple[str, ...] = ()
+        for r in recs:
+            doc = _report_json(self.archive.folder(r))
+            got = recorded_verdict(doc)
+            verdict, reason = (got[0].value, got[1]) if got else ("not judged", "no report yet")
+            section = doc.get("verdict") if isinstance(doc.get("verdict"), dict) else {}
+            latest = tuple(str(x) for x in section.get("lines", ())) or (
+                f"{verdict.upper()}: {reason}",
             )
-            for r in recs
-        )
+            rows.append(
+                HistoryRow(
+                    run_id=r.run_id,
+                    when=r.time_utc[:16].replace("T", " "),
+                    mean_mm=r.mean_mm,
+                    std_mm=r.std_mm,
+                    max_mm=r.max_mm,
+                    verdict=verdict,
+                    baseline=r.baseline,
+                    reason=reason,
+                )
+            )
+        checks = self.archive.checks(self.robot_name)
+        for c in checks:
+            rows.append(
+                HistoryRow(
+                    run_id=c.check_id,
+                    when=c.time_utc[:16].replace("T", " "),
+                    mean_mm=float("nan"),
+                    std_mm=float("nan"),
+                    max_mm=float("nan"),
+                    verdict=c.verdict,
+                    kind="check",
+                    reason=f"{c.poses} poses vs baseline {c.baseline_run_id}"
+                    + (f": {c.changes}" if c.changes else ""),
+                )
+            )
+        rows.sort(key=lambda x: x.when)
         base = next((i for i, r in enumerate(recs) if r.baseline), 0)
+        spec = self.spec
         result = assess_trend(
             [run_state(self.archive, r) for r in recs],
             base,
-            threshold_mm=self.threshold_mm,
-            threshold_figure=self.threshold_figure,
+            threshold_mm=None if spec is None else spec.mm,
+            threshold_figure=ThresholdFigure.MAX.value if spec is None else spec.figure.value,
         )
-        flags = result.flags()
-        prog = result.prognoses.get(self.threshold_figure)
-        words = "; ".join(flags[:2]) if flags else "no significant change since the baseline"
+        prog = result.prognoses.get(ThresholdFigure.MAX.value if spec is None else spec.figure)
+        words = "; ".join(result.change_flags()[:2]) or "no change since the baseline"
         if prog is not None and len(recs) > 2:
             words += "; " + prog.words()
-        png = offload(jobs.trend_png_job, rows, self.threshold_mm, str(self.run_dir / "trend.png"))
-        checks = tuple(check_lines(self.archive.checks(self.robot_name)))
+        runs = tuple(x for x in rows if x.kind == "run")
+        png = offload(
+            jobs.trend_png_job,
+            runs,
+            None if spec is None else spec.mm,
+            str(self.run_dir / "trend.png"),
+        )
         return History(
-            self.robot_name, rows, words, flagged=result.flagged, pngs=(png,), checks=checks
+            self.robot_name,
+            tuple(rows),
+            words,
+            flagged=bool(latest) and latest[0].startswith("FLAGGED"),
+            pngs=(png,),
+            checks=tuple(check_lines(checks)),
+            latest=latest,
+            archive=root,
         )
 
     # ----- run -------------------------------------------------------------------------------
@@ -778,3 +832,35 @@ def cell_and_plan(
 def new_run_id() -> str:
     """A run id from the time now (UTC): ``2026-11-01-020000``."""
     return datetime.now(UTC).strftime("%Y-%m-%d-%H%M%S")
+
+
+def spec_for(
+    cell: Cell | None, threshold_mm: float | None, meta: dict[str, str] | None = None
+) -> Spec | None:
+    """The accuracy spec of a TUI session: ``--threshold-mm`` if given, else the cell's
+    ``spec_mm`` (a measurement file's: the one its run recorded), else none."""
+    if threshold_mm is not None:
+        return Spec(float(threshold_mm), ThresholdFigure.MAX, "--threshold-mm")
+    if cell is not None and cell.spec_mm is not None:
+        return Spec(cell.spec_mm, ThresholdFigure.MAX, f"cell {cell.name}")
+    return spec_of_meta(meta or {})
+
+
+def shown_path(p: Path) -> str:
+    """A folder as the screens show it: relative to the working folder when inside it, from
+    ``~`` when inside the home folder, else absolute."""
+    for base, prefix in ((Path.cwd(), "./"), (Path.home(), "~/")):
+        try:
+            return prefix + str(p.relative_to(base))
+        except ValueError:
+            continue
+    return str(p)
+
+
+def _report_json(folder: Path) -> dict[str, object]:
+    """A run folder's report.json as a dict ({} when absent or unreadable)."""
+    try:
+        doc = read_report(folder / "report.json")
+    except (InputError, OSError):
+        return {}
+    return doc if isinstance(doc, dict) else {}

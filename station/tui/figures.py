@@ -22,17 +22,19 @@ def _write(fig: Figure, path: Path) -> str:
 
 
 def histogram_png(
-    counts: Sequence[int], edges_mm: Sequence[float], threshold_mm: float, path: Path
+    counts: Sequence[int], edges_mm: Sequence[float], spec_mm: float | None, path: Path
 ) -> str:
-    """Workspace TCP error histogram (paper Fig. 7) with the verdict threshold."""
+    """Workspace TCP error histogram (paper Fig. 7) with the accuracy spec (if set)."""
     fig = Figure(figsize=(6.0, 3.6), layout="constrained")
     ax = fig.subplots()
     e = np.asarray(edges_mm, float)
     ax.bar(e[:-1], np.asarray(counts, float), width=np.diff(e), align="edge", color="C0")
-    ax.axvline(threshold_mm, color="C3", lw=1.2, label=f"threshold {threshold_mm:.3f} mm")
+    if spec_mm is not None:
+        ax.axvline(spec_mm, color="C3", lw=1.2, label=f"spec {spec_mm:g} mm")
+        ax.set_xlim(0.0, max(float(e[-1]), spec_mm) * 1.05)
+        ax.legend(fontsize=8)
     ax.set_xlabel("TCP position error over the workspace (mm)")
     ax.set_ylabel("sampled commands")
-    ax.legend(fontsize=8)
     return _write(fig, path)
 
 
@@ -61,14 +63,15 @@ def curves_png(curves: Sequence[JointCurve], path: Path) -> str:
     return _write(fig, path)
 
 
-def trend_png(rows: Sequence[HistoryRow], threshold_mm: float, path: Path) -> str:
+def trend_png(rows: Sequence[HistoryRow], spec_mm: float | None, path: Path) -> str:
     """Workspace mean / std / max error of the robot's runs over time."""
     fig = Figure(figsize=(7.0, 3.6), layout="constrained")
     ax = fig.subplots()
     x = np.arange(1, len(rows) + 1)
     for key, label in (("mean_mm", "mean"), ("std_mm", "std"), ("max_mm", "max")):
         ax.plot(x, [getattr(r, key) for r in rows], "o-", ms=3, label=label)
-    ax.axhline(threshold_mm, color="C3", lw=1.0, ls="--", label="threshold")
+    if spec_mm is not None:
+        ax.axhline(spec_mm, color="C3", lw=1.0, ls="--", label=f"spec {spec_mm:g} mm")
     ax.set_xticks(x, [r.run_id for r in rows], rotation=45, ha="right", fontsize=7)
     ax.set_ylabel("workspace TCP error (mm)")
     ax.legend(fontsize=8)

@@ -23,7 +23,7 @@ from ...identify.robot import RobotModel
 from ...identify.workspace import reference_conditions
 from ..archive import Archive
 from ..fsio import write_figure
-from ..reporting.verdict import Judgement, Threshold
+from ..reporting.verdict import Judgement, Spec
 from ..services import fitting
 from ..services.options import FitOptions, ReportOptions
 from ..services.report import report_run
@@ -81,7 +81,7 @@ def report_job(
     archive_url: str,
     robot: str,
     run_id: str,
-    threshold: Threshold,
+    spec: Spec | None,
     progress: Progress | None = None,
 ) -> Judgement:
     """The run's report as ``quickhealth report`` makes it against the robot's archive (the
@@ -92,7 +92,7 @@ def report_job(
         archive=Archive.open(archive_root, archive_url),
         robot=robot,
         run_id=run_id,
-        options=ReportOptions(threshold=threshold),
+        options=ReportOptions(accuracy_spec=spec),
         write_html=False,
     )
     return res.report.judgement
@@ -101,7 +101,7 @@ def report_job(
 def results_pngs_job(
     counts: Sequence[int],
     edges_mm: Sequence[float],
-    threshold_mm: float,
+    spec_mm: float | None,
     curves: Sequence[JointCurve],
     out_dir: str,
     progress: Progress | None = None,
@@ -109,16 +109,19 @@ def results_pngs_job(
     """The Results screen's PNGs: workspace error histogram and joint curves."""
     d = Path(out_dir)
     return (
-        figures.histogram_png(counts, edges_mm, threshold_mm, d / "workspace_error.png"),
+        figures.histogram_png(counts, edges_mm, spec_mm, d / "workspace_error.png"),
         figures.curves_png(curves, d / "joint_curves.png"),
     )
 
 
 def trend_png_job(
-    rows: Sequence[HistoryRow], threshold_mm: float, png: str, progress: Progress | None = None
+    rows: Sequence[HistoryRow],
+    spec_mm: float | None,
+    png: str,
+    progress: Progress | None = None,
 ) -> str:
     """The History screen's PNG: the main figures over the runs."""
-    return figures.trend_png(rows, threshold_mm, Path(png))
+    return figures.trend_png(rows, spec_mm, Path(png))
 
 
 def regions_job(fitted: FittedModel, progress: Progress | None = None) -> tuple[Region, ...]:

@@ -24,17 +24,17 @@ from ..planning.cell import Cell
 from ..planning.planfile import Plan
 from ..run.settings import RunSettings
 from ..sim.cell import inprocess_sim_station, sim_station
-from .facade import Facade, cell_and_plan, make_plan, new_run_id
+from .facade import Facade, cell_and_plan, make_plan, new_run_id, spec_for
 
 
 def open_simulated(
     *,
     cell: str = "reference",
     plan: Path | None = None,
-    archive: Path = Path("archive"),
+    archive: Path | None = None,
     robot_name: str | None = None,
-    n_poses: int = 40,
-    threshold_mm: float = 2.0,
+    n_poses: int = 150,
+    threshold_mm: float | None = None,
     run_id: str | None = None,
     say: Callable[[str], None] | None = None,
     speed_factor: float = 1.0,
@@ -60,10 +60,10 @@ def open_simulated(
     station = Facade(
         robot=c.robot_with_target(),
         robot_name=robot_name or f"{c.robot.name}-sim",
-        archive_root=Path(archive),
+        archive_root=archive,
         run_id=run_id or new_run_id(),
         cell_name=c.name,
-        threshold_mm=threshold_mm,
+        spec=spec_for(c, threshold_mm),
         sim=True,
         hardware=hw,
         plan=the_plan,
@@ -104,7 +104,7 @@ def in_process(
     time_scale: float = 20.0,
     run_id: str = "sim-run-1",
     robot_name: str = "sim-ur5",
-    threshold_mm: float = 2.0,
+    threshold_mm: float | None = None,
     max_order: int | None = None,
 ) -> Facade:
     """The built-in simulated cell, in this process (fast; for tests and demos).
@@ -127,7 +127,7 @@ def in_process(
         archive_root=Path(archive_root),
         run_id=run_id,
         cell_name=cell.name,
-        threshold_mm=threshold_mm,
+        spec=spec_for(cell, threshold_mm),
         sim=True,
         hardware=hw,
         plan=plan,

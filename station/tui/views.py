@@ -176,10 +176,11 @@ class Health:
     mean_mm: float
     std_mm: float
     max_mm: float
-    threshold_mm: float
-    threshold_figure: ThresholdFigure  # which figure the threshold applies to
+    spec_mm: float | None  # the accuracy spec judged against (None: none set)
+    spec_figure: ThresholdFigure  # which figure the spec applies to
     verdict: HealthVerdict  # the run's report's (healthy, degraded, flagged)
     reason: str  # the verdict's one-line reason
+    verdict_lines: tuple[str, ...]  # the verdict in words, as every door shows it
     baseline_mean_mm: float | None
     hist_counts: tuple[int, ...]
     hist_edges_mm: tuple[float, ...]
@@ -248,15 +249,18 @@ class Refit:
 
 @dataclass(frozen=True)
 class HistoryRow:
-    """One archived run of this robot."""
+    """One archived run (an assessment) or quick check of this robot."""
 
     run_id: str
     when: str
-    mean_mm: float
+    mean_mm: float  # NaN for a quick check (no figures)
     std_mm: float
     max_mm: float
-    verdict: HealthVerdict  # healthy, or not (the archive's healthy flag)
+    verdict: str  # a run's report verdict (healthy, degraded, flagged), a check's
+    # (unchanged, changed), or "not judged" (no report yet)
     baseline: bool = False
+    kind: str = "run"  # "run" or "check"
+    reason: str = ""  # the verdict's reason (a check: its summary)
 
 
 @dataclass(frozen=True)
@@ -264,8 +268,10 @@ class History:
     """This robot's runs over time and the trend of the main figures."""
 
     robot: str
-    rows: tuple[HistoryRow, ...]
+    rows: tuple[HistoryRow, ...]  # runs and quick checks, oldest first
     trend: str  # the trend in words (e.g. "mean error rising 0.02 mm/run; crosses 0.5 mm in ~30 d")
-    flagged: bool = False
+    flagged: bool = False  # the latest run's verdict is "flagged"
     pngs: tuple[str, ...] = ()
     checks: tuple[str, ...] = ()  # the robot's quick checks, one line each (not assessments)
+    latest: tuple[str, ...] = ()  # the latest run's verdict lines, as its report says them
+    archive: str = ""  # the archive folder read

@@ -181,16 +181,20 @@ def test_trend_command_flags_the_degraded_joint_not_the_healthy_repeat(
         assert main(["archive", "add", str(d), "--robot", "ur5-a", "--archive", arch, *db]) == 0
     rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch, *db)
     assert rc == 0, out
-    assert "latest run r1: healthy" in out
+    # the words first: the latest run's verdict, as its report and the TUI say it
+    lines = out[out.index("ur5-a: latest run r1 (") :].splitlines()
+    assert lines[1] == "HEALTHY: no spec set and unchanged since the baseline run r0"
+    assert "no accuracy spec set (spec_mm in the cell or robot file)" in out
     main(["archive", "add", str(run_dirs[3]), "--robot", "ur5-a", "--archive", arch, *db])
     capsys.readouterr()
     rc, out, _ = _trend(capsys, "ur5-a", "--archive", arch, *db, "--json", str(tmp_path / "t.json"))
     assert rc == 1
-    assert "latest run r3: FLAGGED" in out
+    tail = out[out.index("ur5-a: latest run r3 (") :].splitlines()
     # j2.ex.c0 turns joint 3's axis about x (the link between them twisted): named as that
     # fault in its own unit, and nothing else blamed
-    flags = [line for line in out.splitlines() if line.startswith("  - ")]
-    assert len(flags) == 1 and "joint 3 tilt about x changed by +0.5" in flags[0], out
+    assert tail[1].startswith("FLAGGED: the robot changed since its baseline: joint 3 tilt about x")
+    assert "changed by +0.5" in tail[1] and not [x for x in tail if x.startswith("  - ")], out
+    assert "r1                       2026-" in out and "healthy\n" in out  # earlier: as then
     doc = json.loads((tmp_path / "t.json").read_text())
     assert doc["flagged"] and doc["baseline"] == "r0"
     (ch,) = doc["changes"]
@@ -204,7 +208,7 @@ def test_trend_command_flags_the_degraded_joint_not_the_healthy_repeat(
     rc, out, _ = _trend(
         capsys, "ur5-a", "--archive", arch, *db, "--fail-on", "threshold", "--threshold-mm", "0.1"
     )
-    assert rc == 1 and "above the threshold 0.1 mm" in out
+    assert rc == 1 and "above the spec of 0.1 mm (max TCP error, --threshold-mm)" in out
 
 
 def test_trend_warns_when_runs_are_not_comparable(tmp_path, run_dirs, capsys):

@@ -82,7 +82,7 @@ def test_tilted_joint_2_is_changed_and_named(baseline, tmp_path, capsys):
         main(["trend", "ur5-sim", "--archive", str(arch), "--json", str(tmp_path / "t.json")]) == 0
     )
     text = capsys.readouterr().out
-    assert "quick checks (1; not assessments)" in text and "ur5-sim: 1 runs" in text
+    assert "quick checks (1; not assessments)" in text and "runs (1; baseline base;" in text
     assert "says CHANGED: run a full assessment" in text
     checks = json.loads((tmp_path / "t.json").read_text())["checks"]
     assert [c["check_id"] for c in checks] == ["worn"] and checks[0]["verdict"] == "changed"

@@ -2117,8 +2117,9 @@ def _(b, t):
 
     return Case(
         ["trend", "cell3", "--archive", str(arch), "--json", str(t / "t.json")], 0,
-        r"warning: run run2: its folder .*/run2 is missing \(deleted behind the index\?\): left "
-        r"out of the trend\n(.|\n)*latest run run3: healthy", [arch / "index.sqlite"],
+        r"latest run run3 (.|\n)*\nHEALTHY: (.|\n)*warning: run run2: its folder .*/run2 is "
+        r"missing \(deleted behind the index\?\): left out of the trend\n",
+        [arch / "index.sqlite"],
         check=check,
     )  # fmt: skip
 

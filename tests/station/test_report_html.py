@@ -79,6 +79,7 @@ def _browser_query(page: Path) -> dict:
               return {id: id, text: el.textContent, top: r.top, bottom: r.bottom,
                       right: r.right, visible: r.height > 0};
           }),
+          verdict_texts: Array.from(document.querySelectorAll('#verdict p')).map(p => p.textContent),
           viewport: [window.innerWidth, window.innerHeight],
           folded: Array.from(document.querySelectorAll('#diagnosis details')).map(
               d => ({open: d.open, rows: d.querySelectorAll('tr').length})),
@@ -163,17 +164,18 @@ def test_report_renders_every_plot_in_chromium(reported):
     assert dom["missing"] == []
     assert dom["external"] == 0  # self-contained
     assert sorted(dom["json"]) == sorted(SECTIONS)
-    # the first 1280x800 screen holds the verdict line and the TCP error against the baseline
+    # the first 1280x800 screen holds the verdict line, the TCP error against the spec and
+    # the run against its baseline
     w, h = dom["viewport"]
     assert (w, h) == (1280, 800), dom["viewport"]
-    line, err, top = dom["first_screen"]
-    for el in (line, err, top):
+    line, err, base = dom["first_screen"]
+    for el in (line, err, base):
         assert el["visible"] and 0 <= el["top"] and el["bottom"] <= h and el["right"] <= w, el
-    assert line["text"].startswith("FLAGGED: "), line
-    assert "baseline" in err["text"] and "mean" in err["text"] and "max" in err["text"], err
-    assert top["text"].startswith("top missing effect: "), top
-    # the candidate that matters is in view; the rest are folded away (one closed <details>)
-    assert top["text"] == "top missing effect: cyclic:j1:h9", top
+    assert line["text"].startswith("FLAGGED: the robot changed since its baseline: "), line
+    assert "mean" in err["text"] and "max" in err["text"] and "spec of 5 mm" in err["text"], err
+    assert base["text"].startswith("changed since the baseline run r0"), base
+    # the candidate that matters is named; the rest are folded away (one closed <details>)
+    assert "top missing effect: cyclic:j1:h9" in dom["verdict_texts"], dom["verdict_texts"]
     assert [(d["open"], d["rows"] > 2) for d in dom["folded"]] == [(False, True)], dom["folded"]
     # coverage, histogram, 6 joints' curves, residuals, trend, ISO 9283
     want = {"plot-coverage", "plot-workspace_hist", "plot-residuals", "plot-trend", "plot-iso9283"}

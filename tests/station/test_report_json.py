@@ -17,7 +17,7 @@ from quickhealth.station.archive import Archive
 from quickhealth.station.cli import main
 from quickhealth.station.formats import REPORT_SCHEMA as SCHEMA
 from quickhealth.station.formats import check_report, write_measurements
-from quickhealth.station.reporting.verdict import HealthVerdict, Threshold
+from quickhealth.station.reporting.verdict import HealthVerdict, Spec
 from quickhealth.station.reprocess import jobs_for_archive, reprocess
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.facade import Facade
@@ -89,8 +89,9 @@ async def test_every_door_gives_one_verdict_and_one_report(tmp_path: Path, capsy
 
     # 2. the TUI's analysis (Results screen) on the same file, in its own archive
     station = Facade.from_data(
-        meas_csv, archive_root=tmp_path / "archive-tui", robot_name=ROBOT, max_order=MAX_ORDER
-    )
+        meas_csv, archive_root=tmp_path / "archive-tui", robot_name=ROBOT, max_order=MAX_ORDER,
+        threshold_mm=2.0,
+    )  # fmt: skip
     station.analysis.effects = ("thermal",)
     app = QuickhealthApp(station)
     async with app.run_test(size=(120, 40)) as pilot:
@@ -104,7 +105,7 @@ async def test_every_door_gives_one_verdict_and_one_report(tmp_path: Path, capsy
     # 3. fleet reprocessing of the archived run, orders selected anew, judged as reported
     jobs = jobs_for_archive(
         Archive.open(a1), ROBOT, tag="again", orders="select", max_order=MAX_ORDER,
-        report=True, threshold=Threshold(2.0),
+        report=True, spec=Spec(2.0, source="--threshold-mm"),
     )  # fmt: skip
     (res,) = reprocess(jobs, workers=1)
     assert res.ok, res.error
@@ -117,12 +118,14 @@ async def test_every_door_gives_one_verdict_and_one_report(tmp_path: Path, capsy
     assert h.verdict == res.verdict == tui["verdict"]["verdict"] == rep["verdict"]["verdict"]
     assert h.verdict == verdict and h.reason == cli["verdict"]["reason"] == res.reason
     assert "DEGRADED" in shown and "backlash:j2" in shown  # the TUI shows the report's verdict
+    assert h.verdict_lines == tuple(cli["verdict"]["lines"]) == tuple(tui["verdict"]["lines"])
     assert cli["run"] == {
         "run_id": RUN, "robot_name": ROBOT, "verdict": verdict, "healthy": False,
         "threshold_mm": 2.0, "threshold_figure": "max",
     }  # fmt: skip
-    for arch in (Archive.open(a1), station.archive):  # the archive's index holds it too
-        assert arch.get(ROBOT, RUN).healthy is False
+    for arch in (Archive.open(a1), station.archive):  # the index: still the baseline (a model
+        # missing an effect is a fair reference for change; a verdict never unseats a baseline)
+        assert arch.get(ROBOT, RUN).healthy is True and arch.baseline(ROBOT).run_id == RUN
 
     # one report.json: every key and figure alike, provenance aside
     for doc in (cli, tui, rep):

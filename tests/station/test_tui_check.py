@@ -23,15 +23,25 @@ def test_quick_check_against_the_archived_baseline(tmp_path: Path) -> None:
         final = station.run(lambda p: None)
         assert final.done == len(plan.poses)
         station.results()  # fitted and archived: the robot's first run is its baseline
-        lines: list[str] = []
-        summary = station.quick_check(lines.append)
+        steps: list[tuple[int, int, str]] = []
+        summary = station.quick_check(lambda done, total, line: steps.append((done, total, line)))
         assert summary[0].startswith("UNCHANGED after"), summary
-        assert any(line.startswith("pose:") for line in lines)
+        assert any(line.startswith("pose:") for _, _, line in steps)
+        # the progress counts the check's own poses: up by one per measured pose, to the
+        # number of poses the check took
+        done = [d for d, _, _ in steps]
+        assert (
+            done == sorted(done) and done[0] == 0 and {t for _, t, _ in steps} == {len(plan.poses)}
+        )
+        n_check = int(summary[0].split("after ")[1].split(" poses")[0])
+        assert done[-1] == n_check and set(done) == set(range(n_check + 1))
         checks = station.archive.checks(station.robot_name)
         assert len(checks) == 1 and checks[0].verdict == "unchanged"
         assert checks[0].baseline_run_id == station.run_id
         assert [r.run_id for r in station.archive.runs(station.robot_name)] == [station.run_id]
         h = station.history()
         assert h.checks and "not assessments" in h.checks[0]
+        # History lists the check beside the run, each with its own verdict
+        assert [(r.kind, r.verdict) for r in h.rows] == [("run", "healthy"), ("check", "unchanged")]
     finally:
         station.shutdown()

@@ -9,6 +9,7 @@ from quickhealth.station.cli import main
 from quickhealth.station.formats import write_measurements
 from quickhealth.station.tui.app import QuickhealthApp
 from quickhealth.station.tui.facade import Facade
+from quickhealth.station.tui.screens.help import SCREENS_HELP, HelpScreen
 
 
 def test_tui_needs_a_station(capsys) -> None:  # type: ignore[no-untyped-def]
@@ -40,9 +41,26 @@ async def test_q_quits_from_any_screen_and_help_lists_keys(tmp_path: Path) -> No
         assert "no station attached" in str(app.screen.query_one("#run-state").render())
         await pilot.press("question_mark")
         await pilot.pause()
-        assert app.screen.query("HelpPanel")
+        # the application's own help: its six screens and what they are for, not textual's keys
+        assert isinstance(app.screen, HelpScreen)
+        help_text = str(app.screen.query_one("#help-text").render())
+        for name in ("Station", "Plan", "Run", "Results", "Diagnose", "History", "baseline"):
+            assert name in help_text, name
+        await pilot.press("question_mark")  # closes it
+        await pilot.pause()
+        assert not isinstance(app.screen, HelpScreen) and app.current_mode == "run"
         await pilot.press("2")
         await pilot.pause()
         await pilot.press("q")
         await pilot.pause()
     assert app.return_value == 0
+
+
+def test_help_names_only_keys_the_screens_bind() -> None:
+    """Every key the help names for a screen is bound on that screen (help never lies)."""
+    for _key, name, _what, keys in SCREENS_HELP:
+        screen = QuickhealthApp.MODES[name.lower()]
+        bound = {b.key for b in screen.BINDINGS}  # type: ignore[attr-defined]
+        for k, _ in keys:
+            for one in k.split(" / "):
+                assert one in bound, (name, one)

@@ -70,8 +70,12 @@ async def visit(app: QuickhealthApp, pilot, key: str) -> None:  # type: ignore[n
 
 @pytest.mark.slow
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
-async def test_main_screens(data_station: Facade, size: tuple[int, int], tmp_path: Path) -> None:
+async def test_main_screens(
+    data_station: Facade, size: tuple[int, int], tmp_path: Path, monkeypatch
+) -> None:  # type: ignore[no-untyped-def]
     tag = f"{size[0]}x{size[1]}"
+    # the screens show the archive relative to the working folder: the same on every machine
+    monkeypatch.chdir(data_station.archive.root.parent)
     app = QuickhealthApp(data_station)
     async with app.run_test(size=size) as pilot:
         await visit(app, pilot, "1")

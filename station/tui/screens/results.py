@@ -1,12 +1,15 @@
 """Screen 4, Results: workspace error, change against baseline, verdict, joint curves, worst regions.
 
-``j`` / ``J`` step through the joints, ``m`` through the six error motions of the curve plot;
-``f`` fits the last run (in the background) when it has not been fitted yet.
+The verdict comes first, in the words every door shows (the report, ``trend``, History):
+against the accuracy spec, against the baseline, what to do.  ``j`` / ``J`` step through the
+joints, ``m`` through the six error motions of the curve plot; ``f`` fits the last run (in
+the background) when it has not been fitted yet; ``b`` makes this run the robot's baseline.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from rich.markup import escape
 from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -41,6 +44,7 @@ class ResultsScreen(Screen[None]):
         Binding("j", "joint(1)", "Next joint"),
         Binding("J", "joint(-1)", "Prev joint", show=False),
         Binding("m", "motion", "Motion"),
+        Binding("b", "baseline", "Set as baseline"),
     ]
 
     health: reactive[Health | None] = reactive(None)
@@ -97,24 +101,18 @@ class ResultsScreen(Screen[None]):
         if h is None:
             return
         colour = {HealthVerdict.HEALTHY: "green", HealthVerdict.DEGRADED: "yellow"}
-        verdict = f"[b {colour.get(h.verdict, 'red')}]{h.verdict.value.upper()}[/]"
-        if h.change_mm is None:
-            change = "no baseline yet (this run can become it)"
-        else:
-            change = f"{h.change_mm:+.3f} mm vs baseline {h.baseline_mean_mm:.3f}"
+        head, *rest = h.verdict_lines
+        word, _, why = head.partition(": ")
         lines = [
-            f"{verdict}  (threshold: {h.threshold_figure} ≤ {h.threshold_mm:.3f} mm)",
-            f"run {h.run_id} · {h.robot} · {h.n_poses} poses",
+            f"[b {colour.get(h.verdict, 'red')}]{escape(word)}[/]: {escape(why)}",
+            *(escape(x) for x in rest),
             "",
-            "[b]Workspace TCP error[/b] (model, whole range)",
-            f"  mean {h.mean_mm:7.3f} mm",
-            f"  std  {h.std_mm:7.3f} mm",
-            f"  max  {h.max_mm:7.3f} mm",
-            f"  change {change}",
-            f"  fit residual {h.rms_pos_mm:.3f} mm rms",
+            f"run {h.run_id} · {h.robot} · {h.n_poses} poses · fit residual "
+            f"{h.rms_pos_mm:.3f} mm rms",
+            "[b]Workspace TCP error[/b] (model, whole range): "
+            f"mean {h.mean_mm:.3f} mm, std {h.std_mm:.3f} mm, max {h.max_mm:.3f} mm",
             f"  {spark(h.hist_counts, 24)}",
             f"  {h.hist_edges_mm[0]:<.2f}{'':>14}{h.hist_edges_mm[-1]:>.2f} mm",
-            f"[dim]why: {h.reason}[/]",
         ]
         self.query_one("#summary", Static).update("\n".join(lines))
         worst = ["[b]Worst regions[/b] (mean error there)"] + [
@@ -124,6 +122,22 @@ class ResultsScreen(Screen[None]):
             worst.append(f"[dim]plots: {h.pngs[0].rsplit('/', 2)[-2]}/*.png[/]")
         self.query_one("#worst", Static).update("\n".join(worst))
         self._plot()
+
+    def action_baseline(self) -> None:
+        """``b``: this run becomes the robot's baseline (it must be fitted and archived)."""
+        if self.health is None:
+            self.notify("No results yet: fit the run first (f).", severity="warning")
+            return
+        self._set_baseline()
+
+    @work(thread=True, exclusive=True, group="baseline")
+    def _set_baseline(self) -> None:
+        try:
+            line = self.app.station.set_baseline()  # type: ignore[attr-defined]
+        except Exception as exc:  # noqa: BLE001 - shown to the technician
+            self.app.call_from_thread(self.notify, f"Baseline: {exc}", severity="error")
+            return
+        self.app.call_from_thread(self.notify, line)
 
     def action_joint(self, step: int) -> None:
         h = self.health

@@ -188,15 +188,20 @@ class RunScreen(Screen[None]):
 
         self.app.push_screen(ConfirmScreen(question), answer)
 
+    def _check_step(self, done: int, total: int, text: str) -> None:
+        """The check's own progress: its poses measured so far (it stops as soon as it can
+        decide, at most the plan's poses)."""
+        self.query_one("#run-bar", ProgressBar).update(total=max(1, total), progress=done)
+        self.query_one("#run-eta", Static).update(f"check: {done} poses measured (≤ {total})")
+        self.query_one("#run-current", Static).update(f"Quick check: {text}")
+
     @work(thread=True, exclusive=True, group="run")
     def _quick_check(self) -> None:
-        current = self.query_one("#run-current", Static)
-
-        def line(text: str) -> None:
-            self.app.call_from_thread(current.update, f"Quick check: {text}")
+        def step(done: int, total: int, text: str) -> None:
+            self.app.call_from_thread(self._check_step, done, total, text)
 
         try:
-            lines = self.app.station.quick_check(line)  # type: ignore[attr-defined]
+            lines = self.app.station.quick_check(step)  # type: ignore[attr-defined]
         except Exception as exc:  # noqa: BLE001 - shown to the technician
             self.app.call_from_thread(self.notify, f"Quick check: {exc}", severity="error")
             self.app.call_from_thread(
