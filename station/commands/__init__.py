@@ -16,6 +16,7 @@ COMMAND_MODULES: dict[str, str] = {
     "check": "check",
     "demo": "demo",
     "diagnose": "diagnose",
+    "examples": "examples",
     "twin": "diagnose",
     "compare": "compare",
     "identify": "identify",

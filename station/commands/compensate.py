@@ -1,11 +1,13 @@
 """``quickhealth compensate``: rewrite a program's joint targets so the modelled TCP hits them.
 
 quickhealth compensate MODEL.json PROGRAM --out NEW_PROGRAM [--errors ERR.csv] [--tcp-mm X,Y,Z]
-    [--temp-c C] [--time-s S] [--leave-out EFFECTS] [--max-correction-deg D]
+    [--temp-c C] [--time-s S] [--leave-out EFFECTS] [--max-correction-deg D] [--keep-refused]
     PROGRAM: URScript (.script) or a CSV of joint columns q1..qN (deg).  The compensation and
     every refusal are :func:`quickhealth.station.services.compensation.compensate`'s; this
     command reads and writes the files and says, one line per target, what was refused
-    (exit 2, nothing written).
+    (exit 2, nothing written).  With --keep-refused such targets (a near-singular wrist, a
+    correction above the cap) are kept as written, uncompensated, one line each says so,
+    and the rest is compensated.
 """
 
 from __future__ import annotations
@@ -44,6 +46,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         type=float,
         default=1.0,
         help="largest change of any joint of any target (1.0); a larger one is refused",
+    )
+    c.add_argument(
+        "--keep-refused",
+        action="store_true",
+        help="keep a target that would be refused (near a singularity, a correction above the "
+        "cap, outside the model's range) as written, uncompensated, and compensate the rest; "
+        "each is listed",
     )
     c.add_argument(
         "--temp-c",
@@ -141,9 +150,12 @@ def _compensate(args: argparse.Namespace) -> int:
         leave_out=leave_out,
         max_correction=np.radians(cap),
         describe=lambda refused: _refusals(refused, where, cap),
+        keep_refused=args.keep_refused,
     )
     comp = c.result
     dq = np.degrees(c.dq)
+    kept = sorted({r.target for r in c.kept})
+    done = np.setdiff1d(np.arange(len(q)), kept)
     if is_script:
         new_text = replace_targets(text, targets.spans, c.q)
     else:
@@ -162,12 +174,16 @@ def _compensate(args: argparse.Namespace) -> int:
     formats.write_text_atomic(args.out, new_text)
     if rows is not None:
         formats.write_text_atomic(args.errors, "\n".join(rows) + "\n")
+    before, after = comp.error_before_pos * 1e3, comp.residual_pos * 1e3
+    after = np.where(np.isin(np.arange(len(q)), kept), before, after)  # kept: as before
+    head = f"{len(q)} targets" if not kept else f"{len(done)} of {len(q)} targets compensated"
     print(
-        f"{len(q)} targets: predicted TCP error {comp.error_before_pos.mean() * 1e3:.4f} mm mean "
-        f"({comp.error_before_pos.max() * 1e3:.4f} max) before, "
-        f"{comp.residual_pos.max() * 1e3:.6f} mm max after compensation; largest correction "
-        f"{np.abs(dq).max():.4f} deg (cap {cap:g})"
+        f"{head}: predicted TCP error {before.mean():.4f} mm mean ({before.max():.4f} mm max) "
+        f"before, {after.mean():.4f} mm mean ({after.max():.4f} mm max) after; largest "
+        f"correction {np.abs(dq).max():.4f} deg (cap {cap:g} deg)"
     )
+    for line in _refusals(c.kept, where, cap, kept=True):
+        print(line)
     for line in _compensation_notes(fm, comp, args):
         print(line)
     if is_script and targets.left:
@@ -193,8 +209,11 @@ def _left_as_written(left: Sequence[tuple[int, int, str, str]]) -> str:
     )
 
 
-def _refusals(refused: Sequence[Refused], where: Sequence[str], cap: float) -> list[str]:
-    """One line per refused target (deg), each ending "nothing written"."""
+def _refusals(
+    refused: Sequence[Refused], where: Sequence[str], cap: float, *, kept: bool = False
+) -> list[str]:
+    """One line per refused target (deg), each ending "nothing written" (``kept``: "kept as
+    written, not compensated")."""
     from ..services.compensation import Refusal  # scipy.optimize (loaded by now)
 
     lines = []
@@ -220,7 +239,11 @@ def _refusals(refused: Sequence[Refused], where: Sequence[str], cap: float) -> l
             x = f"joint {j} correction {v:+.4g} deg exceeds --max-correction-deg {cap:g}"
         else:
             x = f"compensated joint {j} at {v:.6g} deg is outside the robot's limits"
-        lines.append(f"{at}: {x}; nothing written")
+        lines.append(
+            f"{at}: {x}; " + ("kept as written, not compensated" if kept else "nothing written")
+        )
+    if lines and not kept:  # the way past it, said where the refusal is
+        lines[-1] += " (--keep-refused keeps such targets as written and compensates the rest)"
     return lines
 
 

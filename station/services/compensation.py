@@ -7,7 +7,9 @@ the joint range the model was identified on (the series would extrapolate), a co
 that did not converge, a correction that reverses the direction the program moves a backlash
 joint in, a correction above the cap on any joint, a compensated target outside the joint
 limits.  Refused as a whole: a model with ``thermal`` / ``drift`` without the temperature /
-the time the program runs at (unless the effect is left out).
+the time the program runs at (unless the effect is left out).  With ``keep_refused`` a refused
+target is kept as written instead (not compensated: a near-singular wrist, a correction
+above the cap), the rest compensated, and :attr:`Compensated.kept` names each one.
 
 SYNOPSIS::
 
@@ -77,6 +79,7 @@ class Compensated:
     q: F
     dq: F
     result: Compensation
+    kept: tuple[Refused, ...] = ()  # targets kept as written (``keep_refused``), and why
 
 
 def needed_conditions(fm: FittedModel, leave_out: Sequence[str] = ()) -> dict[str, list[str]]:
@@ -115,6 +118,7 @@ def compensate(
     leave_out: Sequence[str] = (),
     max_correction: float = MAX_CORRECTION,
     describe: Callable[[Sequence[Refused]], str | list[str]] | None = None,
+    keep_refused: bool = False,
 ) -> Compensated:
     """Compensate joint targets ``q`` (n, nj), rad, with model ``fm``.
 
@@ -131,6 +135,9 @@ def compensate(
         The largest accepted change of any joint of any target.
     describe : callable, optional
         Words for the refused targets (the door's, with its units); default a count.
+    keep_refused : bool
+        Keep each refused target as written (uncompensated) instead of refusing the
+        program: the way past a near-singular target; :attr:`Compensated.kept` says which.
 
     Raises
     ------
@@ -141,7 +148,7 @@ def compensate(
     """
     words = describe or (lambda r: f"{len(r)} targets refused")
     bad = refused_targets(fm, q)
-    if bad:
+    if bad and not keep_refused:
         raise CompensationRefused(bad, words(bad))
     comp = compensate_program(
         fm, q, T_flange_tcp, temp_c=temp_c, time_s=time_s, leave_out=leave_out
@@ -162,6 +169,9 @@ def compensate(
         if out_of.size:
             j = int(out_of[0])
             bad.append(Refused(k, Refusal.COMPENSATED_OUTSIDE, j, comp.q[k, j], lo[j], hi[j]))
-    if bad:
+    if bad and not keep_refused:
         raise CompensationRefused(bad, words(bad))
-    return Compensated(comp.q, dq, comp)
+    kept = sorted({r.target for r in bad})
+    new_q = comp.q.copy()
+    new_q[kept] = q[kept]  # as written: never worse than the program was
+    return Compensated(new_q, new_q - q, comp, tuple(sorted(bad, key=lambda r: r.target)))

@@ -111,7 +111,9 @@ async def test_results_history_and_ui_live_while_the_fit_runs(tmp_path: Path) ->
         await settle(app, pilot)
         hist = app.screen.history
         assert [r.run_id for r in hist.rows] == ["hidden"]
-        # judged degraded, the run is not the robot's first healthy run: no baseline yet
-        assert hist.rows[0].verdict == "degraded" and not hist.rows[0].baseline
+        # judged degraded (its model misses an effect), it is still the robot's baseline: the
+        # first run is the reference later runs are compared with, whatever its verdict says
+        assert hist.rows[0].verdict == "degraded" and hist.rows[0].baseline
+        assert hist.latest[0].startswith("DEGRADED: the error model misses a physical effect")
         assert app.screen.query_one("#runs").row_count == 1
         assert (station.run_dir / "trend.png").is_file()
