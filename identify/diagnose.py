@@ -266,6 +266,10 @@ class Candidate:
         The evidence in words.
     explained_share : float
         Fraction of the whitened residual sum of squares the effect would explain.
+    f_statistic, f_dof2 : float, int
+        The F statistic the p-value is of, on ``(dof, f_dof2)`` degrees of freedom (the
+        residual variance estimated after the effect: the score statistic saturates at
+        ``dof`` when the effect explains nearly everything, the F statistic does not).
     """
 
     effect: str
@@ -282,6 +286,8 @@ class Candidate:
     explained_share: float = float("nan")
     predicted_rot_drop_mrad: float | None = None
     rot_rms_after_mrad: float | None = None
+    f_statistic: float = float("nan")
+    f_dof2: int = 0
 
     @property
     def orientation_only(self) -> bool:
@@ -306,6 +312,8 @@ class Candidate:
             "p_value": self.p_value,
             "lm_statistic": self.lm_statistic,
             "dof": self.dof,
+            "f_statistic": self.f_statistic,
+            "f_dof2": self.f_dof2,
             "delta_bic": self.delta_bic,
             "rms_after_mm": self.rms_after_mm,
             "params": list(self.params),
@@ -546,7 +554,9 @@ def diagnose(
     raw: list[tuple[float, Candidate]] = []
     spectra: dict[str, list[float]] = {}
     bases = _bases(state, wp, Q, r)
-    for effect, one, logp_adj, s2_c, one_plain in _scan(wp, bases, effects, m_tests, advance):
+    for effect, one, logp_adj, s2_c, one_plain, f_test in _scan(
+        wp, bases, effects, m_tests, advance
+    ):
         if one is None:
             not_ident.append(
                 f"{effect.name}: the fitted model already expresses it (its Jacobian lies in "
@@ -567,6 +577,8 @@ def diagnose(
             score=score,
             lm_statistic=float(lm),
             dof=k,
+            f_statistic=float(f_test[0]),
+            f_dof2=int(f_test[1]),
             p_value=p_adj,
             delta_bic=float(dbic),
             predicted_rms_drop_mm=float(rms_now - rms_after),
@@ -760,19 +772,19 @@ def _scan(
     effects: Sequence[Effect],
     m_tests: int,
     advance: Callable[[int, int, str], None] | None = None,
-) -> list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]]:
+) -> list[tuple[Effect, _OneStep | None, float, float, _OneStep | None, tuple[float, int]]]:
     """Score test of every effect.
 
-    Returns ``(effect, conditional one-step, log adjusted p, σ̂², plain one-step)``: the test
-    is conditional on the candidate's nuisance columns (:func:`_nuisance_joints`); the plain
-    one-step (against the model alone) gives what adding the effect to *this* model would
-    do, for the predicted RMS drop and the parameter estimate.
+    Returns ``(effect, conditional one-step, log adjusted p, σ̂², plain one-step, (F, dof2))``:
+    the test is conditional on the candidate's nuisance columns (:func:`_nuisance_joints`);
+    the plain one-step (against the model alone) gives what adding the effect to *this*
+    model would do, for the predicted RMS drop and the parameter estimate; ``F`` on ``(dof,
+    dof2)`` degrees of freedom is the statistic the p-value is of.
     """
     from scipy import stats  # 1 s to import: only where it is used
 
-    out: list[tuple[Effect, _OneStep | None, float, float, _OneStep | None]] = [
-        (e, None, 0.0, 0.0, None) for e in effects
-    ]
+    out: list[tuple[Effect, _OneStep | None, float, float, _OneStep | None, tuple[float, int]]]
+    out = [(e, None, 0.0, 0.0, None, (0.0, 0)) for e in effects]
     plain = bases[()]
     nj = bases.state.robot.n_joints
     # grouped by nuisance joints, so that each basis is made once; results in the given order
@@ -786,7 +798,7 @@ def _scan(
         one = _one_step(wp, b.Q, b.r_perp, effect)
         s2 = b.rss / max(b.dof, 1)
         if one is None:
-            out[i] = (effect, None, 0.0, s2, None)
+            out[i] = (effect, None, 0.0, s2, None, (0.0, 0))
             continue
         one_plain = _one_step(wp, plain.Q, plain.r_perp, effect) if nuisance else one
         k, S = one[0], one[1]
@@ -796,7 +808,7 @@ def _scan(
         if not np.isfinite(logp):  # beyond double precision: the χ² tail's asymptote
             logp = float(stats.chi2.logsf(k * F_stat, k))
             logp = logp if np.isfinite(logp) else -0.5 * k * F_stat
-        out[i] = (effect, one, min(0.0, logp + np.log(m_tests)), s2, one_plain)
+        out[i] = (effect, one, min(0.0, logp + np.log(m_tests)), s2, one_plain, (F_stat, d2))
     return out
 
 
@@ -857,7 +869,7 @@ def _forward(
         rest = [e for e in effects if e.name not in chosen]
         scored = [
             (lp, e.name)
-            for e, one, lp, _, _ in _scan(wp, _bases(state, wp, Qc, r), rest, m_tests)
+            for e, one, lp, _, _, _ in _scan(wp, _bases(state, wp, Qc, r), rest, m_tests)
             if one
         ]
         if not scored:
@@ -901,7 +913,7 @@ def _evidence(
     what = effect.regressor_name
     p = "p < 1e-300" if c.p_value == 0 else f"p = {c.p_value:.2g}"
     base = (
-        f"residuals follow the {what}: score test χ² = {c.lm_statistic:.1f} on {c.dof} dof, "
+        f"residuals follow the {what}: F = {c.f_statistic:.4g} on ({c.dof}, {c.f_dof2}) dof, "
         f"{p} after Bonferroni over {m_tests} candidates; adding it would lower the position "
         f"RMS from {rms_now:.4f} to {c.rms_after_mm:.4f} mm"
     )

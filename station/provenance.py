@@ -52,6 +52,16 @@ def software_version() -> str:
     return _dist_version((PACKAGE,)).replace("not installed", "unknown")
 
 
+def version_number(text: str) -> str:
+    """The version a record names, however it was written: ``"quickhealth 0.1.0"`` (the
+    provenance's ``software``, the journal's start record) and ``"0.1.0"`` (the archive's
+    ``software_version``) are the same version, ``"0.1.0"``."""
+    t = str(text).strip()
+    if t.lower().startswith(PACKAGE.lower() + " "):
+        t = t[len(PACKAGE) + 1 :].strip()
+    return t
+
+
 def library_version(key: str) -> str:
     """Version of one of numpy, scipy, opencv, pinocchio (see the module docstring)."""
     module, dists = _LIBRARIES[key]

@@ -302,6 +302,7 @@ def _reprocess_run(job: ReprocessJob) -> ReprocessResult:
         meas = redetect_run(src, job.calibration)
     else:
         meas = formats.read_measurements(src / "measurements.csv", old.robot.n_joints)
+    formats.check_fit_rows(meas, str(src / "measurements.csv"))  # the fit's one row limit
     options = FitOptions(
         effects=tuple(e.name for e in old.effects),
         max_order=job.max_order,

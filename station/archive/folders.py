@@ -26,7 +26,7 @@ from ...identify.errors import InputError
 from .. import formats
 from ..formats import load_json_limited
 from ..fsio import pid_alive, plain_tree
-from ..provenance import software_version
+from ..provenance import software_version, version_number
 from ..reporting.verdict import healthy_of
 from .records import FIGURES, MARKER, META_KEYS, RunRecord, iso_utc, parse_time, safe_name
 
@@ -97,6 +97,8 @@ def run_metadata(run_dir: Path) -> dict[str, str]:
     for alias, key in aliases:
         if key not in meta and meta.get(alias):
             meta[key] = meta[alias]
+    if meta.get("software_version"):
+        meta["software_version"] = version_number(meta["software_version"])
     return meta
 
 

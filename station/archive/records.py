@@ -16,6 +16,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from ...identify.errors import InputError
+from ..provenance import version_number
 
 ENV_VAR = "QUICKHEALTH_ARCHIVE"
 #: the main figures, as ``identify.trend.FIGURES`` (a test checks): importing the trend costs
@@ -84,8 +85,12 @@ class RunRecord:
 
     @property
     def meta(self) -> dict[str, str]:
-        """Plan hash, cell, calibration id and software version."""
-        return {k: getattr(self, k) for k in META_KEYS}
+        """Plan hash, cell, calibration id and software version (the version's number only:
+        rows written as "quickhealth 0.1.0" and as "0.1.0" name the same version)."""
+        out = {k: getattr(self, k) for k in META_KEYS}
+        if out.get("software_version"):
+            out["software_version"] = version_number(out["software_version"])
+        return out
 
 
 @dataclass(frozen=True)

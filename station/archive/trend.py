@@ -67,7 +67,7 @@ def run_state(
     mp = folder / "model.json"
     csv = folder / "measurements.csv"
     if mp.is_file():
-        model = formats.model_from_json(dict(read_json(mp)), str(mp))
+        model = formats.read_model(mp)  # validated as report, reprocess, predict read it
         if like is not None and like.run_id != rec.run_id and csv.is_file():
             bp = arch.folder(like) / "model.json"
             if bp.is_file():
@@ -115,7 +115,7 @@ def _like_model(
         meas = formats.read_measurements(csv, own.robot.n_joints)
         refit = fit_model(own.robot, meas, bspec, own.effects, own.noise, own.prior)
         formats.write_model(cache, refit)
-    return formats.model_from_json(dict(read_json(cache)), str(cache))
+    return formats.read_model(cache)
 
 
 def trend_runs(

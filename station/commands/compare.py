@@ -19,7 +19,7 @@ from pathlib import Path
 from ...identify.compare import compare_effect, plot_comparison
 from ...identify.errors import InputError
 from .. import options
-from ..formats import read_measurements, read_model, write_text_atomic
+from ..formats import check_fit_rows, read_measurements, read_model, write_text_atomic
 from ..fsio import refuse_overwriting_inputs, write_figure
 from ..progress import Progress
 
@@ -68,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     fitted = read_model(args.model)
     nj = fitted.robot.n_joints
     train = read_measurements(args.meas, nj)
+    check_fit_rows(train, args.meas)  # compare fits the training data again
     held = read_measurements(args.heldout, nj) if args.heldout else None
     with Progress(quiet=args.quiet) as say:  # a bar on a terminal, stage lines in a log
         cmp = compare_effect(

@@ -29,7 +29,7 @@ from ...identify.robot import RobotModel, ur5
 from ...identify.twin import make_twin, random_joints, schedules
 from .. import options, workers
 from ..formats import (
-    MAX_FIT_ROWS,
+    check_fit_rows,
     check_joint_limits,
     read_measurements,
     read_model,
@@ -148,8 +148,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         _refuse_plots_over_inputs(args.plots, inputs)
     fitted = read_model(args.model)
     meas = read_measurements(args.meas, fitted.robot.n_joints)
-    if meas.n_poses > MAX_FIT_ROWS:
-        raise InputError(f"{args.meas}: {meas.n_poses} rows is over the limit of {MAX_FIT_ROWS}")
+    check_fit_rows(meas, args.meas)
     check_joint_limits(meas.q, fitted.robot, str(args.meas))
     cands = None
     if args.candidates:

@@ -42,6 +42,7 @@ from .common import (
 )
 from .measurements import (
     OPTIONAL_COLUMNS,
+    check_fit_rows,
     check_joint_limits,
     check_poses_for_fit,
     format_measurements,
@@ -55,6 +56,7 @@ from .model import (
     model_from_json,
     model_to_json,
     read_model,
+    valid_model,
     write_model,
 )
 from .report import (
@@ -111,6 +113,7 @@ __all__ = [
     "MiB",
     "TrackerLayout",
     "calibrated_robot",
+    "check_fit_rows",
     "check_joint_limits",
     "check_model",
     "check_poses_for_fit",
@@ -145,6 +148,7 @@ __all__ = [
     "robot_from_json",
     "robot_to_json",
     "trend_to_json",
+    "valid_model",
     "with_sections",
     "write_measurements",
     "write_model",

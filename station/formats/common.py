@@ -3,7 +3,9 @@
 Every file the station reads is bounded (docs/identify.md, "Limits"): a file over its size
 limit, a non-regular file (a FIFO, /dev/zero behind a symlink), a cell over MAX_CELL_CHARS,
 more rows than the command handles, or JSON nested deeper than MAX_JSON_DEPTH is refused
-with one line (exit 2) before it can cost memory.  Every file a format writes goes through
+with one line (exit 2) before it can cost memory, and so is JSON that would parse into more
+than ``MAX_JSON_VALUES`` values (its memory is bounded against the file limit, not only its
+size).  Every file a format writes goes through
 :func:`write_text_atomic`, i.e. :func:`quickhealth.station.fsio.write_atomic`.
 """
 
@@ -38,6 +40,13 @@ MAX_FIT_ROWS = 20_000  # fit, diagnose, compare: the order search is O(rows x fi
 MAX_CELL_CHARS = 256  # one CSV cell (a pose_id, a number)
 MAX_LINE_CHARS = MAX_CELL_CHARS * 64  # one line of a CSV file, comments included (16 384)
 MAX_JSON_DEPTH = 32  # model.json and report.json are at most 5 levels deep
+#: Most values (numbers, strings, lists, objects) a JSON file may parse into, counted before
+#: parsing (commas plus opening brackets: an upper bound).  The largest model the fit can
+#: write (order 40 on every motion of a 6-joint arm: a 1 488 x 1 488 covariance, 2.2 M
+#: numbers, and 20 000 poses' residuals) stays below it; parsed, 3 M values of the costliest
+#: kind (empty objects) take about 0.3 GB, against 1.56 GB for the 20 M empty objects a
+#: 57 MiB model.json (inside the 64 MiB limit) once held (docs/identify.md, "Limits").
+MAX_JSON_VALUES = 3_000_000
 MIN_DISTINCT_POSES = 8  # fewer different joint configurations cannot support any model
 MIN_JOINT_SPAN_DEG = 1.0  # a joint that moves less than this cannot be identified
 
@@ -78,19 +87,32 @@ def read_text_limited(path: str | os.PathLike[str], what: str = "json") -> str:
 
 def _json_depth_ok(text: str, limit: int = MAX_JSON_DEPTH) -> bool:
     """True when no bracket nesting of ``text`` is deeper than ``limit`` (strings skipped)."""
-    # strip string literals, then track the depth with cumulative sums (vectorised)
+    # strip string literals, then track the depth over the brackets alone (vectorised; a few
+    # bytes per character of the file, not the 12 a step array of every character took)
     stripped = re.sub(r'"(?:[^"\\]|\\.)*"', '""', text)
     b = np.frombuffer(stripped.encode("utf-8", "replace"), dtype=np.uint8)
-    step = np.zeros(b.size, dtype=np.int32)
-    step[(b == ord("[")) | (b == ord("{"))] = 1
-    step[(b == ord("]")) | (b == ord("}"))] = -1
-    return b.size == 0 or int(np.cumsum(step).max(initial=0)) <= limit
+    opens = (b == ord("[")) | (b == ord("{"))
+    at = np.flatnonzero(opens | (b == ord("]")) | (b == ord("}")))
+    step = np.where(opens[at], 1, -1).astype(np.int32)
+    return int(np.cumsum(step, dtype=np.int32).max(initial=0)) <= limit
+
+
+def json_values_at_most(text: str) -> int:
+    """An upper bound of the number of values ``text`` parses into (every value but the first
+    follows a comma or opens a bracket; commas inside strings only raise the bound)."""
+    return text.count(",") + text.count("[") + text.count("{") + 1
 
 
 def load_json_limited(path: str | os.PathLike[str], what: str = "json") -> Any:
     """A JSON document within the size and depth limits; every failure is one line."""
     p = Path(path)
     text = read_text_limited(p, what)
+    n = json_values_at_most(text)
+    if n > MAX_JSON_VALUES:
+        raise InputError(
+            f"{p}: up to {n:,} JSON values, over the {MAX_JSON_VALUES:,} a {what} file may hold "
+            "(the largest model the fit writes has 2.4 M); not parsed"
+        )
     if not _json_depth_ok(text):
         raise InputError(f"{p}: JSON nested deeper than {MAX_JSON_DEPTH} levels; not a {what} file")
     try:
@@ -153,9 +175,11 @@ _NOT_ONE_LINE = re.compile("[" + re.escape(LINE_BREAKS) + "\x00-\x1f\x7f-\x9f]")
 
 
 def excerpt(value: object, n: int = 40) -> str:
-    """A short quoted prefix of ``value`` for a message (never the whole of a hostile value)."""
+    """A short prefix of ``value`` for a message, quoted when it is a text (never the whole of
+    a hostile value: a calibration's million-element list, an alias bomb's expansion)."""
     s = str(value)
-    return repr(s[:n]) + ("…" if len(s) > n else "")
+    cut = s[:n] if isinstance(value, str) else s[:n].replace("\n", " ")
+    return (repr(cut) if isinstance(value, str) else cut) + ("…" if len(s) > n else "")
 
 
 def one_line(value: object, what: str) -> str:

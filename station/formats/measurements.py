@@ -92,6 +92,23 @@ def check_joint_limits(
     )
 
 
+def check_fit_rows(meas: Measurements, name: str) -> None:
+    """The one row limit of every command that fits (``identify fit``, ``diagnose``,
+    ``compare``, ``reprocess``, the TUI and ``run --archive``: :func:`check_poses_for_fit` and
+    :func:`quickhealth.station.services.fitting.assess`).
+
+    Raises
+    ------
+    InputError
+        More than :data:`~.common.MAX_FIT_ROWS` rows (one line).
+    """
+    if meas.n_poses > MAX_FIT_ROWS:
+        raise InputError(
+            f"{name}: {meas.n_poses} rows is over the fit's limit of {MAX_FIT_ROWS} (the order "
+            "search costs rows x fits; the NIST loop has 150 poses): fit a subset"
+        )
+
+
 def check_poses_for_fit(meas: Measurements, robot: RobotModel, name: str) -> None:
     """Meaning of a measurement set before a fit: rows, joint limits, distinct poses, spans.
 
@@ -102,11 +119,7 @@ def check_poses_for_fit(meas: Measurements, robot: RobotModel, name: str) -> Non
         ``MIN_DISTINCT_POSES`` different joint configurations, or a joint that does not move
         (its error motions cannot be identified: named).
     """
-    if meas.n_poses > MAX_FIT_ROWS:
-        raise InputError(
-            f"{name}: {meas.n_poses} rows is over the fit's limit of {MAX_FIT_ROWS} (the order "
-            "search costs rows x fits; the NIST loop has 150 poses): fit a subset"
-        )
+    check_fit_rows(meas, name)
     check_joint_limits(meas.q, robot, name)
     distinct = np.unique(np.round(meas.q, 6), axis=0).shape[0]
     if distinct < MIN_DISTINCT_POSES and distinct < meas.n_poses:  # (few rows: the fit says)

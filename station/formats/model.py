@@ -202,18 +202,32 @@ def write_model(path: str | os.PathLike[str], fitted: FittedModel) -> None:
     write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
 
 
-def read_model(path: str | os.PathLike[str]) -> FittedModel:
-    """Read model.json back into a FittedModel."""
-    p = Path(path)
-    # binary files (e.g. a pickle) are refused as not UTF-8: never loaded as code
-    doc = load_json_limited(p, "model")
+def valid_model(doc: Any, name: str) -> FittedModel:
+    """The model of a parsed model.json, validated: the one check every reader applies
+    (``predict``, ``report``, ``reprocess``, ``trend``, ``compensate`` …: :func:`read_model`;
+    structure, finite numbers, ranges, a believable TCP correction: :func:`check_model`).
+    Keys the schema does not know are ignored and not kept.
+
+    Raises
+    ------
+    InputError
+        One line naming ``name`` and the first problem.
+    """
     try:
-        fm = model_from_json(doc, str(p))
-        check_model(fm, str(p))
+        fm = model_from_json(doc, name)
+        check_model(fm, name)
     except InputError as exc:
         msg = str(exc)
-        raise InputError(msg if msg.startswith(str(p)) else f"{p}: {msg}") from None
+        raise InputError(msg if msg.startswith(name) else f"{name}: {msg}") from None
     except Exception as exc:  # noqa: BLE001 - any other failure to interpret it: damaged
         what = " ".join(repr(exc).split())[:200]
-        raise InputError(f"{p}: model file is incomplete or damaged: {what}") from None
+        raise InputError(f"{name}: model file is incomplete or damaged: {what}") from None
     return fm
+
+
+def read_model(path: str | os.PathLike[str]) -> FittedModel:
+    """Read model.json back into a validated FittedModel (:func:`valid_model`)."""
+    p = Path(path)
+    # binary files (e.g. a pickle) are refused as not UTF-8: never loaded as code; a file
+    # whose JSON would parse into more values than any model has is refused before parsing
+    return valid_model(load_json_limited(p, "model"), str(p))

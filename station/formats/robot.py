@@ -53,7 +53,7 @@ from ...identify.robot import (
     with_kinematics,
 )
 from ...identify.ur_calibration import KEYS, SEGMENTS, UrKinematics
-from .common import read_text_limited
+from .common import excerpt, one_line, read_text_limited
 
 F = NDArray[np.float64]
 
@@ -138,7 +138,7 @@ def read_ur_calibration(path: str | os.PathLike[str]) -> tuple[UrKinematics, str
     except OSError as exc:
         raise InputError(f"{p}: cannot read: {exc.strerror}") from None
     try:
-        doc = yaml.safe_load(text)
+        doc = yaml.load(text, Loader=_loader_without_aliases(yaml))  # noqa: S506 - safe, no aliases
     except yaml.YAMLError as exc:
         where = getattr(exc, "problem_mark", None)
         at = f":{where.line + 1}:{where.column + 1}" if where is not None else ""
@@ -150,7 +150,7 @@ def read_ur_calibration(path: str | os.PathLike[str]) -> tuple[UrKinematics, str
             f"{p}: no 'kinematics:' block (expected the UR ROS driver's calibration YAML, "
             "as ur_calibration writes it)"
         )
-    unknown = [str(k) for k in kin if k not in SEGMENTS and k != "hash"]
+    unknown = [excerpt(k, 30) for k in kin if k not in SEGMENTS and k != "hash"][:5]
     missing = [k for k in SEGMENTS if k not in kin]
     if unknown or missing:
         raise InputError(
@@ -174,14 +174,36 @@ def read_ur_calibration(path: str | os.PathLike[str]) -> tuple[UrKinematics, str
                 except ValueError:
                     pass
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise InputError(f"{p}: kinematics.{seg}.{key} = {v!r} is not a number")
+                raise InputError(f"{p}: kinematics.{seg}.{key} = {excerpt(v)} is not a number")
             vals[i, j] = float(v)
     if np.abs(vals[:, :3]).max() > 20.0:
         raise InputError(f"{p}: a joint origin is more than 20 m away: not metres?")
     if np.abs(vals[:, 3:]).max() > 4 * math.pi:
         raise InputError(f"{p}: an angle is larger than 4π: not radians?")
     h = kin.get("hash", "")
-    return UrKinematics(xyz=vals[:, :3], rpy=vals[:, 3:], hash=str(h) if h is not None else ""), sha
+    h = "" if h is None else h
+    if not isinstance(h, str | int) or len(str(h)) > 200:
+        raise InputError(
+            f"{p}: kinematics.hash = {excerpt(h)} is not the calibration's hash (a short text)"
+        )
+    h = one_line(h, f"{p}: kinematics.hash")
+    return UrKinematics(xyz=vals[:, :3], rpy=vals[:, 3:], hash=h), sha
+
+
+def _loader_without_aliases(yaml: Any) -> type:
+    """PyYAML's safe loader refusing aliases (``*name``): a 2 KB file of nested aliases (a
+    "billion laughs") expands to gigabytes, and a calibration file never needs one."""
+
+    class NoAliases(yaml.SafeLoader):  # type: ignore[misc, name-defined]
+        def compose_node(self, parent: Any, index: Any) -> Any:
+            if self.check_event(yaml.AliasEvent):
+                mark = self.peek_event().start_mark
+                raise yaml.composer.ComposerError(
+                    None, None, "an alias (*name) refused: a calibration file has none", mark
+                )
+            return super().compose_node(parent, index)
+
+    return NoAliases
 
 
 def calibrated_robot(

@@ -32,6 +32,7 @@ from ...identify.robot import RobotModel
 from ..formats import model as model_file
 from ..formats import report as report_file
 from ..formats.common import write_text_atomic
+from ..formats.measurements import check_fit_rows
 from ..formats.residuals import residual_table
 from ..fsio import (
     foreign_results,
@@ -80,7 +81,10 @@ def assess(
     *,
     progress: Progress | None = None,
 ) -> _assess.Assessment:
-    """The assessment of ``meas`` on ``robot`` with ``options`` (the one call every door makes)."""
+    """The assessment of ``meas`` on ``robot`` with ``options`` (the one call every door
+    makes; the fit's row limit, :func:`~..formats.measurements.check_fit_rows`, holds for
+    every door: ``reprocess``, the TUI, ``identify fit``)."""
+    check_fit_rows(meas, "the measurements")
     return _assess.assess(
         meas,
         robot,

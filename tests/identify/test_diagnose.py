@@ -6,6 +6,7 @@ Chebyshev orders (order selection has its own tests and the full pipeline, with
 """
 
 import json
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -300,3 +301,32 @@ def test_a_change_in_the_last_digit_of_the_data_changes_the_diagnosis_in_its_las
     for ca, cb in zip(a.candidates[:8], b.candidates[:8], strict=True):
         assert ca.rms_after_mm == pytest.approx(cb.rms_after_mm, rel=1e-10, abs=0)
         assert ca.lm_statistic == pytest.approx(cb.lm_statistic, rel=1e-8, abs=1e-9)
+
+
+def _agrees(c, m_tests: int) -> None:
+    """The statistic the evidence prints gives the p-value it prints (issue 32)."""
+    from scipy import stats
+
+    m = re.search(r"F = (\S+) on \((\d+), (\d+)\) dof, p (?:= (\S+)|< 1e-300)", c.evidence)
+    assert m is not None, c.evidence
+    f, k, d2 = float(m.group(1)), int(m.group(2)), int(m.group(3))
+    p = min(1.0, float(stats.f.sf(f, k, d2)) * m_tests)
+    if m.group(4) is None:
+        assert p < 1e-290
+    else:
+        assert p == pytest.approx(float(m.group(4)), rel=0.06, abs=1e-300)
+
+
+def test_printed_statistic_agrees_with_its_p_value() -> None:
+    """An effect that explains nearly all of the residual: the score statistic saturates at
+    the residual dof times the share explained (it printed "χ² = 352.4 on 1 dof, p < 1e-300"
+    here, and "χ² = 2.0 on 2 dof, p = 2.1e-148" on a fit with few residual dof); the F
+    statistic the p-value is of does not, and the evidence prints that one."""
+    _, train, _, fitted = make_case("backlash:j2", 5e-3, seed=8, orientation=False)
+    diag = diagnose(state_from_fitted(fitted), train)
+    top = diag.candidates[0]
+    assert top.effect == "backlash:j2" and top.explained_share > 0.9
+    assert top.f_statistic > 100 * top.lm_statistic  # the score statistic saturated
+    m_tests = int(re.search(r"Bonferroni over (\d+)", top.evidence).group(1))
+    for c in diag.candidates[:3]:
+        _agrees(c, m_tests)

@@ -243,7 +243,7 @@ def test_known_deltas_round_trip_through_the_file(tmp_path):
         ("kinematics: [1, 2]\n", "no 'kinematics:' block"),
         ("robot: {}\n", "no 'kinematics:' block"),
         ("kinematics:\n  shoulder: {x: 0\n", "not valid YAML"),
-        (UR10_DEFAULT.replace("wrist_1:", "wrist1:"), "no wrist_1; unknown wrist1"),
+        (UR10_DEFAULT.replace("wrist_1:", "wrist1:"), "no wrist_1; unknown 'wrist1'"),
         (UR10_DEFAULT.replace("z: 0.1273", "z: .nan"), "kinematics.shoulder.z = nan"),
         (UR10_DEFAULT.replace("x: -0.612", "x: -612.0"), "more than 20 m"),
         (UR10_DEFAULT.replace("x: -0.612", "x: [1]"), "kinematics.forearm.x = [1]"),

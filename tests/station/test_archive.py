@@ -340,3 +340,25 @@ def test_an_index_server_that_stops_answering_is_one_line_not_a_hang(tmp_path, r
             os.kill(pid, signal.SIGCONT)
     assert dt < 10, dt
     assert [r.run_id for r in a.runs("ur5-a")] == ["r0"]  # a new connection works again
+
+
+def test_one_version_written_two_ways_is_one_version():
+    """Seen by issue 32: the trend warned that "software version 0.1.0 differs from the
+    baseline's quickhealth 0.1.0" (the journal's start record names the software as
+    provenance writes it, the archive its number)."""
+    from quickhealth.identify.trend import comparability_warnings
+    from quickhealth.station.archive import RunRecord
+    from quickhealth.station.provenance import version_number
+
+    a = RunRecord("r", "run1", "2026-01-01T00:00:00Z", "", software_version="quickhealth 0.1.0")
+    b = RunRecord("r", "run2", "2026-01-02T00:00:00Z", "", software_version="0.1.0")
+    c = RunRecord("r", "run3", "2026-01-03T00:00:00Z", "", software_version="0.2.0")
+    assert a.meta["software_version"] == b.meta["software_version"] == "0.1.0"
+    assert version_number(" quickhealth  0.1.0 ") == "0.1.0" and version_number("") == ""
+
+    class Run:  # what comparability_warnings reads of a run
+        def __init__(self, rec):
+            self.run_id, self.meta = rec.run_id, rec.meta
+
+    words = comparability_warnings([Run(a), Run(b), Run(c)], 0, ("software_version",))
+    assert len(words) == 1 and "run run3: software version 0.2.0 differs" in words[0], words

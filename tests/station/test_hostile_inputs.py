@@ -2662,6 +2662,78 @@ def _(b, t):
                  r"movel at line 3", code=0, absent=[], check=check)  # fmt: skip
 
 
+# issue 32, failure 6: a 2 KB calibration YAML of nested aliases took 21 s and 2.3 GB
+def _alias_bomb(where: str) -> str:
+    lines = ['a0: &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 9)]
+    seg = "{x: 0, y: 0, z: 0.1625, roll: 0, pitch: 0, yaw: 0}"
+    kin = {s: seg for s in ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")}
+    kin[where] = "*a8"
+    return "\n".join(lines) + "\nkinematics:\n" + "".join(f"  {k}: {v}\n" for k, v in kin.items())
+
+
+for _where in ("shoulder", "hash"):
+
+    @case(f"calibration-yaml-alias-bomb-in-{_where}")
+    def _(b, t, where=_where):
+        cal = t / "bomb.yaml"
+        cal.write_text(_alias_bomb(where))
+        assert cal.stat().st_size < 2048
+        return Case(_fit(b["dir"] / "meas.csv", t, "--calibration", str(cal)), 2,
+                    r"bomb\.yaml:\d+:\d+: not valid YAML: an alias \(\*name\) refused",
+                    [cal], [t / "out"])  # fmt: skip
+
+
+@case("calibration-yaml-huge-hash-is-quoted-short")
+def _(b, t):
+    cal = t / "hash.yaml"
+    seg = "{x: 0, y: 0, z: 0.1625, roll: 0, pitch: 0, yaw: 0}"
+    segs = ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")
+    cal.write_text("kinematics:\n" + "".join(f"  {k}: {seg}\n" for k in segs)
+                   + "  hash: [" + ", ".join(["calib_123456789"] * 20000) + "]\n")  # fmt: skip
+    c = _with(Case(_fit(b["dir"] / "meas.csv", t, "--calibration", str(cal)), 2, "", [cal],
+                   [t / "out"]),
+              r"hash\.yaml: kinematics\.hash = \['calib_123456789', 'calib_123456789', '… is "
+              r"not the calibration's hash")  # fmt: skip
+    return c
+
+
+# issue 32, failure 7: reprocess ignored the fit's row limit (tests/station/test_reprocess.py)
+
+
+# issue 32, failure 8: trend judged a model holding Infinity; report refused it
+@case("trend-archived-model-holds-infinity")
+def _(b, t):
+    arch = _archived(b, t)
+    model = arch / "robots" / "cell3" / "run1" / "model.json"
+    doc = json.loads(model.read_text())
+    doc["coeffs"][3] = float("inf")  # json writes Infinity, which Python's json reads back
+    model.write_text(json.dumps(doc))
+    return Case(["trend", "cell3", "--archive", str(arch)], 2,
+                r"run1/model\.json: coefficient \S+ is inf, not a finite number", [model],
+                [])  # fmt: skip
+
+
+# issue 32, failure 13: a 57 MiB model.json of 20 M empty objects parsed into 1.56 GB
+@case("model-json-over-the-value-budget")
+def _(b, t):
+    m = t / "m.json"
+    with m.open("w") as fh:  # 3 M + 1 empty objects under a key nobody reads: 9 MB
+        text = json.dumps(b["doc"])
+        fh.write(text[:-1] + ', "padding": [' + "{}," * 3_000_000 + "{}]}")
+    return Case(["identify", "predict", str(m), str(b["dir"] / "meas.csv"), "--out",
+                 str(t / "p.csv")], 2,
+                r"m\.json: up to [\d,]+ JSON values, over the 3,000,000 a model file may hold",
+                [m], [t / "p.csv"])  # fmt: skip
+
+
+@case("model-json-unknown-key-is-ignored")
+def _(b, t):
+    m = _model(b, t, lambda d: d.update({"future_key": {"note": "a newer writer's"}}))
+    return Case(["identify", "predict", str(m), str(b["dir"] / "meas.csv"), "--out",
+                 str(t / "p.csv")], 0, r"wrote .*p\.csv", [m], [])  # fmt: skip
+
+
 # ------------------------------------------------------------------------------ runner
 
 

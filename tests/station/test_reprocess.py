@@ -342,3 +342,19 @@ def test_index_password_never_written_nor_sent_to_workers(pg_server, tmp_path, c
     assert not leaks, leaks
     done = json.loads(next(p for p in written if p.name == "reprocess.json").read_text())
     assert done["job"]["archive_index"].startswith("postgresql+psycopg://qh:***@")
+
+
+def test_reprocess_keeps_the_fits_row_limit(fleet, capsys, monkeypatch):
+    """issue 32: reprocess refitted an archived run of 200 004 rows (48 s, 4.1 GB) that
+    `identify fit` refuses; now every fitting door has the one limit.  (The limit lowered
+    to 20 rows here, the runs have 25: the same check, without a 20 MB file.)"""
+    from quickhealth.station.formats import measurements
+
+    monkeypatch.setattr(measurements, "MAX_FIT_ROWS", 20)
+    rc = main(["reprocess", "ur5-0", "--archive", str(fleet.root), "--runs", "run00",
+               "--workers", "1", "--tag", "rows"])  # fmt: skip
+    out = capsys.readouterr().out
+    assert rc == 3
+    failed = [x for x in out.splitlines() if "FAILED" in x]
+    assert len(failed) == 1 and "25 rows is over the fit's limit of 20" in failed[0], out
+    assert not (fleet.folder(fleet.get("ur5-0", "run00")) / "reprocessed" / "rows").exists()
