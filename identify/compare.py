@@ -183,7 +183,7 @@ def _context(fitted: FittedModel, meas: Measurements) -> EffectContext:
 
 
 def _predict_res(fitted: FittedModel, meas: Measurements, approach: F | None = None) -> F:
-    T = fitted.predict(meas.q, time=meas.time, temp=meas.temp, approach=approach)
+    T = fitted.predict(meas.q, approach=approach, **meas.conditions())
     return pose_residuals(meas, T)
 
 
@@ -311,7 +311,7 @@ def _panels(
     state = state_from_fitted(fitted_after)
     ctx = _context(fitted_after, meas)
     sens = sensitivities(state, ctx)
-    T = fitted_after.predict(meas.q, time=meas.time, temp=meas.temp)
+    T = fitted_after.predict(meas.q, **meas.conditions())
     wh = whitening(state, meas, sens)
     out = []
     names = [e.name for e in fitted_after.effects]

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 from xml.sax.saxutils import escape as xml_escape
 
 import numpy as np
@@ -64,7 +65,7 @@ from .errors import InputError
 from .fit import FittedModel
 from .linearize import forward, joint_angle_jacobian, loop_pose
 from .measurements import approach_from_order
-from .robot import RobotModel, chain, from_dh, nominal_of
+from .robot import RobotModel, chain, from_dh, gravity_torques, nominal_of
 from .transforms import R_to_rpy, inv_T, log_so3, small_error_transform
 from .ur_calibration import KinematicsExport, kinematics_of, kinematics_yaml
 from .urscript import joint_targets, replace_targets
@@ -383,6 +384,9 @@ def ur_kinematics_text(
 # ------------------------------------------------------------------ compensate program
 
 
+#: How a compensated program's joint torques are taken (a program has no measured torques).
+TORQUE_FROM_MASSES = "the torque holding the robot model's masses"
+
 #: Why an instrument effect is never compensated (the printed and documented reason).
 INSTRUMENT_REASON = (
     "an instrument effect: it is how the camera measures, not where the robot goes; "
@@ -647,6 +651,7 @@ def compensate_program(
     *,
     temp_c: float | None = None,
     time_s: float | None = None,
+    joint_temp_c: float | Sequence[float] | None = None,
     leave_out: Sequence[str] = (),
     approach: ArrayLike | None = None,
     max_iter: int = 12,
@@ -673,7 +678,12 @@ def compensate_program(
     - ``cyclic:jK:hM``: the phase ``M q_K`` at the compensated command.
     - ``thermal``: the links grown to ``temp_c`` (°C); ``drift``: the base moved to its place at
       ``time_s`` (s on the fitted run's clock).  Both must be given when the effect is
-      compensated: a program is run at the conditions its user states.
+      compensated: a program is run at the conditions its user states.  So must
+      ``joint_temp_c`` (°C: one for every joint, or one per joint) for an effect of the joints'
+      temperatures.
+    - an effect of the measured joint torques: the torque that holds the robot model's link
+      masses against gravity at each compensated command (a program has no measured torques;
+      a robot model without masses cannot model them, and such an effect must be left out).
     - an instrument effect (``depthscale``: :attr:`~.effects.Effect.instrument`) is never
       compensated (:data:`INSTRUMENT_REASON`).
 
@@ -688,6 +698,8 @@ def compensate_program(
         The tool centre point on the flange (default the flange).
     temp_c, time_s : float, optional
         Conditions the program runs at (needed by ``thermal`` / ``drift``).
+    joint_temp_c : float or sequence of float, optional
+        The joints' temperature the program runs at (°C; needed by ``thermal:jK``).
     leave_out : sequence of str
         Effect names of the model not to compensate.
 
@@ -707,10 +719,16 @@ def compensate_program(
     if unknown:
         have = ", ".join(names) or "none"
         raise InputError(f"cannot leave out {', '.join(unknown)}: the model's effects are {have}")
-    # the scalar conditions the program runs at, by channel (approach: the program's order)
-    given: dict[str, float | None] = {
+    # the conditions the program runs at, by channel (approach: the program's order)
+    nj = robot.n_joints
+    has_masses = robot.masses is not None and robot.coms is not None
+    given: dict[str, Any] = {
         "temp": None if temp_c is None else float(temp_c),
         "time": None if time_s is None else float(time_s),
+        "joint_temp": None
+        if joint_temp_c is None
+        else tuple(np.broadcast_to(np.asarray(joint_temp_c, float), (nj,)).tolist()),
+        "joint_torque": TORQUE_FROM_MASSES if has_masses else None,
     }
     used: list[tuple[Effect, F]] = []
     left: list[tuple[str, str]] = []
@@ -722,6 +740,12 @@ def compensate_program(
             left.append((e.name, INSTRUMENT_REASON))
             continue
         for col in e.requires():
+            if col == "joint_torque" and given[col] is None:
+                raise InputError(
+                    f"effect {e.name!r} needs the torque measured at each target, which a "
+                    f"program does not have, and robot {robot.name!r} has no link masses to "
+                    "model it from: leave it out"
+                )
             if col != "approach" and given.get(col) is None:
                 raise InputError(
                     f"effect {e.name!r} needs the {CHANNELS[col].words} the program runs at, or "
@@ -735,8 +759,17 @@ def compensate_program(
         if not used:
             return Perturbation()
         n = len(q)
-        at = {k: None if v is None else np.full(n, v) for k, v in given.items()}
-        ctx = effect_context(robot, q, app, at["time"], at["temp"])
+        at = {k: None if given[k] is None else np.full(n, given[k]) for k in ("time", "temp")}
+        jt = given["joint_temp"]
+        ctx = effect_context(
+            robot,
+            q,
+            app,
+            at["time"],
+            at["temp"],
+            joint_temp=None if jt is None else np.tile(jt, (n, 1)),
+            joint_torque=-gravity_torques(robot, q) if has_masses else None,
+        )
         return total_perturbation([e for e, _ in used], [p for _, p in used], ctx)
 
     comp = _solve(

@@ -1038,6 +1038,18 @@ def implied_channel(
         k = int(np.flatnonzero(cols)[0]) if cols.any() else _effect_joint(effect, ctx)
         g, pred, scale = sens.dq[:, k], p.dq[:, k], 1e3
         label = f"joint {k + 1} angle error (mrad)"
+    elif p.joint_motion is not None:  # a joint's error motions (a warm joint's growth, drift)
+        fitted = bool(np.any(np.asarray(params, float)))
+        jm = np.asarray(
+            (p if fitted else effect.perturbation(ctx, np.ones(effect.n_params))).joint_motion
+        )
+        k = int(np.argmax(np.abs(jm).sum(axis=(0, 2))))
+        i = int(np.argmax(np.linalg.norm(jm[:, k], axis=1)))
+        h = jm[i, k] / max(float(np.linalg.norm(jm[i, k])), 1e-300)  # the effect's direction
+        g = np.einsum("m,nmc->nc", h, sens.frame_motion[:, k + 1])
+        pred = np.asarray(p.joint_motion)[:, k] @ h
+        scale = 1e6
+        label = f"joint {k + 1} error motion along the effect (µm, µrad)"
     elif p.link_scale is not None:
         g, pred, scale = sens.link_scale, p.link_scale, 1e6
         label = "link growth (ppm)"

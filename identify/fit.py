@@ -37,7 +37,7 @@ the remaining weakly determined combinations from amplifying noise.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -45,14 +45,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .effects import (
+    CONDITIONS,
     Effect,
     EffectContext,
     Perturbation,
     effect_context,
     missing_channels,
+    reference_conditions,
     total_perturbation,
 )
-from .effects.thermal import T_REF_C
 from .errormodel import MOTIONS, ErrorModelSpec, chebyshev_u, constant_motions
 from .errors import InputError
 from .linearize import (
@@ -211,29 +212,30 @@ class FittedModel:
         self,
         q: ArrayLike,
         *,
-        time: ArrayLike | None = None,
-        temp: ArrayLike | None = None,
         approach: ArrayLike | None = None,
+        **conditions: ArrayLike | None,
     ) -> EffectContext:
-        """Effect context for joint commands ``q`` (approach from the sequence if not given)."""
+        """Effect context for joint commands ``q`` (approach from the sequence if not given)
+        at ``conditions`` (``time``, ``temp``, ``joint_temp``, ``joint_torque``: the
+        channels of :data:`~quickhealth.identify.effects.CONDITIONS`)."""
         q = np.atleast_2d(np.asarray(q, float))
-        return _context(self.robot, q, approach, time, temp)
+        return _context(self.robot, q, approach, conditions)
 
     def predict(
         self,
         q: ArrayLike,
         *,
-        time: ArrayLike | None = None,
-        temp: ArrayLike | None = None,
         approach: ArrayLike | None = None,
+        **conditions: ArrayLike | None,
     ) -> F:
         """Model pose of the target in the instrument frame, ``T_instr_target``, shape (n, 4, 4).
 
         ``q`` in rad, shape (n, nj); ``approach`` (+1/−1 per joint) defaults to the direction
-        each joint moved from the previous row (the first row counts as from below).
+        each joint moved from the previous row (the first row counts as from below);
+        ``conditions`` as :meth:`context` (``time=``, ``temp=`` …; ``**meas.conditions()``).
         """
         q = np.atleast_2d(np.asarray(q, float))
-        pert = self._perturbation(q, time, temp, approach)
+        pert = self._perturbation(q, approach, conditions)
         T = loop_pose(
             self.robot, self.spec, self.coeffs, self.T_instr_base0, self.T_flange_target0, q, pert
         )
@@ -266,15 +268,14 @@ class FittedModel:
         self,
         q: ArrayLike,
         *,
-        time: ArrayLike | None = None,
-        temp: ArrayLike | None = None,
         approach: ArrayLike | None = None,
+        **conditions: ArrayLike | None,
     ) -> F:
         """The model pose with the robot's own effects only (no depth scale, no drift),
         ``T_instr_target`` (n, 4, 4)."""
         q = np.atleast_2d(np.asarray(q, float))
-        pert = self._perturbation(q, time, temp, approach)
-        robot_pert = Perturbation(dq=pert.dq, link_scale=pert.link_scale)
+        pert = self._perturbation(q, approach, conditions)
+        robot_pert = pert.robot_only()
         return loop_pose(
             self.robot,
             self.spec,
@@ -309,12 +310,10 @@ class FittedModel:
         spec = self.spec
         q = rng.uniform(spec.q_lo, spec.q_hi, (REGISTRATION_SAMPLES, spec.n_joints))
         needs = {col for e in self.effects for col in e.requires()}
-        n = q.shape[0]
         T = self.robot_pose(
             q,
             approach=np.zeros_like(q),
-            temp=np.full(n, T_REF_C) if "temp" in needs else None,
-            time=np.full(n, self.reference_time or 0.0) if "time" in needs else None,
+            **reference_conditions(needs, self.robot, q, self.reference_time),
         )
         T_bf = self.robot.fk(q).reshape(-1, 4, 4)
         Rf, pf = T_bf[:, :3, :3], T_bf[:, :3, 3]
@@ -330,10 +329,12 @@ class FittedModel:
         M = (np.swapaxes(Rf, -1, -2) @ Rb.T[None] @ T[:, :3, :3]).mean(0)
         return make_T(Rb, pb), make_T(_nearest_rotation(M), t)
 
-    def _perturbation(self, q: F, time, temp, approach) -> Perturbation:  # type: ignore[no-untyped-def]
+    def _perturbation(
+        self, q: F, approach: ArrayLike | None, conditions: Mapping[str, ArrayLike | None]
+    ) -> Perturbation:
         if not self.effects:
             return Perturbation()
-        ctx = _context(self.robot, q, approach, time, temp)
+        ctx = _context(self.robot, q, approach, conditions)
         return total_perturbation(self.effects, self.effect_params, ctx)
 
     def summary(self) -> list[str]:
@@ -653,8 +654,16 @@ def parameter_labels(spec: ErrorModelSpec, effects: Sequence[Effect]) -> list[st
     return out
 
 
-def _context(robot: RobotModel, q: F, approach, time, temp) -> EffectContext:  # type: ignore[no-untyped-def]
-    return effect_context(robot, q, approach, time, temp)
+def _context(
+    robot: RobotModel,
+    q: F,
+    approach: ArrayLike | None,
+    conditions: Mapping[str, ArrayLike | None],
+) -> EffectContext:
+    unknown = set(conditions) - set(CONDITIONS)
+    if unknown:
+        raise TypeError(f"unknown conditions {sorted(unknown)}; known: {', '.join(CONDITIONS)}")
+    return effect_context(robot, q, approach, **conditions)  # type: ignore[arg-type]
 
 
 @dataclass(eq=False)
@@ -703,9 +712,7 @@ class _Problem:
         else:
             T_ib0, T_ft0 = initial_setup(robot, meas)
         sig = [prior.sigmas(spec)] + [np.asarray(e.prior_sigma, float) for e in effects]
-        ctx = (
-            _context(robot, meas.q, meas.approach_sign(), meas.time, meas.temp) if effects else None
-        )
+        ctx = _context(robot, meas.q, meas.approach_sign(), meas.conditions()) if effects else None
         d = 6 if meas.has_orientation else 3
         prob = cls(
             robot=robot,

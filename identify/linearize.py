@@ -119,7 +119,7 @@ class InstrumentNoise:
 
 def measurement_context(robot: RobotModel, meas: Measurements) -> EffectContext:
     """The effects' context of a measurement set (approach from the execution order)."""
-    return effect_context(robot, meas.q, meas.approach_sign(), meas.time, meas.temp)
+    return effect_context(robot, meas.q, meas.approach_sign(), **meas.conditions())
 
 
 def joint_motion_matrices(spec: ErrorModelSpec, coeffs: F, q: F) -> tuple[F, F]:
@@ -152,6 +152,11 @@ def forward(
     coeffs = np.asarray(coeffs, float)
     n, nj = q.shape
     mot, E = joint_motion_matrices(spec, coeffs, q)
+    if pert.joint_motion is not None:  # the effects' error motions add to the joints' own
+        mot = mot.copy()
+        mot[:, 1:-1] += np.asarray(pert.joint_motion, float)
+        E = E.copy()
+        E[:, 1:-1] = small_error_transform(mot[:, 1:-1, :3], mot[:, 1:-1, 3:])
     theta = q + robot.q_offset
     if pert.dq is not None:
         theta = theta + pert.dq
@@ -390,6 +395,8 @@ def effect_channels(effects: Sequence[Effect], ctx: EffectContext) -> frozenset[
     for e in effects:
         for p in _unit_perturbations(e, ctx):
             used |= {c for c in CHANNELS[:4] if getattr(p, c) is not None}
+            if p.joint_motion is not None:
+                used.add("frame_motion")
     return frozenset(used)
 
 
@@ -412,6 +419,9 @@ def effect_jacobian(effect: Effect, ctx: EffectContext, sens: Sensitivities) -> 
             col += np.einsum("nk,nkc->nc", p.base_twist, _channel(sens, "base_twist"))
         if p.instr_scale_z is not None:
             col += p.instr_scale_z[:, None] * _channel(sens, "instr_scale_z")
+        if p.joint_motion is not None:  # (n, nj, 6m) through each joint frame's motion columns
+            fm = _channel(sens, "frame_motion")[:, 1:-1]  # (n, nj, 6m, 6c)
+            col += np.einsum("njm,njmc->nc", p.joint_motion, fm)
         out[:, :, i] = col
     return out
 

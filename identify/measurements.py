@@ -51,6 +51,13 @@ class Measurements:
         or made from ``rpy``.  Both None = position only.
     time : ndarray, shape (n,), s, or None
     temp : ndarray, shape (n,), °C, or None
+        Temperature near the robot.
+    joint_temp : ndarray, shape (n, nj), °C, or None
+        Each joint's temperature as the controller reports it at the pose (CSV v1
+        ``temp_j1`` …).
+    joint_torque : ndarray, shape (n, nj), N·m, or None
+        Each joint's measured torque at the pose: what its drive exerts (CSV v1 ``tau_j1`` …;
+        or its current times the joint's torque constant).
     pan : ndarray, shape (n,), rad, or None
         Smart-target pan angle.
     sigma_pos : ndarray, shape (n, 3), m, or None
@@ -75,6 +82,8 @@ class Measurements:
     time: F | None = None
     temp: F | None = None
     pan: F | None = None
+    joint_temp: F | None = None
+    joint_torque: F | None = None
     sigma_pos: F | None = None
     sigma_rpy: F | None = None
     sigma_rot: F | None = None
@@ -107,6 +116,10 @@ class Measurements:
             v = getattr(self, name)
             if v is not None and v.shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {v.shape}")
+        for name in ("joint_temp", "joint_torque"):
+            v = getattr(self, name)
+            if v is not None and v.shape != self.q.shape:
+                raise ValueError(f"{name} must have shape {self.q.shape}, got {v.shape}")
         if self.excluded is not None and self.excluded.shape != (n,):
             raise ValueError(f"excluded must have shape ({n},), got {self.excluded.shape}")
         if self.pose_id is not None and len(self.pose_id) != n:
@@ -138,6 +151,17 @@ class Measurements:
         """The same poses without their orientation (as a laser tracker's 3-DoF data)."""
         return replace(self, rpy=None, rot=None, sigma_rpy=None, sigma_rot=None)
 
+    def conditions(self) -> dict[str, F | None]:
+        """The conditions of every pose, by channel (``time``, ``temp``, ``joint_temp``,
+        ``joint_torque``; None where the data have none): the keywords of
+        ``FittedModel.predict`` and of the effects' context."""
+        return {
+            "time": self.time,
+            "temp": self.temp,
+            "joint_temp": self.joint_temp,
+            "joint_torque": self.joint_torque,
+        }
+
     def approach_sign(self) -> F:
         """Approach direction of every joint, from the previous row: see :func:`approach_from_order`."""
         return approach_from_order(self.q)
@@ -157,6 +181,8 @@ class Measurements:
             time=take(self.time),
             temp=take(self.temp),
             pan=take(self.pan),
+            joint_temp=take(self.joint_temp),
+            joint_torque=take(self.joint_torque),
             sigma_pos=take(self.sigma_pos),
             sigma_rpy=take(self.sigma_rpy),
             sigma_rot=take(self.sigma_rot),

@@ -73,6 +73,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .effects import (
+    CHANNELS,
     Effect,
     Perturbation,
     check_effects,
@@ -435,11 +436,13 @@ def change_model(
     InputError
         The baseline needs a temperature the check does not measure (``thermal``).
     """
-    if any("temp" in e.requires() for e in fitted.effects):
-        raise InputError(
-            "the baseline model has a temperature effect (thermal): a check measures no "
-            "temperature; use a baseline fitted without it"
-        )
+    for e in fitted.effects:  # a check passes the approach and the time, no other condition
+        if set(e.requires()) - {"approach", "time"}:
+            raise InputError(
+                f"the baseline model has {e.name}, which needs the "
+                f"{', '.join(CHANNELS[c].words for c in e.requires() if c != 'approach')}: a "
+                "check measures none of it; use a baseline fitted without it"
+            )
     robot = fitted.robot
     nj = robot.n_joints
     orders = np.full((nj + 2, 6), -1, dtype=np.int64)

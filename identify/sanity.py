@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from .effects import reference_conditions
 from .errors import InputError, QuickhealthError
 from .fit import FittedModel
 from .measurements import Measurements
@@ -68,13 +69,10 @@ def correction_extent(fitted: FittedModel, n_samples: int = EXTENT_SAMPLES) -> C
     spec = fitted.spec
     q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
     needs = {col for e in fitted.effects for col in e.requires()}
-    kw: dict[str, F | None] = {"approach": np.ones_like(q)}
-    if "temp" in needs:
-        from .effects.thermal import T_REF_C
-
-        kw["temp"] = np.full(n_samples, T_REF_C)
-    if "time" in needs:
-        kw["time"] = np.full(n_samples, fitted.reference_time or 0.0)
+    kw: dict[str, F | None] = {
+        "approach": np.ones_like(q),
+        **reference_conditions(needs, fitted.robot, q, fitted.reference_time),
+    }
     with np.errstate(all="ignore"):
         dp = np.linalg.norm(fitted.tcp_error_vector(q, **kw), axis=1)
         dr = np.linalg.norm(fitted.tcp_rotation_error(q, **kw), axis=1)
@@ -149,7 +147,7 @@ def check_describes(fitted: FittedModel, meas: Measurements, name: str = "the da
     set-up's data (residuals of centimetres against a model that left tenths of a
     millimetre) every candidate would be "significant" or none: neither is an answer.
     """
-    T = fitted.predict(meas.q, time=meas.time, temp=meas.temp)
+    T = fitted.predict(meas.q, **meas.conditions())
     res = meas.pos - T[:, :3, 3]
     rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
     limit = max(FOREIGN_FACTOR * fitted.rms_pos, fitted.rms_pos + FOREIGN_MARGIN)

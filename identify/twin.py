@@ -176,9 +176,12 @@ class Twin:
         time: ArrayLike | None = None,
         temp: ArrayLike | None = None,
         approach: ArrayLike | None = None,
+        *,
+        joint_temp: ArrayLike | None = None,
+        joint_torque: ArrayLike | None = None,
     ) -> EffectContext:
         """The effects' context for joints ``q`` (n, nj) in execution order."""
-        return effect_context(self.robot, q, approach, time, temp)
+        return effect_context(self.robot, q, approach, time, temp, joint_temp, joint_torque)  # type: ignore[arg-type]
 
     def perturbation(self, ctx: EffectContext) -> Perturbation:
         """Sum of the true effects' perturbations."""
@@ -193,17 +196,22 @@ class Twin:
         approach: ArrayLike | None = None,
         *,
         seen: bool = True,
+        joint_temp: ArrayLike | None = None,
+        joint_torque: ArrayLike | None = None,
     ) -> F:
         """Noise-free true ``T_instr_target`` (n, 4, 4) for encoder angles ``q`` (rad).
 
         ``q`` is in execution order: unless ``approach`` is given, each joint's approach
         direction comes from the previous row (the first row counts as approached from
-        below).  ``time`` (s) and ``temp`` (°C) are needed when the twin has effects that
-        use them.  With ``seen`` (the default) a depth-scale effect is applied: this is the
-        pose the instrument *sees*; ``seen=False`` is where the target really is (the
-        instrument's own errors left out).
+        below).  ``time`` (s), ``temp`` (°C), ``joint_temp`` (°C) and ``joint_torque`` (N·m,
+        both (n, nj)) are needed when the twin has effects that use them
+        (:func:`joint_schedules` makes the last two).  With ``seen`` (the default) a
+        depth-scale effect is applied: this is the pose the instrument *sees*;
+        ``seen=False`` is where the target really is (the instrument's own errors left out).
         """
-        ctx = self.context(q, time, temp, approach)
+        ctx = self.context(
+            q, time, temp, approach, joint_temp=joint_temp, joint_torque=joint_torque
+        )
         self._check_columns(ctx)
         pert = self.perturbation(ctx)
         if not seen:
@@ -227,16 +235,21 @@ class Twin:
         seed: int | None = None,
         orientation: bool = True,
         meta: Mapping[str, str] | None = None,
+        *,
+        joint_temp: ArrayLike | None = None,
+        joint_torque: ArrayLike | None = None,
     ) -> Measurements:
         """Measurements of the twin at encoder angles ``q`` (n, nj), rad, in execution order.
 
         The instrument adds Gaussian noise (``sigma_pos`` per axis, ``sigma_rot`` per
         rotation axis); the joint readings carry ``sigma_q`` encoder noise.  ``seed``
         defaults to the twin's seed + 1.  ``orientation=False`` gives position-only data.
+        The conditions given (``time``, ``temp``, ``joint_temp``, ``joint_torque``) act on
+        the true pose and are recorded with the measurements, as a controller reports them.
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         rng = np.random.default_rng(self.truth.seed + 1 if seed is None else seed)
-        T = self.true_pose(q, time, temp)
+        T = self.true_pose(q, time, temp, joint_temp=joint_temp, joint_torque=joint_torque)
         n = q.shape[0]
         pos = T[:, :3, 3] + rng.normal(0.0, self.truth.sigma_pos, (n, 3))
         rpy = None
@@ -250,6 +263,8 @@ class Twin:
             rpy=rpy,
             time=None if time is None else np.asarray(time, dtype=float).reshape(-1).copy(),
             temp=None if temp is None else np.asarray(temp, dtype=float).reshape(-1).copy(),
+            joint_temp=None if joint_temp is None else np.array(joint_temp, dtype=float),
+            joint_torque=None if joint_torque is None else np.array(joint_torque, dtype=float),
             pose_id=tuple(f"p{i:04d}" for i in range(n)),
             meta={"instrument": "digital twin", "twin_seed": str(self.truth.seed), **(meta or {})},
         )
@@ -452,3 +467,31 @@ def schedules(n: int, duration: float = 900.0, temp_rise: float = 6.0) -> tuple[
     t = np.linspace(0.0, duration, n)
     temp = 21.0 + temp_rise * (1.0 - np.exp(-3.0 * t / max(duration, 1e-9)))
     return t, temp
+
+
+def joint_schedules(
+    robot: RobotModel,
+    q: ArrayLike,
+    time: ArrayLike,
+    temp: ArrayLike,
+    payload_kg: float | ArrayLike = 0.0,
+) -> tuple[F, F]:
+    """Each joint's temperature (°C) and measured torque (N·m) at the poses ``q`` (n, nj) of
+    a run at ``time`` (s) and ambient ``temp`` (°C): what a controller reports
+    (:mod:`~quickhealth.identify.jointload`).
+
+    The drives hold the arm and ``payload_kg`` (one mass, or one per pose: a gripper that
+    picks and places) against gravity; the joints start at the ambient temperature (an arm
+    just powered on) and warm with their duty.  Needs the robot's link masses.
+    """
+    from .jointload import drive_torques, warm_up
+
+    tau = drive_torques(robot, q, payload_kg)
+    return warm_up(time, q, tau, temp), tau
+
+
+def payloads(n: int, max_kg: float, seed: int = 0) -> F:
+    """``n`` payloads (kg) of a pick-and-place cell: each pose empty or carrying a part of up
+    to ``max_kg``, drawn from ``seed``."""
+    rng = np.random.default_rng(seed)
+    return np.where(rng.random(n) < 0.5, 0.0, rng.uniform(0.2, 1.0, n) * max_kg)

@@ -27,15 +27,21 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .distributions import chi2_ppf, norm_ppf
-from .effects import Perturbation
-from .effects.thermal import T_REF_C
+from .effects import T_REF_C, Perturbation
+from .effects import reference_conditions as effect_reference
 from .errormodel import MOTIONS, chebyshev_basis, chebyshev_u
 from .fit import REGISTRATION_SAMPLES, FittedModel, linearised
 from .linearize import forward, motion_jacobian
 from .measurements import Measurements
+from .robot import RobotModel
 from .transforms import skew
 
 F = NDArray[np.float64]
+
+
+#: How the joint torques are taken at reference conditions (:attr:`Conditions.joint_torque`).
+TORQUE_GRAVITY = "holding the robot model's masses against gravity"
+TORQUE_NONE = "zero (the robot model has no masses: the arm counts as unloaded)"
 
 
 @dataclass(frozen=True)
@@ -43,18 +49,44 @@ class Conditions:
     """The conditions a model with condition-dependent effects is evaluated at.
 
     ``temp_c`` (°C) is set when an effect needs ``temp``, ``time_s`` (s) when one needs
-    ``time``; ``None`` otherwise (the model does not depend on it).
+    ``time``, ``joint_temp_c`` (°C, every joint) when one needs ``joint_temp`` and
+    ``joint_torque`` (how the torques are taken: :data:`TORQUE_GRAVITY` or
+    :data:`TORQUE_NONE`) when one needs ``joint_torque``; ``None`` otherwise (the model
+    does not depend on it).
     """
 
     temp_c: float | None = None
     time_s: float | None = None
     time_note: str = ""
+    joint_temp_c: float | None = None
+    joint_torque: str | None = None
 
-    def arrays(self, n: int) -> dict[str, F | None]:
-        """``time=``/``temp=`` keyword arguments for ``n`` commands."""
+    @property
+    def channels(self) -> list[str]:
+        """The channels these conditions set (``temp``, ``time``, ``joint_temp``, …)."""
+        given = (
+            ("temp", self.temp_c),
+            ("time", self.time_s),
+            ("joint_temp", self.joint_temp_c),
+            ("joint_torque", self.joint_torque),
+        )
+        return [c for c, v in given if v is not None]
+
+    def arrays(self, q: ArrayLike, robot: RobotModel) -> dict[str, F | None]:
+        """The conditions of the commands ``q`` (n, nj) as ``FittedModel.predict`` keywords."""
+        q = np.atleast_2d(np.asarray(q, float))
+        n = q.shape[0]
         return {
             "temp": None if self.temp_c is None else np.full(n, self.temp_c),
             "time": None if self.time_s is None else np.full(n, self.time_s),
+            "joint_temp": None
+            if self.joint_temp_c is None
+            else np.full(q.shape, self.joint_temp_c),
+            "joint_torque": (
+                None
+                if self.joint_torque is None
+                else effect_reference({"joint_torque"}, robot, q, None)["joint_torque"]
+            ),
         }
 
     def describe(self) -> str:
@@ -66,16 +98,28 @@ class Conditions:
             parts.append(
                 f"time {self.time_s:.1f} s" + (f" ({self.time_note})" if self.time_note else "")
             )
+        if self.joint_temp_c is not None:
+            parts.append(f"every joint at {self.joint_temp_c:.1f} °C")
+        if self.joint_torque is not None:
+            parts.append(f"joint torques {self.joint_torque}")
         return "at " + ", ".join(parts) if parts else ""
 
     def as_dict(self) -> dict[str, object]:
-        """For report.json: ``temp_c``, ``time_s`` (null when the model does not use them)."""
-        return {"temp_c": self.temp_c, "time_s": self.time_s, "text": self.describe()}
+        """For report.json: ``temp_c``, ``time_s`` (null when the model does not use them),
+        and ``joint_temp_c``, ``joint_torque`` when it does."""
+        out: dict[str, object] = {"temp_c": self.temp_c, "time_s": self.time_s}
+        if self.joint_temp_c is not None:
+            out["joint_temp_c"] = self.joint_temp_c
+        if self.joint_torque is not None:
+            out["joint_torque"] = self.joint_torque
+        return {**out, "text": self.describe()}
 
 
 def reference_conditions(fitted: FittedModel) -> Conditions:
-    """The stated reference conditions of ``fitted``: 20 °C for ``thermal``, the time of the
-    last fitted pose for ``drift`` (0 s if the model does not know it)."""
+    """The stated reference conditions of ``fitted`` (the values of
+    :func:`~quickhealth.identify.effects.reference_conditions`): 20 °C for ``thermal`` and
+    every joint's temperature, the time of the last fitted pose for ``drift`` (0 s if the
+    model does not know it), the torques that hold the model's masses for a torque effect."""
     needs = {col for e in fitted.effects for col in e.requires()}
     temp = T_REF_C if "temp" in needs else None
     time = note = None
@@ -84,7 +128,11 @@ def reference_conditions(fitted: FittedModel) -> Conditions:
             time, note = float(fitted.reference_time), "the run's last pose"
         else:
             time, note = 0.0, "the time origin; the model does not know its run's times"
-    return Conditions(temp, time, note or "")
+    torque = None
+    if "joint_torque" in needs:
+        r = fitted.robot
+        torque = TORQUE_GRAVITY if r.masses is not None and r.coms is not None else TORQUE_NONE
+    return Conditions(temp, time, note or "", T_REF_C if "joint_temp" in needs else None, torque)
 
 
 @dataclass(frozen=True, eq=False)
@@ -177,7 +225,7 @@ def workspace_error(
     rng = np.random.default_rng(seed)
     spec = fitted.spec
     q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
-    err = fitted.tcp_error(q, approach=np.ones_like(q), **cond.arrays(n_samples))
+    err = fitted.tcp_error(q, approach=np.ones_like(q), **cond.arrays(q, fitted.robot))
     counts, edges = np.histogram(err, bins=bins, range=(0.0, float(err.max()) * 1.0001 + 1e-12))
     return WorkspaceError(
         n_samples=n_samples,
@@ -239,30 +287,31 @@ def predict_commands(
     fitted: FittedModel,
     q: ArrayLike,
     threshold: float | None = None,
-    *,
-    time: ArrayLike | None = None,
-    temp: ArrayLike | None = None,
+    **conditions: ArrayLike | None,
 ) -> CommandPrediction:
     """Predicted pose and TCP error for joint commands ``q`` (rad, (n, nj)), in program order.
 
     ``threshold`` (m) flags commands whose predicted error exceeds it.  Commands with a joint
     outside the range the model was identified on are flagged ``extrapolated``: the Chebyshev
-    series are not trusted there.  Where the model needs ``time`` or ``temp`` and they are
-    not given, the reference conditions are used and returned in ``assumed``.
+    series are not trusted there.  ``conditions``: ``time=``, ``temp=``, ``joint_temp=``,
+    ``joint_torque=`` of the commands (``**meas.conditions()``); where the model needs one
+    that is not given, the reference conditions are used and returned in ``assumed``.
     """
     q = np.atleast_2d(np.asarray(q, float))
     ref = reference_conditions(fitted)
+    have = {c for c, v in conditions.items() if v is not None}
     assumed = Conditions(
-        ref.temp_c if temp is None else None,
-        ref.time_s if time is None else None,
-        ref.time_note if time is None else "",
+        ref.temp_c if "temp" not in have else None,
+        ref.time_s if "time" not in have else None,
+        ref.time_note if "time" not in have else "",
+        ref.joint_temp_c if "joint_temp" not in have else None,
+        ref.joint_torque if "joint_torque" not in have else None,
     )
-    fill = assumed.arrays(len(q))
-    temp = fill["temp"] if temp is None else temp
-    time = fill["time"] if time is None else time
+    fill = assumed.arrays(q, fitted.robot)
+    given = {c: conditions.get(c) if c in have else fill[c] for c in fill}
     if fitted.effects:
-        T = fitted.predict(q, time=time, temp=temp)
-        ev = fitted.tcp_error_vector(q, time=time, temp=temp)
+        T = fitted.predict(q, **given)
+        ev = fitted.tcp_error_vector(q, **given)
         Jt = _joint_coeff_position_jacobian(fitted, q)  # (n, 3, P)
     else:  # one forward pass serves the pose, the error and the Jacobian (no perturbation)
         fw = forward(

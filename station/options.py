@@ -85,6 +85,7 @@ NOISE_POS_MM = Bounded(float, 0.0, 100.0, "a position noise in mm")
 NOISE_ROT_MRAD = Bounded(float, 0.0, 100.0, "an orientation noise in mrad")
 DURATION_S = Bounded(float, 0.0, 1e7, "a duration in s", lo_open=True)
 TEMP_RISE_K = Bounded(float, -50.0, 50.0, "a temperature change in K")
+PAYLOAD_KG = Bounded(float, 0.0, 100.0, "a payload in kg")
 
 # -- the quick check
 FALSE_ALARM = Bounded(float, 1e-6, 0.2, "a false-alarm probability")

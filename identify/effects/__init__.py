@@ -22,7 +22,7 @@ over the registry and never name an effect (docs/effects.md, "Adding an effect")
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -51,6 +51,11 @@ class EffectContext:
         Torque gravity applies about each joint axis (None when the robot has no masses).
     time : ndarray, shape (n,), s, or None
     temp : ndarray, shape (n,), °C, or None
+    joint_temp : ndarray, shape (n, nj), °C, or None
+        Each joint's temperature as the controller reports it.
+    joint_torque : ndarray, shape (n, nj), N·m, or None
+        Each joint's measured torque: what its drive exerts about the joint axis (at rest,
+        minus the torque gravity applies).
     """
 
     robot: RobotModel
@@ -59,6 +64,8 @@ class EffectContext:
     gravity_torque: F | None = None
     time: F | None = None
     temp: F | None = None
+    joint_temp: F | None = None
+    joint_torque: F | None = None
 
     @property
     def n_poses(self) -> int:
@@ -89,12 +96,21 @@ class Perturbation:
         Small motion of the robot base in the instrument, ``E(δ, ε)`` after ``E0``: δ (m), ε (rad).
     instr_scale_z : ndarray, shape (n,)
         Fractional scale error of the instrument along its own z axis.
+    joint_motion : ndarray, shape (n, nj, 6)
+        Added to every joint's six error motions ``E_i`` (δx δy δz m, εx εy εz rad, in the
+        joint's frame, as the Chebyshev terms): an axial growth is δz, a drift of the joint's
+        angle εz.
     """
 
     dq: F | None = None
     link_scale: F | None = None
     base_twist: F | None = None
     instr_scale_z: F | None = None
+    joint_motion: F | None = None
+
+    def robot_only(self) -> Perturbation:
+        """The robot's own part: without the instrument's scale and the base's motion."""
+        return Perturbation(dq=self.dq, link_scale=self.link_scale, joint_motion=self.joint_motion)
 
     def __add__(self, other: Perturbation) -> Perturbation:
         def add(a: F | None, b: F | None) -> F | None:
@@ -109,6 +125,7 @@ class Perturbation:
             link_scale=add(self.link_scale, other.link_scale),
             base_twist=add(self.base_twist, other.base_twist),
             instr_scale_z=add(self.instr_scale_z, other.instr_scale_z),
+            joint_motion=add(self.joint_motion, other.joint_motion),
         )
 
 
@@ -118,13 +135,21 @@ def effect_context(
     approach: F | None = None,
     time: F | None = None,
     temp: F | None = None,
+    joint_temp: F | None = None,
+    joint_torque: F | None = None,
 ) -> EffectContext:
-    """The context of joints ``q`` (n, nj) in execution order; approach from the order if not given."""
+    """The context of joints ``q`` (n, nj) in execution order; approach from the order if not
+    given.  ``time``, ``temp`` (n,) and ``joint_temp``, ``joint_torque`` (n, nj): the
+    conditions of each pose, where known (:data:`CHANNELS`)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
     app = approach_from_order(q) if approach is None else np.asarray(approach, dtype=float)
     tau = None
     if robot.masses is not None and robot.coms is not None:
         tau = gravity_torques(robot, q)
+
+    def per_joint(v: F | None) -> F | None:
+        return None if v is None else np.asarray(v, dtype=float).reshape(q.shape)
+
     return EffectContext(
         robot=robot,
         q=q,
@@ -132,6 +157,8 @@ def effect_context(
         gravity_torque=tau,
         time=None if time is None else np.asarray(time, dtype=float).reshape(-1),
         temp=None if temp is None else np.asarray(temp, dtype=float).reshape(-1),
+        joint_temp=per_joint(joint_temp),
+        joint_torque=per_joint(joint_torque),
     )
 
 
@@ -161,10 +188,44 @@ CHANNELS: dict[str, Channel] = {
     "approach": Channel("approach direction of every joint (from the execution order)", None),
     "time": Channel("time (s, on the fitted run's clock)", "time_s"),
     "temp": Channel("temperature (°C)", "temp_c"),
+    "joint_temp": Channel("temperature of each joint (°C)", "joint_temp_c"),
+    "joint_torque": Channel("measured torque of each joint (N·m)", "joint_torque"),
 }
+
+#: The channels that are conditions of a pose (keywords of ``FittedModel.predict``,
+#: attributes of Measurements): all but the approach directions.
+CONDITIONS = tuple(c for c in CHANNELS if c != "approach")
 
 #: Channels every measurement file has (derived from the order of its rows).
 ALWAYS = frozenset({"approach"})
+
+#: The temperature (°C) the link lengths and the joints refer to: the thermal effects' zero
+#: and the reference condition of the workspace map.
+T_REF_C = 20.0
+
+
+def reference_conditions(
+    channels: Collection[str], robot: RobotModel, q: F, reference_time: float | None
+) -> dict[str, F]:
+    """The stated reference conditions of the commands ``q`` (n, nj), for the ``channels`` a
+    model needs: ``temp`` and every ``joint_temp`` at :data:`T_REF_C`; ``time`` at
+    ``reference_time`` (the fitted run's last pose; 0 when unknown); ``joint_torque`` the
+    torque that holds the robot model's own masses against gravity (zero on a robot without
+    masses: then the arm counts as unloaded).  What the workspace map, the registration of
+    the nominal robot and the correction extent evaluate a model at."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n = q.shape[0]
+    out: dict[str, F] = {}
+    if "temp" in channels:
+        out["temp"] = np.full(n, T_REF_C)
+    if "time" in channels:
+        out["time"] = np.full(n, reference_time or 0.0)
+    if "joint_temp" in channels:
+        out["joint_temp"] = np.full(q.shape, T_REF_C)
+    if "joint_torque" in channels:
+        has = robot.masses is not None and robot.coms is not None
+        out["joint_torque"] = -gravity_torques(robot, q) if has else np.zeros(q.shape)
+    return out
 
 
 @dataclass(frozen=True)

@@ -24,12 +24,8 @@ import numpy as np
 from ..errors import InputError
 from ..measurements import Measurements
 from ..robot import RobotModel
-from . import EffectContext, Perturbation, ProposalOptions, TwinSize, register
+from . import T_REF_C, EffectContext, Perturbation, ProposalOptions, TwinSize, register
 from ._base import EffectBase, F
-
-#: The temperature (°C) the link lengths refer to: the thermal effect's zero and the reference
-#: condition of the workspace map (:func:`~quickhealth.identify.workspace.reference_conditions`).
-T_REF_C = 20.0
 
 
 @dataclass(frozen=True, eq=False)

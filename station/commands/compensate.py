@@ -67,6 +67,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="time the program runs at, s on the fitted run's clock (needed by 'drift')",
     )
     c.add_argument(
+        "--joint-temp-c",
+        default=None,
+        help="the joints' temperature the program runs at, degC: one value or one per joint "
+        "(needed by 'thermal:jK')",
+    )
+    c.add_argument(
         "--leave-out",
         default=None,
         help="comma-separated effects of the model not to compensate (e.g. drift)",
@@ -106,6 +112,13 @@ def _compensate(args: argparse.Namespace) -> int:
             f"{args.model}: the model has {needs['temp'][0]!r}: give the temperature the "
             "program runs at with --temp-c (its link lengths refer to 20 degC), or leave it "
             f"out with --leave-out {needs['temp'][0]}; nothing written"
+        )
+    joint_temp = _joint_temps(args.joint_temp_c, nj)
+    if needs["joint_temp"] and joint_temp is None:
+        raise InputError(
+            f"{args.model}: the model has {needs['joint_temp'][0]!r}: give the joints' "
+            "temperature the program runs at with --joint-temp-c (one value or one per joint, "
+            f"degC), or leave it out with --leave-out {needs['joint_temp'][0]}; nothing written"
         )
     if needs["time"] and args.time_s is None:
         end = fm.reference_time
@@ -147,6 +160,7 @@ def _compensate(args: argparse.Namespace) -> int:
         T_flange_tcp=T_tcp,
         temp_c=args.temp_c,
         time_s=args.time_s,
+        joint_temp_c=joint_temp,
         leave_out=leave_out,
         max_correction=np.radians(cap),
         describe=lambda refused: _refusals(refused, where, cap),
@@ -207,6 +221,22 @@ def _left_as_written(left: Sequence[tuple[int, int, str, str]]) -> str:
         "the arm is after them is not modelled, and the next target's approach is taken from "
         "the target before them"
     )
+
+
+def _joint_temps(text: str | None, n_joints: int) -> list[float] | None:
+    """``--joint-temp-c``: one temperature for every joint or one per joint (degC)."""
+    if text is None:
+        return None
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise InputError(f"--joint-temp-c must be degC numbers, got {text!r}") from None
+    if len(vals) not in (1, n_joints) or not all(-40.0 <= v <= 150.0 for v in vals):
+        raise InputError(
+            f"--joint-temp-c must be one temperature or {n_joints} (one per joint), each in "
+            f"[-40, 150] degC, got {text!r}"
+        )
+    return vals * n_joints if len(vals) == 1 else vals
 
 
 def _refusals(

@@ -26,7 +26,7 @@ from ...identify.diagnose import Verdict, plot_candidate, plot_spectrum
 from ...identify.effects import effect_type, effect_types, parse_effect
 from ...identify.errors import InputError
 from ...identify.robot import RobotModel, ur5
-from ...identify.twin import make_twin, random_joints, schedules
+from ...identify.twin import joint_schedules, make_twin, payloads, random_joints, schedules
 from .. import options, workers
 from ..formats import (
     check_fit_rows,
@@ -132,6 +132,19 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--temp-rise", type=options.TEMP_RISE_K, default=6.0, help="warm-up during the run (K)"
     )
     t.add_argument("--position-only", action="store_true", help="no orientation columns")
+    t.add_argument(
+        "--joint-sensors",
+        action="store_true",
+        help="also write each joint's temperature and measured torque (temp_j1 …, tau_j1 …; "
+        "written anyway when a hidden effect needs them)",
+    )
+    t.add_argument(
+        "--payload-kg",
+        type=options.PAYLOAD_KG,
+        default=2.0,
+        help="the arm picks and places: each pose empty or carrying up to this payload, in the "
+        "joint torques (default 2 kg)",
+    )
     t.set_defaults(func=run_twin)
 
 
@@ -278,9 +291,21 @@ def run_twin(args: argparse.Namespace) -> int:
         + [("--truth", args.truth or args.out.with_suffix(".truth.json"))],
         [args.plan],
     )
+    sensors = args.joint_sensors or any(
+        c in ("joint_temp", "joint_torque") for e in twin.effects for c in e.requires()
+    )
+    if sensors:
+        meta["payload"] = f"0 or up to {args.payload_kg:g} kg per pose (joint torques)"
     for path, qq, s in files:
         t, temp = schedules(qq.shape[0], args.duration, args.temp_rise)
-        meas = twin.measure(qq, t, temp, seed=s, orientation=not args.position_only, meta=meta)
+        joint = {}
+        if sensors:
+            load = payloads(qq.shape[0], args.payload_kg, seed=s)
+            jt, tau = joint_schedules(twin.robot, qq, t, temp, load)
+            joint = {"joint_temp": jt, "joint_torque": tau}
+        meas = twin.measure(
+            qq, t, temp, seed=s, orientation=not args.position_only, meta=meta, **joint
+        )
         write_measurements(path, meas)
         print(f"wrote {path} ({qq.shape[0]} poses)")
     truth_path = args.truth or args.out.with_suffix(".truth.json")

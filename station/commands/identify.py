@@ -303,15 +303,15 @@ def _predict(args: argparse.Namespace) -> int:
     meas = None
     if inp.suffix.lower() in (".script", ".urscript", ".urp"):
         q, src_lines = formats.read_urscript_joints(inp, nj)
-        time = temp = None
+        conditions: dict[str, F | None] = {}
         formats.check_joint_limits(q, fm.robot, str(inp), src_lines, what="target")
     else:
         meas = formats.read_measurements(inp, nj, joints_only=True)
-        q, time, temp = meas.q, meas.time, meas.temp
+        q, conditions = meas.q, meas.conditions()
         src_lines = None
         formats.check_joint_limits(q, fm.robot, str(inp))
     thr = None if args.threshold_mm is None else args.threshold_mm * 1e-3
-    pred = _predict_chunked(fm, q, thr, time, temp)
+    pred = _predict_chunked(fm, q, thr, conditions)
     cols = ["row"]
     if src_lines is not None:
         cols.append("line")
@@ -403,21 +403,15 @@ def _band_chunked(fm: FittedModel, meas: Measurements) -> NDArray[np.float64]:
 
 
 def _predict_chunked(
-    fm: FittedModel, q: F, thr: float | None, time: F | None, temp: F | None
+    fm: FittedModel, q: F, thr: float | None, conditions: dict[str, F | None]
 ) -> CommandPrediction:
-    """:func:`predict_commands` in blocks of ``PREDICT_CHUNK`` commands (bounded memory)."""
+    """:func:`predict_commands` in blocks of ``PREDICT_CHUNK`` commands (bounded memory);
+    ``conditions`` of every command by channel (``time``, ``temp`` …; None: not given)."""
     parts = []
     for a in range(0, len(q), PREDICT_CHUNK):
         b = a + PREDICT_CHUNK
-        parts.append(
-            predict_commands(
-                fm,
-                q[a:b],
-                thr,
-                time=None if time is None else time[a:b],
-                temp=None if temp is None else temp[a:b],
-            )
-        )
+        part = {c: None if v is None else v[a:b] for c, v in conditions.items()}
+        parts.append(predict_commands(fm, q[a:b], thr, **part))
     if len(parts) == 1:
         return parts[0]
     return CommandPrediction(
@@ -430,7 +424,7 @@ def _predict_chunked(
 
 
 def _missing(c: Conditions) -> list[str]:
-    return [n for n, v in (("temp", c.temp_c), ("time", c.time_s)) if v is not None]
+    return c.channels
 
 
 # --------------------------------------------------------------------------- WAM import

@@ -80,6 +80,20 @@ def register(subparsers: Any) -> None:
     cols.add_argument("--temp", metavar="COL", default=None, help="temperature column (°C)")
     cols.add_argument("--time", metavar="COL", default=None, help="time column (s)")
     cols.add_argument("--pose-id", metavar="COL", default=None, help="pose identifier column")
+    cols.add_argument(
+        "--joint-temps",
+        metavar="T1,…,TN",
+        default=None,
+        help="columns of each joint's temperature (°C), joint order (default: temp_j1 … when "
+        "the header has them)",
+    )
+    cols.add_argument(
+        "--joint-torques",
+        metavar="TAU1,…,TAUN",
+        default=None,
+        help="columns of each joint's measured torque (N·m), joint order (default: tau_j1 … "
+        "when the header has them)",
+    )
     fmt = t.add_argument_group("file format")
     fmt.add_argument("--sep", metavar="SEP", default=None, help="auto (default), ',', ';' or tab")
     fmt.add_argument("--decimal", metavar="MARK", default=None, help="point (default) or comma")
@@ -133,6 +147,8 @@ def _import_tracker(args: argparse.Namespace) -> int:
         temp=args.temp,
         time=args.time,
         pose_id=args.pose_id,
+        joint_temps=_columns(args.joint_temps),
+        joint_torques=_columns(args.joint_torques),
         separator=args.sep,
         decimal=args.decimal,
         length_unit=args.length_unit,
@@ -149,5 +165,9 @@ def _import_tracker(args: argparse.Namespace) -> int:
         if m.sigma_rot is not None:
             s = np.degrees(m.sigma_rot)
             what += f", srot {np.median(s):.2g} deg median ({s.min():.2g}-{s.max():.2g})"
+    if m.joint_temp is not None:
+        what += ", joint temperatures"
+    if m.joint_torque is not None:
+        what += ", joint torques"
     print(f"wrote {args.out}: {m.n_poses} poses, {m.n_joints} joints, {what}")
     return 0

@@ -66,6 +66,14 @@ OPTIONAL_COLUMNS = (
 SIGMA_POS_MM_RANGE = (1e-6, 1e3)
 SIGMA_ROT_DEG_RANGE = (1e-6, 90.0)
 
+#: Per-joint columns (CSV v1): each joint's temperature (°C) and measured torque (N·m), as
+#: ``temp_j1`` … ``temp_jN`` and ``tau_j1`` … ``tau_jN``, all of a group or none, and the range
+#: a controller can report (outside it the number is a typing error or another unit).
+JOINT_COLUMNS = {
+    "temp_j": ("joint_temp", "°C", (-50.0, 200.0)),
+    "tau_j": ("joint_torque", "N·m", (-5000.0, 5000.0)),
+}
+
 #: How far from 1 a quaternion's norm may be (rounding of written cells) before it is refused.
 QUAT_NORM_TOL = 1e-3
 
@@ -293,6 +301,21 @@ def parse_measurements(
                 f"{name}:{header_line}:{col[b] + 1}: {what} given twice ({a!r} and {b!r} "
                 "columns): keep one"
             )
+    for prefix in JOINT_COLUMNS:
+        group = [f"{prefix}{i + 1}" for i in range(n_joints)]
+        present = [g for g in group if g in col]
+        if present and len(present) != len(group):
+            missing = [g for g in group if g not in col]
+            raise InputError(
+                f"{name}:{header_line}:{col[present[0]] + 1}: column {present[0]!r} needs "
+                f"{', '.join(repr(m) for m in missing)} too (one per joint)"
+            )
+        beyond = f"{prefix}{n_joints + 1}"
+        if beyond in col:
+            raise InputError(
+                f"{name}:{header_line}:{col[beyond] + 1}: column {beyond!r}, but the robot has "
+                f"{n_joints} joints"
+            )
     if "srot" in col and "pitch" not in col and "qw" not in col:
         raise InputError(
             f"{name}:{header_line}:{col['srot'] + 1}: orientation uncertainty 'srot' without an "
@@ -406,6 +429,23 @@ def parse_measurements(
     pose_id = (  # as written: a cell that looked like a formula carries an apostrophe
         tuple(csv_text(cells[col["pose_id"]]) for _, cells in rows) if "pose_id" in col else None
     )
+
+    def per_joint(prefix: str) -> F | None:
+        """The group ``prefix1`` … ``prefixN`` (n, nj) within what a controller reports."""
+        cols = [f"{prefix}{i + 1}" for i in range(n_joints)]
+        if cols[0] not in col:
+            return None
+        vals = np.stack([numbers(c) for c in cols], axis=1)
+        _, unit, (lo, hi) = JOINT_COLUMNS[prefix]
+        bad = np.argwhere((vals < lo) | (vals > hi))
+        if bad.size:
+            i, j = (int(v) for v in bad[0])
+            raise InputError(
+                f"{name}:{rows[i][0]}:{col[cols[j]] + 1}: column {cols[j]!r}: {vals[i, j]:.6g} "
+                f"{unit} is outside what a controller reports ({lo:g} to {hi:g} {unit})"
+            )
+        return vals
+
     return Measurements(
         q=q,
         pos=pos,
@@ -415,6 +455,8 @@ def parse_measurements(
         time=numbers("time") if "time" in col else None,
         temp=numbers("temp") if "temp" in col else None,
         pan=np.radians(numbers("pan")) if "pan" in col else None,
+        joint_temp=per_joint("temp_j"),
+        joint_torque=per_joint("tau_j"),
         sigma_pos=sig_pos,
         sigma_rpy=sig_rpy,
         pose_id=pose_id,
@@ -472,6 +514,10 @@ def format_measurements(meas: Measurements) -> str:
         v = getattr(meas, c)
         if v is not None:
             cols.append((c, v))
+    for prefix, (attr, _, _) in JOINT_COLUMNS.items():
+        v = getattr(meas, attr)
+        if v is not None:
+            cols += [(f"{prefix}{i + 1}", v[:, i]) for i in range(meas.n_joints)]
     if meas.pan is not None:
         cols.append(("pan", np.degrees(meas.pan)))
     if meas.sigma_pos is not None:

@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from ...identify.errors import InputError
 from ...identify.measurements import Measurements
 from .common import MAX_CELL_CHARS, MAX_ROWS, one_line, read_text_limited
+from .measurements import JOINT_COLUMNS
 
 F = NDArray[np.float64]
 
@@ -132,6 +133,11 @@ class TrackerLayout:
         (angle unit; they become CSV v1 ``srot``, see the module docstring).
     temp, time, pose_id : str or None
         Temperature (°C), time (s), pose identifier columns.
+    joint_temps, joint_torques : tuple of str, or None
+        Each joint's temperature (°C) and measured torque (N·m) as the robot's controller
+        reported them, in the robot's joint order (CSV v1 ``temp_j1`` …, ``tau_j1`` …).  A
+        file whose header has columns named ``temp_j1`` … ``temp_jN`` or ``tau_j1`` …
+        ``tau_jN`` gets them mapped without being told.
     separator : str
         ``auto`` (tab, ``;`` or ``,``, whichever the header has most of), ``,``, ``;``, ``tab``.
     decimal : str
@@ -159,6 +165,8 @@ class TrackerLayout:
     temp: str | None = None
     time: str | None = None
     pose_id: str | None = None
+    joint_temps: tuple[str, ...] | None = None
+    joint_torques: tuple[str, ...] | None = None
     separator: str = "auto"
     decimal: str = "point"
     length_unit: str | None = None
@@ -222,6 +230,8 @@ OPTION = {
     "temp": "--temp",
     "time": "--time",
     "pose_id": "--pose-id",
+    "joint_temps": "--joint-temps",
+    "joint_torques": "--joint-torques",
     "separator": "--sep",
     "decimal": "--decimal",
     "length_unit": "--length-unit",
@@ -285,6 +295,14 @@ def check_layout(layout: TrackerLayout) -> None:
             raise InputError(f"{OPTION['position']}: no position columns given (x, y, z)")
         if cols is not None and len(cols) != n:
             raise bad(name, ",".join(cols), f"needs {n} columns, got {len(cols)}")
+    for name in ("joint_temps", "joint_torques"):
+        cols = getattr(layout, name)
+        if cols is not None and len(cols) != len(layout.joints):
+            raise bad(
+                name,
+                ",".join(cols),
+                f"needs one column per joint ({len(layout.joints)}), got {len(cols)}",
+            )
     for name, known in (
         ("length_unit", LENGTH_UNITS),
         ("joint_unit", ANGLE_UNITS),
@@ -412,6 +430,7 @@ def parse_tracker(text: str, name: str, layout: TrackerLayout) -> Measurements:
         raise InputError(f"{name}: {len(rows)} data rows is over the limit of {MAX_ROWS}")
     width = len(header) if layout.header else max(len(c) for _, c in rows)
 
+    layout = _named_joint_columns(layout, header)
     cols = _resolve_columns(layout, header, header_line, width, name)
     units = _units(layout, cols, header_line, name)
 
@@ -487,6 +506,23 @@ def parse_tracker(text: str, name: str, layout: TrackerLayout) -> Measurements:
             )
     if layout.time is not None:
         time = numbers("time")
+    per_joint: dict[str, F | None] = {}
+    for field_, prefix in (("joint_temps", "temp_j"), ("joint_torques", "tau_j")):
+        per_joint[field_] = None
+        if getattr(layout, field_) is None:
+            continue
+        keys = [f"{prefix}{i + 1}" for i in range(n_j)]
+        vals = np.stack([numbers(k) for k in keys], axis=1)
+        _, unit, (lo, hi) = JOINT_COLUMNS[prefix]
+        out = np.argwhere((vals < lo) | (vals > hi))
+        if out.size:
+            i, j = (int(v) for v in out[0])
+            raise InputError(
+                f"{name}:{rows[i][0]}:{cols[keys[j]].index + 1}: {cols[keys[j]].role} "
+                f"{vals[i, j]:.6g} is outside what a controller reports ({lo:g} to {hi:g} {unit}):"
+                f" the column must be in {unit}"
+            )
+        per_joint[field_] = vals
     pose_id = None
     if layout.pose_id is not None:
         j = cols["pose_id"].index
@@ -524,9 +560,23 @@ def parse_tracker(text: str, name: str, layout: TrackerLayout) -> Measurements:
         sigma_pos=sigma_pos,
         temp=temp,
         time=time,
+        joint_temp=per_joint["joint_temps"],
+        joint_torque=per_joint["joint_torques"],
         pose_id=pose_id,
         meta=meta,
     )
+
+
+def _named_joint_columns(layout: TrackerLayout, header: list[str]) -> TrackerLayout:
+    """The layout with the CSV v1 per-joint columns (``temp_j1`` … ``temp_jN``, ``tau_j1`` …)
+    mapped when the header names all of them and the layout maps none of that kind."""
+    bare = {_UNIT_SUFFIX.sub(r"\1", h).strip() if _UNIT_SUFFIX.match(h) else h for h in header}
+    changes: dict[str, tuple[str, ...]] = {}
+    for field_, prefix in (("joint_temps", "temp_j"), ("joint_torques", "tau_j")):
+        names = tuple(f"{prefix}{i + 1}" for i in range(len(layout.joints)))
+        if getattr(layout, field_) is None and names and set(names) <= bare:
+            changes[field_] = names
+    return replace(layout, **changes) if changes else layout  # type: ignore[arg-type]
 
 
 def _resolve_columns(
@@ -552,6 +602,12 @@ def _resolve_columns(
         if ref is not None:
             q = {"temp": "temperature", "time": "time", "pose_id": None}[k]
             wanted.append((k, k, q, ref, k))
+    for field_, prefix, q, what in (
+        ("joint_temps", "temp_j", "temperature", "temperature"),
+        ("joint_torques", "tau_j", None, "torque"),
+    ):
+        for i, ref in enumerate(getattr(layout, field_) or ()):
+            wanted.append((f"{prefix}{i + 1}", f"joint {i + 1} {what}", q, ref, field_))
 
     hl = header_line or 1
     out: dict[str, _Column] = {}

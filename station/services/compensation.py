@@ -83,11 +83,11 @@ class Compensated:
 
 
 def needed_conditions(fm: FittedModel, leave_out: Sequence[str] = ()) -> dict[str, list[str]]:
-    """The effects of the model (not left out) that need the temperature (``"temp"``) or the
-    time (``"time"``) the program runs at."""
+    """The effects of the model (not left out) that need the temperature (``"temp"``), the
+    time (``"time"``) or the joints' temperature (``"joint_temp"``) the program runs at."""
     return {
         col: [e.name for e in fm.effects if col in e.requires() and e.name not in leave_out]
-        for col in ("temp", "time")
+        for col in ("temp", "time", "joint_temp")
     }
 
 
@@ -115,6 +115,7 @@ def compensate(
     T_flange_tcp: F | None = None,
     temp_c: float | None = None,
     time_s: float | None = None,
+    joint_temp_c: float | Sequence[float] | None = None,
     leave_out: Sequence[str] = (),
     max_correction: float = MAX_CORRECTION,
     describe: Callable[[Sequence[Refused]], str | list[str]] | None = None,
@@ -129,6 +130,8 @@ def compensate(
     temp_c, time_s : float, optional
         The temperature (°C) and the time (s, the fitted run's clock) the program runs at:
         needed when the model has ``thermal`` / ``drift`` (not left out).
+    joint_temp_c : float or sequence of float, optional
+        The joints' temperature (°C, all or one per joint): needed by ``thermal:jK``.
     leave_out : sequence of str
         Effects of the model not to compensate.
     max_correction : float, rad
@@ -151,7 +154,13 @@ def compensate(
     if bad and not keep_refused:
         raise CompensationRefused(bad, words(bad))
     comp = compensate_program(
-        fm, q, T_flange_tcp, temp_c=temp_c, time_s=time_s, leave_out=leave_out
+        fm,
+        q,
+        T_flange_tcp,
+        temp_c=temp_c,
+        time_s=time_s,
+        joint_temp_c=joint_temp_c,
+        leave_out=leave_out,
     )
     dq = comp.q - q
     lo, hi = fm.robot.q_min, fm.robot.q_max

@@ -143,7 +143,7 @@ def worst_regions(
     rng = np.random.default_rng(seed)
     spec = fitted.spec
     q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
-    cond = reference_conditions(fitted).arrays(n_samples)  # thermal/drift at stated conditions
+    cond = reference_conditions(fitted).arrays(q, fitted.robot)  # at the stated conditions
     err = fitted.tcp_error(q, approach=np.ones_like(q), **cond) * 1e3
     p = (fitted.robot.fk(q) @ fitted.T_flange_target0)[:, :3, 3]
     az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))

@@ -64,3 +64,30 @@ def test_instrument_default_is_isotropic_and_encoder_noise_adds_the_joint_direct
     np.testing.assert_allclose(
         cov[:, :3, :3], np.broadcast_to(np.eye(3) * 4e-10, (plain.n_poses, 3, 3))
     )
+
+
+def test_a_joint_motion_perturbation_is_the_error_motion_of_that_joint():
+    """Perturbation.joint_motion adds to each joint's six error motions: a constant one equals
+    the same change of the joint's order-0 Chebyshev coefficients, and its columns in an
+    effect's Jacobian are the frames' motion sensitivities."""
+    from quickhealth.identify.effects import Perturbation
+    from quickhealth.identify.errormodel import ErrorModelSpec
+    from quickhealth.identify.linearize import loop_pose
+    from quickhealth.identify.robot import ur5
+    from quickhealth.identify.twin import camera_pose, random_joints
+
+    robot = ur5()
+    q = random_joints(robot, 12, seed=6)
+    spec = ErrorModelSpec.uniform(6, 1, q.min(0) - 0.01, q.max(0) + 0.01)
+    c = np.random.default_rng(7).normal(0, 1e-4, spec.n_params)
+    T_ft = np.eye(4)
+    T_ft[:3, 3] = [0.04, 0.0, 0.06]
+    jm = np.zeros((12, 6, 6))
+    jm[:, 1, 2], jm[:, 1, 5] = 3e-5, -2e-5  # joint 2: axial growth δz and angle εz
+    T1 = loop_pose(robot, spec, c, camera_pose(), T_ft, q, Perturbation(joint_motion=jm))
+    c2 = c.copy()
+    labels = spec.labels()
+    c2[labels.index("j2.dz.c0")] += 3e-5
+    c2[labels.index("j2.ez.c0")] -= 2e-5
+    T2 = loop_pose(robot, spec, c2, camera_pose(), T_ft, q)
+    np.testing.assert_allclose(T1, T2, atol=1e-15)

@@ -185,5 +185,14 @@ def test_twin_measures_a_plan_in_its_order(tmp_path) -> None:
     meas = read_measurements(out, 6)
     np.testing.assert_allclose(np.degrees(meas.q), q_deg, atol=1e-9)
     assert meas.temp is not None and meas.temp[-1] > meas.temp[0]
+    assert meas.joint_temp is None and meas.joint_torque is None  # no effect needs them
+    argv = ["twin", "--plan", str(plan), "--out", str(tmp_path / "j.csv"), "--joint-sensors"]
+    assert main([*argv, "--payload-kg", "1.5"]) == 0
+    joints = read_measurements(tmp_path / "j.csv", 6)
+    assert joints.joint_temp[-1, 1] > joints.joint_temp[0, 1]  # the shoulder warms
+    from quickhealth.identify.robot import gravity_torques, ur5
+
+    lift = joints.joint_torque + gravity_torques(ur5(), joints.q)  # the payload's share
+    assert np.abs(lift).max() > 1.0 and np.abs(lift).min() < 1e-9  # some poses carry, some not
     plan.write_text(json.dumps({"poses": [{"q": [1, 2]}]}))
     assert main(["twin", "--plan", str(plan), "--out", str(tmp_path / "n.csv")]) == 2

@@ -422,3 +422,45 @@ def test_pose_ids_that_look_like_comments_or_lose_spaces(tmp_path):
     assert back.pose_id == ("#1", '#"2"') and back.n_poses == 2  # quoted, not comments
     with pytest.raises(InputError, match="begins or ends with a space"):
         formats.format_measurements(Measurements(q=q, pos=pos, pose_id=(" P1", "P2")))
+
+
+def test_joint_temperature_and_torque_columns_roundtrip_and_refusals(tmp_path):
+    """CSV v1 temp_j1 … temp_jN (°C) and tau_j1 … tau_jN (N·m): written, read, and refused in
+    one line when a joint is missing, a column names a joint the robot lacks or a value is
+    no controller's."""
+    from dataclasses import replace
+
+    m = S.measure(S.paper_truth(0), S.random_q(8, 1), 2)
+    rng = np.random.default_rng(3)
+    m = replace(
+        m, joint_temp=25.0 + 10.0 * rng.random((8, 6)), joint_torque=rng.normal(0, 20, (8, 6))
+    )
+    p = tmp_path / "j.csv"
+    formats.write_measurements(p, m)
+    head = p.read_text().splitlines()[0].split(",")
+    assert [h for h in head if h.startswith(("temp_j", "tau_j"))] == [
+        f"{k}{i}" for k in ("temp_j", "tau_j") for i in range(1, 7)
+    ]
+    back = formats.read_measurements(p, 6)
+    np.testing.assert_allclose(back.joint_temp, m.joint_temp, rtol=1e-15)
+    np.testing.assert_allclose(back.joint_torque, m.joint_torque, rtol=1e-15)
+    assert back.conditions()["joint_temp"] is back.joint_temp
+
+    rows = p.read_text().splitlines()
+    cols = rows[0].split(",")
+
+    def without(name: str) -> str:
+        k = cols.index(name)
+        return "\n".join(",".join(c for j, c in enumerate(r.split(",")) if j != k) for r in rows)
+
+    with pytest.raises(InputError, match=r"j\.csv:1:\d+: column 'temp_j1' needs 'temp_j4' too"):
+        formats.parse_measurements(without("temp_j4"), "j.csv", 6)
+    with pytest.raises(InputError, match=r"column 'tau_j6', but the robot has 5 joints"):
+        formats.parse_measurements(without("q6").replace("temp_j6", "tj6"), "j.csv", 5)
+    hot = "\n".join(
+        [rows[0], rows[1]]
+        + [",".join("300" if cols[j] == "temp_j2" else c for j, c in enumerate(r.split(",")))
+           for r in rows[2:3]]
+    )  # fmt: skip
+    with pytest.raises(InputError, match=r"j\.csv:3:\d+: column 'temp_j2': 300 °C is outside"):
+        formats.parse_measurements(hot, "j.csv", 6)

@@ -497,3 +497,47 @@ def test_quaternion_round_trip_of_the_written_file(tmp_path):
     quat = np.array([[float(r[k]) for k in ("qw", "qx", "qy", "qz")] for r in rows])
     np.testing.assert_allclose(np.linalg.norm(quat, axis=1), 1.0, atol=1e-15)
     assert np.abs(quat_to_R(quat) - t["rot"]).max() < 1e-12
+
+
+def test_joint_temperatures_and_torques_are_mapped_when_the_file_has_them(tmp_path, capsys):
+    """A tracker export with the controller's per-joint columns: named temp_j1 … / tau_j1 …
+    they are mapped without options; under other names by --joint-temps / --joint-torques."""
+    t = _truth(7)
+    n = len(t["q_deg"])
+    temps = 30.0 + np.arange(n * 6).reshape(n, 6) * 0.01
+    taus = np.linspace(-40.0, 40.0, n * 6).reshape(n, 6)
+    base = _file(t).splitlines()
+
+    def with_cols(names_t: list[str], names_u: list[str]) -> str:
+        lines = [",".join([base[0], *names_t, *names_u])]
+        for r, a, b in zip(base[1:], temps, taus, strict=True):
+            lines.append(",".join([r, *map(repr, a.tolist()), *map(repr, b.tolist())]))
+        return "\n".join(lines) + "\n"
+
+    named = with_cols([f"temp_j{i} [°C]" for i in range(1, 7)], [f"tau_j{i}" for i in range(1, 7)])
+    m = parse_tracker(named, "f.csv", layout_with(_MAP, separator=","))
+    np.testing.assert_allclose(m.joint_temp, temps)
+    np.testing.assert_allclose(m.joint_torque, taus)
+    other = with_cols([f"T{i}" for i in range(1, 7)], [f"M{i}" for i in range(1, 7)])
+    m = parse_tracker(other, "f.csv", layout_with(_MAP, separator=","))
+    assert m.joint_temp is None and m.joint_torque is None  # not named, not asked for
+    src, out = tmp_path / "x.csv", tmp_path / "m.csv"
+    src.write_text(other)
+    argv = ["import", "tracker", str(src), "--out", str(out), "--sep", ","]
+    argv += ["--joints", ",".join(_MAP.joints), "--position", "X,Y,Z", "--orientation", "A,B,C"]
+    argv += ["--euler", "XYZ", "--joint-temps", ",".join(f"T{i}" for i in range(1, 7))]
+    argv += ["--joint-torques", ",".join(f"M{i}" for i in range(1, 7))]
+    assert main(argv) == 0
+    assert "joint temperatures, joint torques" in capsys.readouterr().out
+    back = formats.read_measurements(out, 6)
+    np.testing.assert_allclose(back.joint_temp, temps)
+    np.testing.assert_allclose(back.joint_torque, taus)
+    with pytest.raises(InputError, match=r"--joint-temps 'T1,T2': needs one column per joint"):
+        parse_tracker(other, "f.csv", layout_with(_MAP, separator=",", joint_temps=("T1", "T2")))
+    hot = other.replace(repr(float(temps[0, 1])), "250.0", 1)
+    with pytest.raises(InputError, match=r"f\.csv:2:\d+: joint 2 temperature 250 is outside"):
+        parse_tracker(
+            hot,
+            "f.csv",
+            layout_with(_MAP, separator=",", joint_temps=tuple(f"T{i}" for i in range(1, 7))),
+        )
