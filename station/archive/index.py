@@ -190,6 +190,50 @@ class Index:
         with self._db.guard("reading"), self._reader.connect() as con, con.begin():
             yield con
 
+    # ---- names: unique ignoring case
+    def check_names(self, con: Any, robot: str, name: str, kind: str = "run") -> None:
+        """Refuse a robot name, or a run (``kind="run"``) or check id of that robot, that
+        differs only in case from one the index has: on a case-insensitive file system
+        (Windows, macOS, an SMB share) the two are one folder, and the second would replace
+        the first's files.  In a write transaction ``con`` the check is race-free: SQLite's
+        write lock serialises the writers; on PostgreSQL an advisory lock on the folded robot
+        name does.
+
+        Raises
+        ------
+        InputError
+            One line naming the name the index has.
+        """
+        sa = self._sa
+        if self._pg and con.in_transaction():
+            con.execute(
+                sa.text("select pg_advisory_xact_lock(hashtext(:k))"),
+                {"k": f"quickhealth-robot:{robot.lower()}"},
+            )
+        folded = robot.lower()
+        others = set()
+        for t in (self.t_robots, self.t_checks):
+            q = sa.select(t.c.robot).where(sa.func.lower(t.c.robot) == folded).distinct()
+            others |= {r for (r,) in con.execute(q) if r != robot}
+        if others:
+            other = sorted(others)[0]
+            raise InputError(
+                f"robot {robot!r}: the archive has robot {other!r}, the same name but for case: "
+                "on a case-insensitive file system (Windows, macOS, an SMB share) both are one "
+                f"folder and one would replace the other's runs; use {other!r}"
+            )
+        t, col = (self.t_runs, self.t_runs.c.run_id) if kind == "run" else (
+            self.t_checks, self.t_checks.c.check_id
+        )  # fmt: skip
+        q = sa.select(col).where((t.c.robot == robot) & (sa.func.lower(col) == name.lower()))
+        same = sorted(r for (r,) in con.execute(q) if r != name)
+        if same:
+            raise InputError(
+                f"{kind} id {name!r}: robot {robot} has {kind} {same[0]!r}, the same id but for "
+                "case: on a case-insensitive file system both are one folder; give another "
+                f"--{kind}-id"
+            )
+
     # ---- writing rows
     def insert_run(self, con: Any, row: Mapping[str, Any], *, may_replace: bool) -> bool:
         """Insert a run's row (and its robot's) in the write transaction ``con``; True when
@@ -204,6 +248,7 @@ class Index:
         sa = self._sa
         t = self.t_runs
         robot, rid = row["robot"], row["run_id"]
+        self.check_names(con, robot, rid)
         key = (t.c.robot == robot) & (t.c.run_id == rid)
         existed = con.execute(sa.select(t.c.run_id).where(key)).first() is not None
         if existed:
@@ -246,6 +291,7 @@ class Index:
             The check id is already archived for that robot.
         """
         sa = self._sa
+        self.check_names(con, row["robot"], row["check_id"], "check")
         try:
             con.execute(sa.insert(self.t_checks).values(**row))
         except sa.exc.IntegrityError:

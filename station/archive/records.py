@@ -16,6 +16,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from ...identify.errors import InputError
+from ..formats.common import excerpt
 from ..provenance import version_number
 
 ENV_VAR = "QUICKHEALTH_ARCHIVE"
@@ -26,7 +27,12 @@ INDEX_FILE = "index.sqlite"
 #: the mark an archived run folder carries: the identity of the index that put it there
 MARKER = ".quickhealth-archive.json"
 META_KEYS: tuple[str, ...] = ("plan_hash", "cell", "calibration_id", "software_version")
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+#: Names Windows keeps for devices (with any extension): a folder of that name cannot be
+#: made on a Windows share, or opens the device.
+RESERVED_NAMES = frozenset(
+    ["con", "prn", "aux", "nul"] + [f"{d}{i}" for d in ("com", "lpt") for i in range(1, 10)]
+)
 
 
 class NoArchive(InputError):
@@ -34,17 +40,31 @@ class NoArchive(InputError):
 
 
 def safe_name(name: str, what: str) -> str:
-    """Check that a robot name or run id is a plain name that stays inside the archive.
+    """Check that a robot name or run id is a plain name that stays inside the archive and
+    is one folder on every file system.  (Unique ignoring case within one archive and one
+    index: :meth:`~.index.Index.check_names`.)
 
     Raises
     ------
     InputError
-        For empty names, path separators, ``..``, or characters outside ``[A-Za-z0-9._-]``.
+        For empty names, path separators, ``..``, characters outside ``[A-Za-z0-9._-]``, a
+        trailing ``.`` (Windows drops it) or a name Windows keeps for a device (``CON``,
+        ``NUL``, ``COM1`` …, with any extension).
     """
-    if not isinstance(name, str) or not _NAME.match(name) or ".." in name:
+    if not isinstance(name, str) or not _NAME.fullmatch(name) or ".." in name:
         raise InputError(
-            f"{what} {name!r} is not allowed: use letters, digits, '.', '_' and '-' "
+            f"{what} {excerpt(name)} is not allowed: use letters, digits, '.', '_' and '-' "
             "(at most 100, starting with a letter or digit, no '..')"
+        )
+    if name.endswith("."):
+        raise InputError(
+            f"{what} {name!r} is not allowed: it ends with '.', which Windows drops from a "
+            "folder name (it would be another name's folder)"
+        )
+    if name.split(".")[0].lower() in RESERVED_NAMES:
+        raise InputError(
+            f"{what} {name!r} is not allowed: Windows keeps {name.split('.')[0].upper()} for a "
+            "device (CON, PRN, AUX, NUL, COM1-9, LPT1-9, with any extension)"
         )
     return name
 

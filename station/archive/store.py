@@ -229,6 +229,8 @@ class Archive:
             self._index_and_place(row, None, dst, True, True, marked)
             return self.get(robot, rid)
 
+        with self.index.read() as con:  # before anything is written (again when indexed)
+            self.index.check_names(con, robot, rid)
         make_dirs(dst.parent)
         sweep_stale_staging(dst.parent, self.index_id)
         try:
@@ -372,6 +374,8 @@ class Archive:
                 self.index.insert_check(con, row)
                 write_atomic(dst / MARKER, mark(self.index_id, robot, cid))
             return check_record(row, str(self.root))
+        with self.index.read() as con:  # before anything is written (again when indexed)
+            self.index.check_names(con, robot, cid, "check")
         make_dirs(dst.parent)
         try:
             stage = Path(tempfile.mkdtemp(prefix=f".incoming-{cid}-", dir=dst.parent))

@@ -144,6 +144,13 @@ def test_duplicate_and_bad_inputs(tmp_path, run_dirs, index_url):
     own = a.folder(a.get("ur5-a", "ghost"))
     a.add_run("ur5-a", own, run_id="ghost", healthy=False)
     assert a.get("ur5-a", "ghost").healthy is False and (own / "report.json").is_file()
+    # issue 32: names unique ignoring case, in one archive and one index (SQLite, PostgreSQL)
+    with pytest.raises(InputError, match=r"robot 'UR5-A': the archive has robot 'ur5-a'"):
+        a.add_run("UR5-A", run_dirs[1], run_id="r9")
+    with pytest.raises(InputError, match=r"run id 'GHOST': robot ur5-a has run 'ghost'"):
+        a.add_run("ur5-a", run_dirs[1], run_id="GHOST")
+    assert a.robots() == ["ur5-a"] and not (a.root / "robots" / "UR5-A").exists()
+    assert sorted(r.run_id for r in a.runs("ur5-a")) == ["ghost", "r0"]
 
 
 def test_the_verdict_comes_from_the_reports_run_object(tmp_path, run_dirs, index_url):

@@ -2734,6 +2734,52 @@ def _(b, t):
                  str(t / "p.csv")], 0, r"wrote .*p\.csv", [m], [])  # fmt: skip
 
 
+# issue 32, failure 3: robot names (and run ids) that differ only in case shared one folder on
+# a case-insensitive share; both index rows remained
+def _rows(arch: Path) -> list[tuple[str, str]]:
+    import sqlite3
+
+    with sqlite3.connect(arch / "index.sqlite") as con:
+        return sorted(con.execute("select robot, run_id from runs").fetchall())
+
+
+for _robot, _rid, _pat in (
+    ("CELL3", "run1", r"robot 'CELL3': the archive has robot 'cell3', the same name but for "
+                      r"case: on a case-insensitive file system"),
+    ("Cell3", "run2", r"robot 'Cell3': the archive has robot 'cell3'"),
+    ("cell3", "RUN1", r"run id 'RUN1': robot cell3 has run 'run1', the same id but for case"),
+):  # fmt: skip
+
+    @case(f"archive-add-{_robot}-{_rid}-differs-only-in-case")
+    def _(b, t, robot=_robot, rid=_rid, pat=_pat):
+        arch = _archived(b, t)
+        run = _run_copy(b, t, lambda r: None)
+        before = _rows(arch)
+
+        def check() -> None:
+            assert _rows(arch) == before == [("cell3", "run1")]
+            assert sorted(p.name for p in (arch / "robots").iterdir()) == ["cell3"]
+            assert sorted(p.name for p in (arch / "robots" / "cell3").iterdir()) == ["run1"]
+
+        return Case(["archive", "add", str(run), "--robot", robot, "--run-id", rid,
+                     "--archive", str(arch)], 2, pat, [run], [arch / "robots" / robot / rid],
+                    check=check)  # fmt: skip
+
+
+for _name, _pat in (
+    ("CON", r"robot 'CON' is not allowed: Windows keeps CON for a device"),
+    ("nul.cell3", r"robot 'nul\.cell3' is not allowed: Windows keeps NUL for a device"),
+    ("cell3.", r"robot 'cell3\.' is not allowed: it ends with '\.', which Windows drops"),
+    ("cell3\n", r"robot 'cell3\\n' is not allowed: use letters, digits"),
+):
+
+    @case(f"archive-add-reserved-robot-name-{_name.strip()}")
+    def _(b, t, name=_name, pat=_pat):
+        run = _run_copy(b, t, lambda r: None)
+        return Case(["archive", "add", str(run), "--robot", name, "--archive", str(t / "arch")],
+                    2, pat, [run], [t / "arch"])  # fmt: skip
+
+
 # ------------------------------------------------------------------------------ runner
 
 
