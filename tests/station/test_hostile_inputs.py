@@ -1916,7 +1916,7 @@ def _(b, t):
 def _(b, t):
     run = _run_copy(b, t, lambda r: None)
     return Case(
-        _add(run, t / "arch", "--run-id", "x" * 300), 2, r"run id 'x+' is not allowed",
+        _add(run, t / "arch", "--run-id", "x" * 300), 2, r"run id 'x+'… is not allowed",
         [run], [t / "arch"],
     )  # fmt: skip
 
@@ -1926,7 +1926,7 @@ def _(b, t):
     run = _run_copy(b, t, lambda r: None)
     argv = _add(run, t / "arch")
     argv[argv.index("--robot") + 1] = "r" * 300
-    return Case(argv, 2, r"robot 'r+' is not allowed", [run], [t / "arch"])
+    return Case(argv, 2, r"robot 'r+'… is not allowed", [run], [t / "arch"])
 
 
 @case("archive-names-a-file")
