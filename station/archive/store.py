@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ...identify.errors import InputError
+from ..formats.common import one_line
 from ..fsio import copy_plain_tree, make_dirs, plain_tree, write_atomic, write_error
 from .folders import (
     PreparedRun,
@@ -369,6 +370,8 @@ class Archive:
             "changes": words,
             "plan_hash": str(doc.get("plan_hash", ""))[:200],
         }
+        for k in ("baseline_run_id", "verdict", "changes", "plan_hash"):  # index rows: one line
+            one_line(row[k], f"{cp}: its {k}")
         if in_place:  # the TUI checks straight into the archive: its row, its mark
             with self.index.write() as con:
                 self.index.insert_check(con, row)

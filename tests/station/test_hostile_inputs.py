@@ -6,6 +6,12 @@ point, same code) on files it makes from real fitted data, and checks: the exit 
 changed, no output left behind, and the program's targets where a program is written.  A
 handful also run through the installed ``quickhealth`` script in a subprocess.
 
+Issue 32 added a hostile colleague on the same station PC or network (its section at the end:
+locks and planted links, metadata forged by line breaks, formula cells, the report's
+embedded JSON, motions compensate cannot rewrite, alias bombs, oversized JSON, a model holding
+Infinity in the trend, names differing only in case); its network and worker cases are in
+tests/station/test_reprocess.py, its link cases of shared files in test_output_lock.py.
+
 Classes (issue 13 "What was seen"): 1 bad data -> confident verdict, 2 unsafe compensation,
 3 the URScript reader, 4 crashes exiting 1, 5 outputs destroying inputs, 6 memory bounds,
 7 (trend: tests/identify/test_trend.py), 8 small but misleading.  Issue 27 added the archive
@@ -2780,6 +2786,22 @@ for _name, _pat in (
                     2, pat, [run], [t / "arch"])  # fmt: skip
 
 
+@case("archive-add-check-whose-change-holds-a-line-separator")
+def _(b, t):
+    arch = _archived(b, t)
+    chk = t / "check1"
+    chk.mkdir()
+    (chk / "check.json").write_text(json.dumps({
+        "schema": "quickhealth.check/1", "verdict": "changed", "decided": True, "poses": 5,
+        "changes": [{"words": "joint 2 zero offset\u2028run run1: healthy", "size": 0.3,
+                     "size_unit": "mrad"}],
+    }))  # fmt: skip
+    return Case(["archive", "add-check", str(chk), "--robot", "cell3", "--archive", str(arch)],
+                2, r"check\.json: its changes 'joint 2 zero offset\\u2028run run1: healthy.*"
+                r"holds a line break", [chk, arch / "index.sqlite"],
+                [arch / "checks"])  # fmt: skip
+
+
 # ------------------------------------------------------------------------------ runner
 
 
@@ -2838,7 +2860,7 @@ def test_hostile_input(name, base, tmp_path, capsys, monkeypatch):
 
 
 def test_corpus_covers_sixty_cases():
-    assert len(CASES) >= 146, len(CASES)  # issue 13's 106, issue 27's 40
+    assert len(CASES) >= 214, len(CASES)  # issue 13's 106, issue 27's 40, ..., issue 32's 31
 
 
 def test_unexpected_error_is_exit_3_one_line_traceback_only_with_debug(monkeypatch, capsys):
