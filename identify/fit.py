@@ -309,6 +309,13 @@ class FittedModel:
         rng = np.random.default_rng(0)
         spec = self.spec
         q = rng.uniform(spec.q_lo, spec.q_hi, (REGISTRATION_SAMPLES, spec.n_joints))
+        return self.registration_over(q)
+
+    def registration_over(self, q: ArrayLike) -> tuple[F, F]:
+        """:attr:`registration` over the joint commands ``q`` (n, nj) instead of the uniform
+        samples of the identified ranges (a fixed evaluation set, e.g. a baseline's poses)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        spec = self.spec
         needs = {col for e in self.effects for col in e.requires()}
         T = self.robot_pose(
             q,

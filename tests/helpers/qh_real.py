@@ -10,6 +10,12 @@ are numbered in the order they first appear, and every fifth goal (numbers 4, 9,
 held out: 295 rows held out, 1,200 for fitting.  Nothing is fitted, selected or tuned on the
 held-out rows.
 
+**Two sessions of the shared UR10** (the monitoring checks: trend, ``check --replay``): the
+same robot measured twice on different poses.  Only the fitting part of the split above is
+used (the held-out rows stay untouched): its goals, numbered in order of first appearance
+among the fitting rows, go to session A when even and to session B when odd (rows of one goal
+stay together): 600 rows each, spread alike over the workspace.
+
 **The WAM**: grid.csv (216 poses) for fitting, random.csv (20 poses) held out, as published.
 """
 
@@ -52,6 +58,16 @@ def ur10_split(path: Path = UR10_FILE) -> tuple[Measurements, Measurements]:
     meas = read_tracker(path, PRESETS["ipa-ur10"])
     held = ur10_goal_groups(path) % HELD_EVERY == HELD_EVERY - 1
     return meas.subset(np.flatnonzero(~held)), meas.subset(np.flatnonzero(held))
+
+
+def ur10_sessions(path: Path = UR10_FILE) -> tuple[Measurements, Measurements]:
+    """The two documented sessions of the shared UR10 (module doc), file order kept."""
+    meas = read_tracker(path, PRESETS["ipa-ur10"])
+    goals = ur10_goal_groups(path)
+    fit = goals % HELD_EVERY != HELD_EVERY - 1
+    rank = {g: i for i, g in enumerate(dict.fromkeys(goals[fit]))}
+    side = np.array([rank[g] % 2 if f else -1 for g, f in zip(goals, fit, strict=True)])
+    return meas.subset(np.flatnonzero(side == 0)), meas.subset(np.flatnonzero(side == 1))
 
 
 def write_ur10_split(folder: Path, path: Path = UR10_FILE) -> tuple[Path, Path]:
