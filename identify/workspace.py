@@ -250,9 +250,8 @@ def figures_over(fitted: FittedModel, q: F) -> dict[str, float]:
     UR10 series the mean moved by up to 0.08 mm and the maximum by up to 0.4 mm; at the
     baseline's own poses by at most 0.02 mm and 0.11 mm (docs/monitoring.md)."""
     q = np.atleast_2d(np.asarray(q, float))
-    n = q.shape[0]
     cond = reference_conditions(fitted)
-    T = fitted.robot_pose(q, approach=np.zeros_like(q), **cond.arrays(n))
+    T = fitted.robot_pose(q, approach=np.zeros_like(q), **cond.arrays(q, fitted.robot))
     T_ib, T_ft = fitted.registration_over(q)
     nom = T_ib @ fitted.robot.fk(q).reshape(-1, 4, 4) @ T_ft
     err = np.linalg.norm(T[:, :3, 3] - nom[:, :3, 3], axis=1)
