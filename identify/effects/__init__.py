@@ -331,9 +331,10 @@ class Effect(Protocol):
         size cannot say it)."""
         ...
 
-    def correction(self, conditions: Mapping[str, float | None]) -> str:
+    def correction(self, conditions: Mapping[str, Any]) -> str:
         """What compensating it at each target of a program uses, in words (``conditions``:
-        the scalar conditions the program runs at, keyed by channel)."""
+        what the program runs at, by channel: ``temp`` °C and ``time`` s, ``joint_temp`` one
+        °C per joint, ``joint_torque`` where the torques come from, in words)."""
         ...
 
     def correction_notes(self, params: F, q_program: F) -> list[str]:

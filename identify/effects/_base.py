@@ -103,7 +103,7 @@ class EffectBase:
             )
         return np.array([float(size)])
 
-    def correction(self, conditions: Mapping[str, float | None]) -> str:
+    def correction(self, conditions: Mapping[str, Any]) -> str:
         """Evaluated at each target."""
         return f"{self.name} at each target"
 

@@ -15,6 +15,7 @@ from quickhealth.identify.diagnose import (
 )
 from quickhealth.identify.effects import (
     CHANNELS,
+    CONDITIONS,
     EffectContext,
     Perturbation,
     effect_type,
@@ -25,6 +26,7 @@ from quickhealth.identify.effects import (
 )
 from quickhealth.identify.errormodel import ErrorModelSpec
 from quickhealth.identify.errors import InputError
+from quickhealth.identify.jointload import drive_torques
 from quickhealth.identify.linearize import loop_pose
 from quickhealth.identify.measurements import Measurements
 from quickhealth.identify.robot import (
@@ -36,7 +38,7 @@ from quickhealth.identify.robot import (
     ur5,
 )
 from quickhealth.identify.transforms import log_so3
-from quickhealth.identify.twin import camera_pose, random_joints
+from quickhealth.identify.twin import camera_pose, payloads, random_joints
 
 # every registered type's example joins the hand-picked names: a new effect is checked here
 # (Jacobian, linearity, its declarations) without an edit to this file
@@ -70,6 +72,10 @@ def setup():
         rpy=np.zeros((n, 3)),
         time=np.linspace(0, 600, n),
         temp=np.linspace(21, 27, n),
+        # every channel an effect may need (effects.CHANNELS), so any registered effect is
+        # tested here: each joint warming at its own rate, torques of a changing payload
+        joint_temp=25.0 + np.linspace(0, 1, n)[:, None] * np.array([8.0, 12.0, 9.0, 4.0, 3.0, 2.0]),
+        joint_torque=drive_torques(robot, q, payloads(n, 2.0, seed=4)),
     )
     rng = np.random.default_rng(0)
     spec = ErrorModelSpec.uniform(6, 2, q.min(0) - 0.01, q.max(0) + 0.01)
@@ -165,7 +171,9 @@ def test_every_effect_declares_what_its_consumers_need(setup, name) -> None:
     if t.twin is not None:
         p = e.twin_params(1e-4, np.random.default_rng(0))
         assert p.shape == (e.n_params,) and np.all(np.isfinite(p)) and np.any(p != 0)
-    conditions = dict.fromkeys(CHANNELS, 1.0)
+    # a program's conditions (compensate): scalars, a temperature per joint, the torque's source
+    conditions = {"temp": 27.0, "time": 900.0, "joint_temp": (35.0,) * 6, "joint_torque": "masses"}
+    assert set(conditions) == set(CONDITIONS)
     assert e.correction(conditions).startswith(e.name)
     ctx = context_for(robot, meas)
     x, label = e.regressor_at(ctx, np.ones(e.n_params), np.tile(np.eye(4), (ctx.n_poses, 1, 1)))
