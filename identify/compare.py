@@ -18,6 +18,7 @@ SYNOPSIS::
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -151,11 +152,31 @@ class Comparison:
         }
 
     def summary(self) -> list[str]:
-        """Lines for the command line and the TUI."""
+        """Lines for the command line and the TUI: what adding the effects does and what to
+        do first, then the effects' sizes in their units, then the table per axis."""
         b, a = self.before, self.after
+        keep = a.pos_mm < b.pos_mm
         lines = [
-            f"adding {', '.join(self.effects)}: {self.method} on {self.n_eval} poses "
-            f"(trained on {self.n_train})",
+            f"adding {', '.join(self.effects)} "
+            + ("lowers" if keep else "does not lower")
+            + f" the position error on data the fit did not see from {b.pos_mm:.4f} to "
+            f"{a.pos_mm:.4f} mm RMS ({abs(100 * self.improvement):.1f} % "
+            + ("less" if keep else "more")
+            + "); the instrument's noise "
+            f"alone gives {self.noise_floor_pos_mm:.4f} mm",
+            "what to do: "
+            + (
+                f"keep it (quickhealth identify fit ... --effects {','.join(self.effects)})"
+                if keep
+                else "leave it out: it does not describe this robot"
+            ),
+        ]
+        units = {e.name: e.param_units for e in self.fitted_after.effects}
+        for name, p in self.params.items():
+            s = self.param_sigma.get(name, [])
+            lines.append(f"{name}: " + param_words(p, s, units.get(name, ())))
+        lines += [
+            f"per axis, {self.method} on {self.n_eval} poses (trained on {self.n_train}):",
             f"{'':14}{'x':>9}{'y':>9}{'z':>9}{'3D':>9}  (position RMS, mm)",
             f"{'without':<14}{b.x_mm:9.4f}{b.y_mm:9.4f}{b.z_mm:9.4f}{b.pos_mm:9.4f}",
             f"{'with':<14}{a.x_mm:9.4f}{a.y_mm:9.4f}{a.z_mm:9.4f}{a.pos_mm:9.4f}",
@@ -166,16 +187,26 @@ class Comparison:
                 f"{'without':<14}{b.rx_mrad:9.4f}{b.ry_mrad:9.4f}{b.rz_mrad:9.4f}{b.rot_mrad:9.4f}",
                 f"{'with':<14}{a.rx_mrad:9.4f}{a.ry_mrad:9.4f}{a.rz_mrad:9.4f}{a.rot_mrad:9.4f}",
             ]
-        lines.append(
-            f"position RMS {b.pos_mm:.4f} → {a.pos_mm:.4f} mm ({100 * self.improvement:+.1f} % "
-            f"removed); instrument noise alone gives {self.noise_floor_pos_mm:.4f} mm"
-        )
-        for name, p in self.params.items():
-            s = self.param_sigma.get(name, [])
-            lines.append(
-                f"{name}: " + ", ".join(f"{v:.4g} ± {u:.2g}" for v, u in zip(p, s, strict=False))
-            )
         return lines
+
+
+#: SI units of effect parameters and how people read them: (unit, factor from SI).
+READ_AS = {"rad": ("mrad", 1e3), "m": ("mm", 1e3), "rad/(N·m)": ("µrad/(N·m)", 1e6)}
+
+
+def param_words(values: list[float], sigmas: list[float], units: tuple[str, ...]) -> str:
+    """An effect's parameters with their uncertainty and unit: "0.424 ± 0.017 mrad (0.0243°)"
+    (an angle also in degrees); a unit it does not know is kept as SI."""
+    out = []
+    for k, v in enumerate(values):
+        si = units[k] if k < len(units) else ""
+        unit, f = READ_AS.get(si, (si, 1.0))
+        u = sigmas[k] if k < len(sigmas) else float("nan")
+        text = f"{v * f:.4g} ± {u * f:.2g} {unit}".rstrip()
+        if si == "rad":
+            text += f" ({math.degrees(v):.4g}°)"
+        out.append(text)
+    return ", ".join(out)
 
 
 def _context(fitted: FittedModel, meas: Measurements) -> EffectContext:

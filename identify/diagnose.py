@@ -390,32 +390,47 @@ class Diagnosis:
         }
 
     def summary(self, top: int = 5) -> list[str]:
-        """Lines for the command line and the TUI."""
+        """Lines for the command line and the TUI: what was found and what to do first, the
+        statistics after, under their own heading."""
+        best = next((c for c in self.candidates if c.significant), None)
+        if self.verdict is Verdict.MISSING_EFFECT and best is not None:
+            after = self.rms_pos_mm - best.predicted_rms_drop_mm
+            lines = [
+                f"a physical effect is missing from the model: {best.effect} (adding it would "
+                f"lower the position residual from {self.rms_pos_mm:.4f} to {after:.4f} mm)",
+                f"what to do: add it and compare on held-out data (quickhealth identify compare "
+                f"MODEL MEAS --effects {best.effect})",
+            ]
+        elif self.noise_scale <= 1.5 and not self.order_hints:
+            lines = ["no physical effect is missing: the model explains the data down to the noise"]
+        else:
+            lines = [
+                "no candidate effect is significant, but the residuals are "
+                f"{self.noise_scale:.1f} x the noise: see the notes below"
+            ]
         rot = "" if self.rms_rot_mrad is None else f", rotation RMS {self.rms_rot_mrad:.3f} mrad"
-        lines = [
-            f"verdict: {self.verdict.value}  (position RMS {self.rms_pos_mm:.4f} mm{rot}; "
+        lines += [
+            "statistics:",
+            f"  verdict: {self.verdict.value}  (position RMS {self.rms_pos_mm:.4f} mm{rot}; "
             f"residual/noise {self.noise_scale:.2f}; {self.n_tested} candidates tested, "
-            f"family-wise false-alarm rate {self.alpha:g})"
+            f"family-wise false-alarm rate {self.alpha:g})",
         ]
         for i, c in enumerate(self.candidates[:top], 1):
             mark = "*" if c.significant else " "
-            rot = (
-                f", {c.predicted_rot_drop_mrad:.4f} mrad"
-                if c.predicted_rot_drop_mrad is not None
-                else ""
-            )
+            change = _rms_change_words(c.predicted_rms_drop_mm, "mm", 4)
+            if c.predicted_rot_drop_mrad is not None:
+                change += ", orientation " + _rms_change_words(c.predicted_rot_drop_mrad, "mrad", 4)
             lines.append(
-                f"{mark}{i:2d}. {c.effect:<16} score {c.score:7.2f}  "
-                f"drop {c.predicted_rms_drop_mm:.4f} mm{rot}  — {c.evidence}"
+                f" {mark}{i:2d}. {c.effect:<16} score {c.score:7.2f}  position {change}  "
+                f"— {c.evidence}"
             )
-        if self.verdict is Verdict.ADEQUATE and self.noise_scale <= 1.5 and not self.order_hints:
-            lines.append(
-                "no candidate is significant: the model explains the data down to the noise"
-            )
-        elif self.verdict is Verdict.ADEQUATE:
-            lines.append("no candidate effect is significant")
         lines += list(self.order_hints) + list(self.notes)
         return lines
+
+
+def _rms_change_words(drop: float, unit: str, digits: int) -> str:
+    """A predicted RMS drop as the change it makes: "−0.0004 mm" lower, "+0.0001 mm" higher."""
+    return f"RMS {-drop:+.{digits}f} {unit}"
 
 
 def _orthonormal_basis(J: F, rtol: float = 1e-7) -> F:

@@ -352,7 +352,7 @@ class FittedModel:
             f"parameters: {self.n_free} estimated of {self.params.size}",
             f"rms position residual: {self.rms_pos * 1e3:.4f} mm"
             + (
-                f", rms rotation residual: {np.degrees(self.rms_rot):.5f} deg"
+                f", rms rotation residual: {self.rms_rot * 1e3:.4f} mrad ({np.degrees(self.rms_rot):.5f} deg)"
                 if self.rms_rot is not None
                 else ""
             ),

@@ -90,9 +90,20 @@ def joint_curve_figure(curves: JointCurves, truth: np.ndarray | None = None) -> 
     return fig
 
 
+def residuals_in_base(fitted: FittedModel) -> tuple[np.ndarray, np.ndarray | None]:
+    """The fit's residuals (measured − model) turned from the instrument's axes into the robot
+    base's (the registered base, :attr:`~.fit.FittedModel.registration`): position (m) and,
+    for pose data, rotation vectors (rad), shape (n, 3) each."""
+    R = fitted.registration[0][:3, :3]  # base axes in the instrument frame
+    rot = None if fitted.residual_rot is None else fitted.residual_rot @ R
+    return fitted.residual_pos @ R, rot
+
+
 def residual_plot(fitted: FittedModel, meas: Measurements) -> Figure:
-    """Measured minus model per pose (execution order) and against each joint angle."""
-    rp = fitted.residual_pos * 1e3
+    """Measured minus model per pose (execution order) and against each joint angle, in the
+    robot base frame (the registered base's axes: :func:`residuals_in_base`)."""
+    rp, rr = residuals_in_base(fitted)
+    rp = rp * 1e3
     n = rp.shape[0]
     rows = 2 if fitted.residual_rot is not None else 1
     fig = Figure(figsize=(10.0, 3.2 * (rows + 1)))
@@ -104,16 +115,16 @@ def residual_plot(fitted: FittedModel, meas: Measurements) -> Figure:
     sp = fitted.noise.sigma_pos * 1e3
     ax.axhspan(-2 * sp, 2 * sp, color="0.9", zorder=0, label="±2σ instrument")
     ax.set_xlabel("pose (execution order)")
-    ax.set_ylabel("measured − model (mm)")
+    ax.set_ylabel("measured − model (mm, base frame)")
     ax.legend(fontsize=7, ncol=5)
     ax.set_title(f"Residuals: rms {fitted.rms_pos * 1e3:.4f} mm", y=1.0)
-    if fitted.residual_rot is not None:
+    if rr is not None:
         ax2 = fig.add_subplot(rows + 1, 1, 2)
-        rr = np.degrees(fitted.residual_rot) * 1e3
+        rr = rr * 1e3
         for k, c in enumerate("xyz"):
             ax2.plot(idx, rr[:, k], ".", ms=3, label=f"rot {c}")
         ax2.set_xlabel("pose (execution order)")
-        ax2.set_ylabel("rotation residual (mdeg)")
+        ax2.set_ylabel("rotation residual (mrad, base frame)")
         ax2.legend(fontsize=7, ncol=3)
     nj = meas.n_joints
     qd = np.degrees(meas.q)

@@ -528,23 +528,23 @@ def chi2_check(
             med,
             ratio,
             "overfit",
-            f"chi2 check FAILED: {fitted.chi2_data:.0f} is {ratio:.2f} x its median {med:.0f}, "
-            f"below its 0.1 % point {q001:.0f}: the model follows the noise ({fitted.n_free} "
-            f"parameters for {fitted.n_poses} poses), or {stated} is too large; measure more "
-            "poses, lower --max-order, or check the stated uncertainty",
+            f"the model follows the noise ({fitted.n_free} parameters for {fitted.n_poses} "
+            f"poses), or {stated} is too large: measure more poses, lower --max-order, or "
+            f"check the stated uncertainty (chi2 check FAILED: {fitted.chi2_data:.0f} is "
+            f"{ratio:.2f} x its median {med:.0f}, below its 0.1 % point {q001:.0f})",
         )
     if ratio <= factor:
         q999 = chi2_ppf(0.999, dof)
         if fitted.chi2_data <= q999:
             msg = (
-                f"chi2 check: {fitted.chi2_data:.0f} is {ratio:.2f} x its median {med:.0f}: "
-                f"consistent with {stated}"
+                f"the model explains the data down to the noise, consistent with {stated} "
+                f"(chi2 check: {fitted.chi2_data:.0f} is {ratio:.2f} x its median {med:.0f})"
             )
         else:  # passes the paper's x5 rule, but is not what the stated noise would give
             msg = (
-                f"chi2 check passed the x{factor:g} rule: {fitted.chi2_data:.0f} is {ratio:.2f} x "
-                f"its median {med:.0f}, above the 99.9 % point {q999:.0f}: the residuals are "
-                f"about x{np.sqrt(ratio):.1f} larger than {stated}"
+                f"the residuals are about x{np.sqrt(ratio):.1f} larger than {stated} (chi2 "
+                f"check: {fitted.chi2_data:.0f} is {ratio:.2f} x its median {med:.0f}, above "
+                f"the 99.9 % point {q999:.0f}; within the paper's x{factor:g} rule)"
             )
         return Chi2Check(fitted.chi2_data, dof, med, ratio, "ok", msg)
     if loose_prior is not None:
@@ -572,7 +572,8 @@ def chi2_check(
         med,
         ratio,
         verdict,
-        f"chi2 check FAILED: {fitted.chi2_data:.0f} is {ratio:.1f} x its median {med:.0f}: {why}",
+        f"{why[0].upper()}{why[1:]} (chi2 check FAILED: {fitted.chi2_data:.0f} is {ratio:.1f} x "
+        f"its median {med:.0f})",
     )
 
 

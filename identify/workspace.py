@@ -212,6 +212,46 @@ class CommandPrediction:
     assumed: Conditions = Conditions()  # conditions assumed where the input had no column
 
 
+def workspace_commands(fitted: FittedModel, n_samples: int = 5000, seed: int = 0) -> F:
+    """The joint commands (rad, (n, nj)) the workspace figures are taken over: uniform over
+    the model's identified ranges, from a fixed seed."""
+    rng = np.random.default_rng(seed)
+    spec = fitted.spec
+    return rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
+
+
+@dataclass(frozen=True, eq=False)
+class WorkspaceMap:
+    """Where in the workspace the model's TCP error is: each sampled command's TCP position in
+    the robot base frame (m; the nominal kinematics with the registered tool) and its error
+    (m), the same samples as :func:`workspace_error`'s."""
+
+    xyz_base: F  # (n, 3) m
+    err: F  # (n,) m
+    q: F  # (n, nj) rad
+
+    @property
+    def worst(self) -> int:
+        """Index of the sample with the largest error."""
+        return int(np.argmax(self.err))
+
+
+def workspace_map(
+    fitted: FittedModel,
+    n_samples: int = 5000,
+    seed: int = 0,
+    conditions: Conditions | None = None,
+) -> WorkspaceMap:
+    """The TCP error over the workspace as a map (:class:`WorkspaceMap`), at ``conditions``
+    (default :func:`reference_conditions`)."""
+    cond = reference_conditions(fitted) if conditions is None else conditions
+    q = workspace_commands(fitted, n_samples, seed)
+    err = fitted.tcp_error(q, approach=np.ones_like(q), **cond.arrays(q, fitted.robot))
+    _, T_ft = fitted.registration
+    xyz = (fitted.robot.fk(q).reshape(-1, 4, 4) @ T_ft)[:, :3, 3]
+    return WorkspaceMap(xyz, np.asarray(err, float), q)
+
+
 def workspace_error(
     fitted: FittedModel,
     n_samples: int = 5000,
@@ -222,9 +262,7 @@ def workspace_error(
     """TCP error from the model at ``n_samples`` joint commands uniform over the model's ranges,
     at ``conditions`` (default :func:`reference_conditions`)."""
     cond = reference_conditions(fitted) if conditions is None else conditions
-    rng = np.random.default_rng(seed)
-    spec = fitted.spec
-    q = rng.uniform(spec.q_lo, spec.q_hi, (n_samples, spec.n_joints))
+    q = workspace_commands(fitted, n_samples, seed)
     err = fitted.tcp_error(q, approach=np.ones_like(q), **cond.arrays(q, fitted.robot))
     counts, edges = np.histogram(err, bins=bins, range=(0.0, float(err.max()) * 1.0001 + 1e-12))
     return WorkspaceError(

@@ -205,11 +205,14 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
     write_atomic(path, text)
 
 
-def write_figure(fig: Any, path: str | os.PathLike[str], *, dpi: int = 100) -> str:
-    """Render a matplotlib figure as PNG in memory, then :func:`write_atomic` it; returns the
-    path.  The figure is closed afterwards if it belongs to pyplot (no figure left open)."""
+def write_figure(
+    fig: Any, path: str | os.PathLike[str], *, dpi: int = 100, format: str = "png"
+) -> str:
+    """Render a matplotlib figure (PNG, or ``format``: "pdf") in memory, then
+    :func:`write_atomic` it; returns the path.  The figure is closed afterwards if it belongs
+    to pyplot (no figure left open)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
+    fig.savefig(buf, format=format, dpi=dpi)
     try:
         import matplotlib.pyplot as plt  # matplotlib (0.5 s) only once a figure is written
 

@@ -248,10 +248,42 @@ def _fit(args: argparse.Namespace) -> int:
         say.close()  # the bar is cleared before the summary
     if res.replacing:
         print(res.replacing, file=sys.stderr)
-    for line in res.assessment.summary():
+    for line in _fit_words(res.assessment, spec, out):
         print(line)
+    print("statistics:")
+    for line in res.assessment.summary():
+        print(f"  {line}")
     print(f"wrote {out / 'model.json'}, {out / 'report.json'}, {out / 'residuals.csv'}")
     return 0
+
+
+def _fit_words(a: Any, spec: Spec | None, out: Path) -> list[str]:
+    """What the fit found, in the technician's words, before its statistics: how well the
+    model explains the data, the TCP error the robot makes with its nominal kinematics
+    against the spec, and what to do next."""
+    from ...identify.select import chi2_check  # the fit's library (loaded by now)
+
+    f, ws = a.fitted, a.workspace
+    rot = (
+        ""
+        if f.residual_rot is None
+        else f" and {float(np.sqrt(np.mean(np.sum(f.residual_rot**2, axis=1)))) * 1e3:.3f} mrad"
+    )
+    err = f"max {ws.max * 1e3:.3f} mm, mean {ws.mean * 1e3:.3f} mm"
+    if spec is None:
+        against = (
+            "no accuracy spec set (identify fit --spec-mm, or spec_mm in the cell or robot file)"
+        )
+    else:
+        v = {"mean": ws.mean, "std": ws.std, "max": ws.max}[spec.figure.value] * 1e3
+        against = ("above " if v > spec.mm else "within ") + spec.words()
+    return [
+        f"the model explains the {f.n_poses} measured poses to {f.rms_pos * 1e3:.3f} mm RMS"
+        f"{rot}; {chi2_check(f).message}",
+        f"TCP error of the robot with its nominal kinematics, over the workspace: {err}; {against}",
+        f"what next: quickhealth archive add {out} --robot NAME, then quickhealth report {out} "
+        "(the verdict against the spec and the robot's baseline)",
+    ]
 
 
 def _fit_spec(args: argparse.Namespace, meas: Measurements) -> Spec | None:
@@ -320,6 +352,7 @@ def _predict(args: argparse.Namespace) -> int:
     cols += [f"q{i + 1}" for i in range(nj)] + ["x", "y", "z"]
     if fm.has_orientation:
         cols += ["pitch", "yaw", "roll"]
+    cols += ["x_base", "y_base", "z_base"]
     cols += ["err_mm", "err_sigma_mm", "extrapolated"]
     has_meas = meas is not None and not np.all(np.isnan(meas.pos))
     band = None
@@ -332,6 +365,8 @@ def _predict(args: argparse.Namespace) -> int:
     qd = np.degrees(q)
     xyz = pred.T_instr_target[:, :3, 3] * 1e3
     rpy = np.degrees(R_to_rpy(pred.T_instr_target[:, :3, :3]))
+    T_ib = fm.registration[0]  # the robot base (registered) in the instrument frame
+    xyz_base = (pred.T_instr_target[:, :3, 3] - T_ib[:3, 3]) @ T_ib[:3, :3] * 1e3
     # one format string per row, numbers as columns (vectorised build; 200 000 rows in ~1 s)
     fmt = ["%d"]
     data: list[Any] = [np.arange(1, len(q) + 1)]
@@ -346,6 +381,8 @@ def _predict(args: argparse.Namespace) -> int:
     if fm.has_orientation:
         fmt += ["%.7f"] * 3
         data += list(rpy.T)
+    fmt += ["%.6f"] * 3
+    data += list(xyz_base.T)
     fmt += ["%.6f", "%.6f", "%d"]
     data += [pred.err * 1e3, pred.err_sigma * 1e3, pred.extrapolated.astype(int)]
     if has_meas:
@@ -376,6 +413,11 @@ def _predict(args: argparse.Namespace) -> int:
         assert band is not None
         msg += f", {np.mean(d <= band * 1e3):.1%} within band95"
     print(msg)
+    print(
+        "positions in the file: x_base, y_base, z_base in the robot base frame (mm); x, y, z"
+        + (", pitch, yaw, roll" if fm.has_orientation else "")
+        + " in the instrument frame the model was fitted in (mm, deg)"
+    )
     if pred.assumed.describe():
         print(
             f"the input has no column for {', '.join(_missing(pred.assumed))}: predicted "

@@ -1,6 +1,7 @@
 """quickhealth plan — generate the fixed measurement loop (paper Sec. 3, Fig. 3).
 
-    quickhealth plan --cell CELL --n N [--seed S] [--optimal K] --out DIR
+    quickhealth plan --cell CELL --n N [--seed S] [--optimal K] [--iso9283 [CYCLES]]
+        [--model-order K] [--strict] --out DIR
     quickhealth plan select CANDIDATES.csv --robot ROBOT --n N --out CHOSEN.csv
 
 CELL is a cell file (TOML, docs/plan.md) or the built-in name ``reference`` (a UR5 on an
@@ -10,7 +11,10 @@ hash), DIR/loop.script (URScript of the loop) and the Fig. 6 plots DIR/fig6_join
 DIR/fig6_targets.png.  Nothing is written when the input is refused (exit status 2).
 --optimal K keeps K of the feasible targets, chosen by an I-optimal design (the predicted
 workspace TCP error band of the model fitted later; docs/plan.md), then orders them and
-checks their legs as for any plan.
+checks their legs as for any plan.  --iso9283 adds the ISO 9283 cube's five poses, visited in
+cycles after the loop (:mod:`~quickhealth.station.planning.iso_cube`).  The first lines say
+whether the plan supports the error model it is for (--model-order, default 2; the rule:
+:mod:`~quickhealth.station.planning.adequacy`): a warning when not, exit 2 with --strict.
 
 ``plan select`` picks N rows of a file of candidate joint configurations (CSV v1 joint
 columns q1 … qN, deg; every other column is carried along, never read) by the same
@@ -22,6 +26,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +39,9 @@ from ..formats import load_robot
 from ..fsio import claim_output_folder, foreign_results, refuse_overwriting_inputs, write_atomic
 from ..planning.cell import load_cell
 from ..run import lock
+
+if TYPE_CHECKING:  # the type only: the planner loads the collision library
+    from ..planning.planner import PlanResult
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -57,6 +65,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=None,
         metavar="K",
         help="keep K of the feasible targets, chosen by an I-optimal design",
+    )
+    p.add_argument(
+        "--iso9283",
+        type=int,
+        nargs="?",
+        const=5,
+        default=None,
+        metavar="CYCLES",
+        help="add the ISO 9283 cube's five poses, visited CYCLES times after the loop (5; the "
+        "standard's 30): the report's pose accuracy and repeatability, on any arm",
+    )
+    p.add_argument(
+        "--model-order",
+        type=options.ORDER,
+        default=2,
+        help="the Chebyshev order of the error model the plan must support (2): a plan with "
+        "too few poses or too little joint coverage for it is warned about",
+    )
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse (exit 2, nothing written) a plan too small for that model",
     )
     p.add_argument(
         "--force",
@@ -132,13 +162,43 @@ def run(args: argparse.Namespace) -> int:
             sys.stderr.write(f"{stage}: {done}/{total}{end}")
             sys.stderr.flush()
 
+    from ..planning.adequacy import adequacy  # the planner's result
+
+    said: list[str] = []
+
+    def check(plan: PlanResult) -> None:
+        """The plan against the model it must support: warned, refused under --strict."""
+        a = adequacy(plan, args.model_order)
+        if a.adequate:
+            said.append(
+                f"supports the order-{a.model_order} error model: {a.kept} poses (at least "
+                f"{a.needed}), every joint spanning at least 60 % of its usable range"
+            )
+            return
+        if args.strict:
+            raise InputError(f"--strict: {'; '.join(a.problems)} ({a.rule()}); nothing written")
+        said.extend(f"warning: {p}" for p in a.problems)
+        said.append(f"  ({a.rule()}; --strict refuses such a plan)")
+
     res = plan_folder(
-        cell, args.n, args.seed, out, force=args.force, progress=progress, optimal=args.optimal
-    )
+        cell, args.n, args.seed, out, force=args.force, progress=progress,
+        optimal=args.optimal, iso_cycles=args.iso9283, check=check,
+    )  # fmt: skip
     if res.replacing:
         print(res.replacing, file=sys.stderr)
+    for line in said:  # first: can the plan do what it is for
+        print(line)
     for line in res.result.summary():
         print(line)
+    iso = [p for p in res.result.poses if p.name.startswith("ISO_")]
+    if iso:
+        p1, p2 = iso[0].T_world_target[:3, 3], iso[1].T_world_target[:3, 3]
+        side = float(np.linalg.norm(p1 - p2)) / (0.4 * np.sqrt(3.0))  # P2 is 40 % of C1–C7 in
+        print(
+            f"ISO 9283: a {side * 1e3:.0f} mm cube centred at "
+            f"({', '.join(f'{v * 1e3:.0f}' for v in p1)}) mm (world), its five poses visited "
+            f"{len(iso) // 5} times after the loop ({len(iso)} poses, ISO_P1_C01 …)"
+        )
     print(f"plan {res.plan.hash}")
     print("wrote " + ", ".join(str(f) for f in res.paths))
     return 0

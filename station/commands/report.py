@@ -64,6 +64,12 @@ def _report(args: argparse.Namespace) -> int:
     d = Path(args.run_dir)
     if not d.is_dir():
         raise InputError(f"{d}: not a run folder")
+    for name in ("model.json", "report.json"):  # before the archive is searched for its model
+        if not (d / name).is_file():
+            raise InputError(
+                f"{d}: no {name} (fit the run first: quickhealth identify fit "
+                f"{d / 'measurements.csv'} --robot ROBOT --out {d})"
+            )
     out = Path(args.out) if args.out else d / "report.html"
     reads = ("model.json", "report.json", "measurements.csv", "plan.json", "run.json")
     reads += ("diagnosis.json", "journal.jsonl")
@@ -90,7 +96,10 @@ def _report(args: argparse.Namespace) -> int:
         print(turned)
     for line in notes:
         print(line)
-    print(f"wrote {out} ({len(res.report.page.plots)} plots) and updated {res.report_json}")
+    print(
+        f"wrote {out} ({len(res.report.page.plots)} plots), {res.pdf} (one page) and updated "
+        f"{res.report_json}"
+    )
     return 0
 
 

@@ -25,6 +25,7 @@ from ..reporting.verdict import (
     Figures,
     HealthVerdict,
     Judgement,
+    MissingEffect,
     Spec,
     ThresholdFigure,
     judge,
@@ -135,10 +136,12 @@ def _trend(args: argparse.Namespace) -> int:
         min_change_rad=args.min_change_mrad * 1e-3,
     )
     b = res.baseline_index
+    from ..services.report import run_diagnosis  # the diagnosis, as the run's report makes it
+
     j = judge(
         Figures.of_trend(res, res.latest),
         trend=res,
-        missing=missing_effect_in(arch.folder(latest)),
+        missing=MissingEffect.of_diagnosis(run_diagnosis(arch.folder(latest))),
         spec=spec,
         baseline_time=recs[b].time_utc,
     )
@@ -180,9 +183,9 @@ def _trend(args: argparse.Namespace) -> int:
         ]
         write_text_atomic(args.json, json.dumps(json_plain(doc), indent=1) + "\n")
     if args.plot:
-        from ..reporting.page import trend_figure  # matplotlib: only for --plot
+        from ..reporting.figures import trend_figure  # matplotlib: only for --plot
 
-        write_figure(trend_figure(res), args.plot, dpi=100)
+        write_figure(trend_figure(res, None if spec is None else spec.mm), args.plot, dpi=100)
     if args.fail_on == "threshold":
         return 1 if j.out_of_spec else 0
     return 1 if j.verdict is HealthVerdict.FLAGGED else 0

@@ -111,7 +111,7 @@ def plan_to_dict(res: PlanResult) -> dict[str, Any]:
     for j, p in enumerate(res.poses):
         poses.append(
             {
-                "name": f"P{j + 1:03d}",
+                "name": p.name or f"P{j + 1:03d}",
                 "index": j + 1,
                 "candidate": p.candidate,
                 "q_deg": _r(np.degrees(p.q), 9),

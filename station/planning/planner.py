@@ -103,6 +103,7 @@ class PlannedPose:
     facing: F  # (2,) rad, angle to left and right camera
     pixels: F  # (2, 2) target centre in left and right image, px
     leg_time_s: float  # estimated duration of the arriving leg
+    name: str = ""  # the plan's name for it ("" : P001, P002 … by position)
 
 
 @dataclass(frozen=True, eq=False)
@@ -321,7 +322,9 @@ def _plan(
     sight = pose_sight(cell, T_wt)
     p_world = T_wt[:, :3, 3]
 
-    reason, feasible = _feasible(cell, world, Q, valid, inlim, sight, p_world, progress)
+    reason, feasible = feasible_configurations(
+        cell, world, Q, valid, inlim, sight, p_world, progress
+    )
     alive = np.flatnonzero(feasible.any(1))
     dropped = [
         DroppedTarget(i, r[0], r[1], T_wt[i]) for i in range(n) if (r := reason[i]) is not None
@@ -771,7 +774,7 @@ def _sweep(qs: F, clearance: float, reach: F = _REACH) -> F:
     return np.concatenate(parts)
 
 
-def _feasible(
+def feasible_configurations(
     cell: Cell,
     world: CollisionWorld,
     Q: F,

@@ -8,6 +8,7 @@ out; the report (:mod:`quickhealth.station.services.report`) shows them.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +20,20 @@ from ...identify.measurements import Measurements
 from ...identify.transforms import log_so3, small_error_transform
 
 F = NDArray[np.float64]
+
+_ISO_NAME = re.compile(r"^(ISO_P[1-5])_C\d+$")
+
+
+def iso_pose_name(point: int, cycle: int) -> str:
+    """The plan's name of ISO 9283 point ``point`` (1–5) in cycle ``cycle``: ``ISO_P3_C02``."""
+    return f"ISO_P{point}_C{cycle:02d}"
+
+
+def iso_point(pose_id: str) -> str:
+    """The pose a measured row stands for: an ISO cube visit's point (``ISO_P3_C02`` →
+    ``ISO_P3``, ``plan --iso9283``), any other pose id as it is."""
+    m = _ISO_NAME.match(pose_id)
+    return m.group(1) if m else pose_id
 
 
 @dataclass(frozen=True)
@@ -114,7 +129,7 @@ def run_pose_stats(fitted: FittedModel, meas: Measurements) -> list[PoseStats]:
     m0 = constant_motions(fitted.spec, fitted.coeffs, 0)
     R_base = (fitted.T_instr_base0 @ small_error_transform(m0[:3], m0[3:]))[:3, :3]
     return iso9283_pose_stats(
-        meas.pose_id,
+        tuple(iso_point(p) for p in meas.pose_id),
         meas.pos,
         T_cmd[:, :3, 3],
         meas.R if rot else None,

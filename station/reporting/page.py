@@ -2,18 +2,23 @@
 
 Sections, in the order a reader needs them:
 
-0. verdict          healthy, degraded or flagged; the one-line reason; mean and max TCP error
-                    against the baseline; the top missing effect, if any (the first screen)
+0. verdict          healthy, degraded or flagged against the accuracy spec and the baseline,
+                    why and what to do (the words every door shows); the top missing effect
+                    (the first screen)
 1. summary          robot, run, plan hash, cell, calibration, software; the fit's lines
-2. plan coverage    commanded joint angles over each joint's range and the TCP positions
+2. calibration      before and after: TCP error at measured poses with the nominal kinematics
+                    and with the model (held-out poses where there are some)
+3. plan coverage    commanded joint angles over each joint's range and the TCP positions
                     (paper Fig. 6)
-3. workspace error  histogram of the model's TCP error over the whole workspace (Fig. 7)
-4. error curves     each joint's six error motions with 95 % bands (Fig. 8)
-5. residuals        measured minus model, per pose and against each joint angle
-6. diagnosis        which physical effect the model misses, if any
-7. trend            the robot's figures over time against its baseline, control limits,
-                    root-cause hints (when the run is archived)
-8. ISO 9283         pose accuracy AP and repeatability RP at plan poses visited repeatedly:
+4. workspace error  how large (histogram, the spec drawn) and where (a map of the TCP
+                    positions coloured by error) over the whole workspace (Fig. 7)
+5. error curves     each joint's six error motions as variation about their offset, with
+                    95 % bands, every joint on the same scales (Fig. 8)
+6. residuals        measured minus model, per pose and against each joint angle
+7. diagnosis        which physical effect the model misses, if any
+8. trend            the robot's figures over time against its baseline, control limits,
+                    the spec, root-cause hints (when the run is archived)
+9. ISO 9283         pose accuracy AP and repeatability RP at plan poses visited repeatedly:
                     position and, for pose (7D) data, orientation (a, b, c about the base axes)
 
 Each ``*_section`` function turns what the report found (SI, typed: the fitted model, the
@@ -37,7 +42,6 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from typing import Any
 
 import matplotlib
@@ -48,15 +52,16 @@ import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from ...identify.errormodel import MOTION_WORDS, MOTIONS  # noqa: E402
 from ...identify.fit import FittedModel  # noqa: E402
 from ...identify.measurements import Measurements  # noqa: E402
-from ...identify.report import residual_plot, workspace_histogram  # noqa: E402
-from ...identify.robot import RobotModel, nominal_of  # noqa: E402
+from ...identify.report import residual_plot  # noqa: E402
+from ...identify.robot import nominal_of  # noqa: E402
 from ...identify.trend import TrendResult  # noqa: E402
-from ...identify.workspace import JointCurves, WorkspaceError  # noqa: E402
+from ...identify.workspace import JointCurves, WorkspaceError, WorkspaceMap  # noqa: E402
 from ..formats.common import json_plain as _plain  # noqa: E402
 from ..formats.report import trend_to_json  # noqa: E402
+from . import figures  # noqa: E402
+from .calibration import BeforeAfter  # noqa: E402
 from .iso9283 import PoseStats  # noqa: E402
 from .verdict import HealthVerdict, Judgement  # noqa: E402
 
@@ -137,153 +142,6 @@ def _png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def _coverage_figure(robot: RobotModel, q: F, q_lo: F, q_hi: F) -> Figure:
-    nj = q.shape[1]
-    fig = Figure(figsize=(10.0, 5.6))
-    for j in range(nj):
-        ax = fig.add_subplot(2, nj, j + 1)
-        ax.hist(np.degrees(q[:, j]), bins=24, range=(np.degrees(q_lo[j]), np.degrees(q_hi[j])))
-        ax.set_title(f"joint {j + 1}", fontsize=8, y=1.0)
-        ax.tick_params(labelsize=6)
-        ax.set_xlabel("deg", fontsize=7)
-    T = robot.fk(q)
-    p = T[:, :3, 3] * 1e3
-    for k, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
-        ax = fig.add_subplot(2, 3, 4 + k)
-        ax.plot(p[:, a], p[:, b], ".", ms=3)
-        ax.set_xlabel(f"{'xyz'[a]} (mm, base)", fontsize=7)
-        ax.set_ylabel(f"{'xyz'[b]} (mm, base)", fontsize=7)
-        ax.tick_params(labelsize=6)
-        ax.set_aspect("equal", adjustable="datalim")
-    fig.suptitle(f"Plan coverage: {q.shape[0]} poses (joint angles; flange positions)")
-    fig.tight_layout()
-    return fig
-
-
-def joint_figure(curves: JointCurves, fitted: FittedModel | None = None) -> Figure:
-    """One joint's six error motions with bands, in one row (compact; no tight_layout).
-
-    A motion the data cannot identify (every coefficient held at zero, no band) is labelled
-    "not identifiable" instead of drawn as a flat zero line, which would read as "no error";
-    one the model does not have says "not in the model"."""
-    fig = Figure(figsize=(12.0, 2.4))
-    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.2, top=0.8, wspace=0.45)
-    th = np.degrees(curves.theta)
-    for m in range(6):
-        ax = fig.add_subplot(1, 6, m + 1)
-        v = curves.values[m] * 1e3
-        h = curves.half_width[m] * 1e3
-        ax.set_title(f"{MOTIONS[m]}: {MOTION_WORDS[MOTIONS[m]]}", fontsize=7, y=1.0)
-        state = _motion_state(fitted, curves.joint, m, v, h)
-        if state:
-            ax.set_facecolor("#f2f2f2")
-            ax.text(
-                0.5,
-                0.5,
-                state,
-                ha="center",
-                va="center",
-                fontsize=8,
-                color="0.3",
-                transform=ax.transAxes,
-            )
-            ax.set_yticks([])
-            ax.set_xlabel("deg", fontsize=7, labelpad=1)
-            ax.tick_params(labelsize=6, pad=1)
-            continue
-        ax.fill_between(th, v - h, v + h, color="#88ccee", alpha=0.6, lw=0)
-        ax.plot(th, v, color="#224488", lw=1.2)
-        ax.set_ylabel("mm" if m < 3 else "mrad", fontsize=7, labelpad=1)
-        ax.set_xlabel("deg", fontsize=7, labelpad=1)
-        ax.tick_params(labelsize=6, pad=1)
-    fig.suptitle(f"Joint {curves.joint}: error motions with {curves.level:.0%} bands", fontsize=9)
-    return fig
-
-
-def _motion_state(fitted: FittedModel | None, joint: int, m: int, v: F, h: F) -> str:
-    """'' for a motion to draw; else why it is not drawn."""
-    if fitted is not None:
-        if fitted.spec.orders[joint, m] < 0:
-            return "not in the model"
-        prefix = f"j{joint}.{MOTIONS[m]}."
-        labels = [lb for lb in fitted.labels if lb.startswith(prefix)]
-        if labels and all(lb in set(fitted.unidentifiable) for lb in labels):
-            return "not identifiable"
-    if not np.any(v) and not np.any(h):
-        return "not identifiable"
-    return ""
-
-
-def _iso_figure(stats: list[PoseStats]) -> Figure:
-    rot = all(s.accuracy_abc is not None for s in stats)
-    fig = Figure(figsize=(8.0, 5.6 if rot else 3.2))
-    ax = fig.add_subplot(2 if rot else 1, 1, 1)
-    x = np.arange(len(stats))
-    ax.bar(x - 0.2, [s.accuracy * 1e3 for s in stats], 0.4, label="AP (accuracy)")
-    ax.bar(x + 0.2, [s.repeatability * 1e3 for s in stats], 0.4, label="RP (repeatability)")
-    ax.set_xticks(x, [s.pose_id for s in stats], fontsize=7, rotation=45)
-    ax.set_ylabel("mm")
-    ax.legend(fontsize=7)
-    ax.set_title("ISO 9283-style pose accuracy and repeatability")
-    if rot:
-        ax2 = fig.add_subplot(2, 1, 2)
-        ap = np.array([s.accuracy_abc for s in stats]) * 1e3
-        rp = np.array([s.repeatability_abc for s in stats]) * 1e3
-        for k, (name, c) in enumerate(zip("abc", ("#4477aa", "#ee6677", "#228833"), strict=True)):
-            ax2.errorbar(
-                x + (k - 1) * 0.2, ap[:, k], yerr=rp[:, k], fmt="o", ms=3, color=c,
-                capsize=2, label=f"AP {name} ± RP {name}",
-            )  # fmt: skip
-        ax2.axhline(0.0, color="0.5", lw=0.8)
-        ax2.set_xticks(x, [s.pose_id for s in stats], fontsize=7, rotation=45)
-        ax2.set_ylabel("mrad (about base x, y, z)")
-        ax2.legend(fontsize=7)
-    fig.tight_layout()
-    return fig
-
-
-def trend_figure(result: TrendResult) -> Figure:
-    """Main figures over time with the EWMA control limits, the baseline marked."""
-    figs = [f for f in ("mean", "std", "max") if f in result.charts]
-    fig = Figure(figsize=(9.0, 2.6 * max(len(figs), 1)))
-    t = [datetime.fromtimestamp(v, UTC) for v in result.t_s]
-    b = result.baseline_index
-    for k, f in enumerate(figs):
-        ax = fig.add_subplot(len(figs), 1, k + 1)
-        ax.plot(t, result.figures_mm[f], "o-", ms=4, label=f"{f} (mm)")
-        ch = result.charts[f]
-        ax.plot(t[b:], ch.ewma_mm, "-", color="#228833", lw=1, label="EWMA")
-        ax.plot(t[b:], ch.ucl_mm, "--", color="#cc3311", lw=1, label="control limit")
-        ax.axvline(t[b], color="0.5", ls=":", lw=1)
-        seen = [v for v in (*result.figures_mm[f], *ch.ewma_mm) if math.isfinite(v)]
-        if result.threshold_mm is not None and f == result.threshold_figure:
-            ax.axhline(result.threshold_mm, color="k", lw=1, label="spec")
-            seen.append(result.threshold_mm)
-        # with 2-3 runs the limit's σ comes from the runs' own differences and can sit far
-        # above the data (8 mm over 1 mm figures): the axis follows the data, not the limit
-        top = max(seen) * 1.35 if seen else 1.0
-        ucl = [u for u in ch.ucl_mm if math.isfinite(u)]
-        if ucl and max(ucl) > top:
-            ax.text(
-                0.99,
-                0.97,
-                f"control limit up to {max(ucl):.2f} mm (few runs: σ not yet known)",
-                transform=ax.transAxes,
-                ha="right",
-                va="top",
-                fontsize=7,
-                color="#cc3311",
-            )
-        ax.set_ylim(0.0, top)
-        ax.set_ylabel(f"{f} TCP error (mm)", fontsize=8)
-        ax.legend(fontsize=7, loc="upper left")
-        ax.tick_params(labelsize=7)
-    fig.autofmt_xdate()
-    fig.suptitle("Workspace TCP error over time (dotted: baseline)")
-    fig.tight_layout()
-    return fig
-
-
 # ------------------------------------------------------------------------ sections
 
 
@@ -338,7 +196,7 @@ def coverage_section(
             Plot(
                 "coverage",
                 "Plan coverage",
-                _png(_coverage_figure(fitted.robot, q_plan, spec.q_lo, spec.q_hi)),
+                _png(figures.coverage_figure(fitted.robot, q_plan, spec.q_lo, spec.q_hi)),
             ),
         )
         if plots
@@ -357,37 +215,106 @@ def coverage_section(
     )
 
 
-def workspace_section(ws: WorkspaceError, *, plots: bool = True) -> Section:
-    """The model's TCP error over the whole workspace (paper Fig. 7)."""
+def workspace_section(
+    ws: WorkspaceError, wm: WorkspaceMap, spec_mm: float | None, *, plots: bool = True
+) -> Section:
+    """The model's TCP error over the whole workspace (paper Fig. 7) and where it is: a map
+    of the sampled TCP positions coloured by their error, the spec on both."""
     cond = ws.conditions.describe()
+    w = wm.worst
+    x, y, z = wm.xyz_base[w] * 1e3
+    lines = (
+        f"mean {ws.mean * 1e3:.3f} mm, std {ws.std * 1e3:.3f} mm, "
+        f"95 % {ws.p95 * 1e3:.3f} mm, max {ws.max * 1e3:.3f} mm "
+        f"over {ws.n_samples} joint commands uniform in the modelled ranges"
+        + (f", {cond}" if cond else ""),
+        f"largest at x {x:.0f}, y {y:.0f}, z {z:.0f} mm in the robot base frame (joints "
+        + ", ".join(f"{v:.0f}" for v in np.degrees(wm.q[w]))
+        + " deg)"
+        + (
+            f"; {np.mean(wm.err * 1e3 > spec_mm):.1%} of the workspace is above the spec"
+            if spec_mm is not None
+            else ""
+        ),
+    )
     return Section(
         "workspace",
-        "Workspace TCP error (paper Fig. 7)",
-        (
-            f"mean {ws.mean * 1e3:.3f} mm, std {ws.std * 1e3:.3f} mm, "
-            f"95 % {ws.p95 * 1e3:.3f} mm, max {ws.max * 1e3:.3f} mm "
-            f"over {ws.n_samples} joint commands uniform in the modelled ranges"
-            + (f", {cond}" if cond else ""),
-        ),
+        "Workspace TCP error: how large and where (paper Fig. 7)",
+        lines,
         plots=(
-            (Plot("workspace_hist", "Workspace error histogram", _png(workspace_histogram(ws))),)
-            if plots
-            else ()
-        ),
-        data=ws.as_dict(),
+            Plot("workspace_hist", "Histogram", _png(figures.histogram_figure(ws, spec_mm))),
+            Plot("workspace_map", "Map", _png(figures.workspace_map_figure(wm, spec_mm))),
+        )
+        if plots
+        else (),
+        data={**ws.as_dict(), "worst_xyz_base_mm": [x, y, z]},
+    )
+
+
+def calibration_section(
+    sets: Sequence[BeforeAfter], spec_mm: float | None, *, plots: bool = True
+) -> Section:
+    """Before and after calibration: the TCP error at measured poses with the nominal
+    kinematics against the identified model (held-out poses where there are some)."""
+    title = "Before and after calibration"
+    if not sets:
+        return Section(
+            "calibration", title, missing="measurements.csv missing or not the fitted data"
+        )
+    rows = [
+        ("poses", "n", "nominal RMS (mm)", "nominal max (mm)", "model RMS (mm)", "model max (mm)")
+    ]
+    for s in sets:
+        d = s.as_dict()
+        rows.append(
+            (s.label, str(s.n), *(f"{d[k]:.3f}" for k in ("nominal_rms_mm", "nominal_max_mm",
+                                                           "model_rms_mm", "model_max_mm")))
+        )  # fmt: skip
+    best = sets[-1]
+    lines = (
+        f"with its nominal kinematics the robot misses the measured target by "
+        f"{best.rms('before') * 1e3:.3f} mm RMS ({best.before.max() * 1e3:.3f} mm at most); with "
+        f"the identified model, {best.rms('after') * 1e3:.3f} mm RMS "
+        f"({best.after.max() * 1e3:.3f} mm at most), on {best.label}",
+        "nominal: the published kinematics with the registered base and tool (the set-up is not "
+        "robot error); model: the fitted error model"
+        + ("" if len(sets) > 1 else "; no held-out data beside the run (RUN/heldout.csv)"),
+    )
+    return Section(
+        "calibration",
+        title,
+        lines,
+        table=tuple(rows),
+        plots=(
+            Plot(
+                "calibration", "Before and after", _png(figures.before_after_figure(sets, spec_mm))
+            ),
+        )
+        if plots
+        else (),
+        data={"sets": [s.as_dict() for s in sets]},
     )
 
 
 def curves_section(
     curves: Sequence[JointCurves], fitted: FittedModel, *, plots: bool = True
 ) -> Section:
-    """Each joint's six error motions with 95 % bands (paper Fig. 8)."""
+    """Each joint's six error motions as variation about their offset, 95 % bands, every joint
+    on the same scales (paper Fig. 8)."""
+    lim = figures.shared_limits(curves)
     return Section(
         "curves",
-        "Error motions of every joint, 95 % bands (paper Fig. 8)",
-        ("bands: sampling uncertainty of the estimate; model error is not in them",),
+        "Error motions of every joint: how they vary over each joint's range (paper Fig. 8)",
+        (
+            "each panel shows the motion minus its mean over the range (the offset, in its "
+            f"title); every joint on the same scales (±{lim[0]:.3g} mm, ±{lim[1]:.3g} mrad), "
+            "so a flat panel is a motion that does not change with the joint",
+            "bands: sampling uncertainty of the estimate; model error is not in them",
+        ),
         plots=tuple(
-            Plot(f"curves_j{c.joint}", f"Joint {c.joint}", _png(joint_figure(c, fitted)))
+            Plot(
+                f"curves_j{c.joint}", f"Joint {c.joint}", _png(figures.joint_figure(c, fitted, lim))
+            )
             for c in curves
         )
         if plots
@@ -459,22 +386,22 @@ def trend_section(
     if trend is None:
         return Section("trend", title, missing=missing)
     b = trend.baseline_index
-    flags = trend.flags()
+    flags = trend.change_flags()
     lines = [
         f"{len(runs)} runs; baseline {runs[b][0]}",
-        "trend: " + ("FLAGGED" if flags else "no flag against the baseline"),
+        "trend: " + ("changed since the baseline" if flags else "no change since the baseline"),
     ]
     lines += flags
     lines += [p.words() for p in trend.prognoses.values()]
     lines += [f"warning: {w}" for w in trend.warnings]
-    rows = [("run", "time (UTC)", "mean (mm)", "std (mm)", "max (mm)", "flags")]
+    rows = [("run", "time (UTC)", "mean (mm)", "std (mm)", "max (mm)", "changes")]
     for i, (run_id, time_utc) in enumerate(runs):
         rows.append(
             (
                 run_id + (" (baseline)" if i == b else ""),
                 time_utc,
                 *(f"{trend.figures_mm[f][i]:.3f}" for f in ("mean", "std", "max")),
-                str(len(trend.flags(i))),
+                str(len(trend.change_flags(i))),
             )
         )
     return Section(
@@ -482,7 +409,7 @@ def trend_section(
         title,
         tuple(lines),
         table=tuple(rows),
-        plots=(Plot("trend", "Trend", _png(trend_figure(trend))),) if plots else (),
+        plots=(Plot("trend", "Trend", _png(figures.trend_figure(trend))),) if plots else (),
         data=trend_to_json(trend),
     )
 
@@ -503,8 +430,8 @@ def iso_section(
             title,
             not_applicable=(
                 f"the plan visits each of its {len(set(meas.pose_id))} poses once: ISO 9283 "
-                "accuracy (AP) and repeatability (RP) need poses visited more than once (one "
-                "pose_id on several rows)"
+                "accuracy (AP) and repeatability (RP) need poses visited more than once "
+                "(plan --iso9283 adds the ISO cube's five poses, visited in cycles)"
             ),
         )
 
@@ -562,7 +489,9 @@ def iso_section(
         title,
         tuple(lines),
         table=tuple(rows),
-        plots=(Plot("iso9283", "ISO 9283", _png(_iso_figure(list(stats)))),) if plots else (),
+        plots=(Plot("iso9283", "ISO 9283", _png(figures.iso_figure(list(stats)))),)
+        if plots
+        else (),
         data={"orientation": rot, "poses": poses},
     )
 

@@ -371,7 +371,7 @@ def judge(
         verdict = HealthVerdict.HEALTHY
         where = "within the spec" if spec is not None else "no spec set"
         if trend is None:
-            reason = f"{where}; no baseline to compare with ({no_baseline})"
+            reason = f"{where}; no baseline yet: {no_baseline}"
             action = (
                 "archive the run to compare later runs with it (quickhealth archive add)"
                 if no_baseline.startswith("the run is not archived")

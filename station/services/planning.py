@@ -30,6 +30,7 @@ from ..formats.measurements import parse_measurements
 from ..fsio import claim_output_folder, foreign_results, make_dirs, replacing_line, write_atomic
 from ..planning.cell import Cell
 from ..planning.figures import write_figures
+from ..planning.iso_cube import with_iso_cycles
 from ..planning.planfile import Plan, dumps, plan_from_dict, plan_to_dict
 from ..planning.planner import PlanResult, plan_loop
 from ..planning.urscript import render_urscript
@@ -58,11 +59,16 @@ def plan_folder(
     force: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
     optimal: int | None = None,
+    iso_cycles: int | None = None,
+    check: Callable[[PlanResult], None] | None = None,
 ) -> PlanFiles:
     """Plan ``cell`` from ``n_candidates`` random targets (``seed``) and write the plan to ``out``.
 
     ``optimal``: keep this many of the feasible targets by the optimal design
-    (``plan --optimal K``, :mod:`quickhealth.station.planning.optimal`).
+    (``plan --optimal K``, :mod:`quickhealth.station.planning.optimal`).  ``iso_cycles``: add
+    the ISO 9283 cube's five poses, visited that many times after the loop (``plan
+    --iso9283``, :mod:`quickhealth.station.planning.iso_cube`).  ``check``: called with the
+    plan before anything is written; it refuses a plan by raising (``plan --strict``).
 
     Raises
     ------
@@ -73,6 +79,10 @@ def plan_folder(
     foreign = foreign_results(out, "plan")
     claim_output_folder(out, foreign, force=force)  # before the planning work
     res = plan_loop(cell, n_candidates, seed, progress, optimal=optimal)
+    if iso_cycles:
+        res = with_iso_cycles(res, iso_cycles)
+    if check is not None:
+        check(res)
     doc = plan_to_dict(res)
     plan = plan_from_dict(doc, "plan.json")  # the program is made from the validated document
     script = render_urscript(plan)

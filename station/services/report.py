@@ -29,16 +29,25 @@ from ...identify.errors import InputError
 from ...identify.fit import FittedModel
 from ...identify.measurements import Measurements
 from ...identify.trend import TrendResult, assess_trend
-from ...identify.workspace import all_joint_curves, workspace_error
+from ...identify.workspace import (
+    JointCurves,
+    WorkspaceError,
+    WorkspaceMap,
+    all_joint_curves,
+    workspace_error,
+    workspace_map,
+)
 from ..archive import Archive, missing_words, run_metadata, run_state, trend_runs
 from ..formats import measurements as measurements_file
 from ..formats import model as model_file
 from ..formats import report as report_file
 from ..formats.common import write_text_atomic
-from ..fsio import write_atomic
+from ..fsio import write_atomic, write_figure
 from ..planning.planfile import plan_joints
 from ..reporting import page
+from ..reporting.calibration import BeforeAfter, before_after, heldout_file
 from ..reporting.iso9283 import run_pose_stats
+from ..reporting.pdf import report_page
 from ..reporting.verdict import (
     Figures,
     HealthVerdict,
@@ -52,7 +61,7 @@ from ..reporting.verdict import (
 from .options import ReportOptions
 
 #: The report's sections that report.json keeps (beside the fit's keys).
-JSON_SECTIONS = ("coverage", "diagnosis", "trend", "iso9283", "verdict")
+JSON_SECTIONS = ("calibration", "coverage", "diagnosis", "trend", "iso9283", "verdict")
 
 
 @dataclass(frozen=True)
@@ -64,6 +73,13 @@ class RunReport:
     run_id: str
     robot: str | None
     previous: tuple[HealthVerdict, str] | None = None  # the verdict it turned around, if any
+    # what the one-page PDF draws (the page's sections hold the same as figures and words)
+    workspace: WorkspaceError | None = None
+    workspace_map: WorkspaceMap | None = None
+    calibration: tuple[BeforeAfter, ...] = ()
+    curves: tuple[JointCurves, ...] = ()
+    trend: TrendResult | None = None
+    title: str = ""
 
 
 @dataclass(frozen=True)
@@ -75,6 +91,7 @@ class ReportFiles:
     html: Path | None
     report_json: Path
     doc: dict[str, Any]
+    pdf: Path | None = None  # the one-page PDF beside report.html
     previous: tuple[HealthVerdict, str] | None = None  # the verdict report.json had, if other
 
     def turned_words(self) -> str | None:
@@ -145,10 +162,10 @@ def build_report(
 
     q_plan, plan_source = _plan_joints(d, meas)
     ws = workspace_error(fitted, n_samples=options.workspace_samples)
+    wm = workspace_map(fitted, n_samples=options.workspace_samples)
     curves = all_joint_curves(fitted, n_points=61)
-    diag = _json(d / "diagnosis.json")
-    if diag is None and options.diagnose_if_missing and meas is not None:
-        diag = diagnose(state_from_fitted(fitted), meas).to_dict(top=8)
+    calib = _before_after(d, fitted, meas)
+    diag = run_diagnosis(d, fitted, meas, compute=options.diagnose_if_missing)
     own = d if in_place_of_archived else None
     spec = spec_of_run(d, options.accuracy_spec)
     trend, runs, why = _trend(archive, robot, rid, spec, own)
@@ -163,23 +180,49 @@ def build_report(
         no_baseline=why,
     )
     turned = previous if previous is not None and previous[0] is not judgement.verdict else None
+    spec_mm = None if spec is None else spec.mm
     sections = (
         page.verdict_section(judgement, turned),
         page.summary_section(fitted, rid, robot, meta),
+        page.calibration_section(calib, spec_mm, plots=plots),
         page.coverage_section(fitted, q_plan, plan_source, plots=plots),
-        page.workspace_section(ws, plots=plots),
+        page.workspace_section(ws, wm, spec_mm, plots=plots),
         page.curves_section(curves, fitted, plots=plots),
         page.residuals_section(fitted, meas, plots=plots),
         page.diagnosis_section(diag),
         page.trend_section(trend, runs, missing=why, plots=plots),
         page.iso_section([] if meas is None else run_pose_stats(fitted, meas), meas, plots=plots),
     )
-    report = page.Report(
-        title=f"quickhealth report: {fitted.robot.name}, run {rid}",
-        run_dir=str(d),
-        sections=sections,
+    title = f"quickhealth report: {fitted.robot.name}, run {rid}" + (
+        f" (robot {robot})" if robot else ""
     )
-    return RunReport(report, judgement, rid, robot, turned)
+    report = page.Report(title=title, run_dir=str(d), sections=sections)
+    return RunReport(
+        report, judgement, rid, robot, turned, ws, wm, calib, tuple(curves), trend, title
+    )
+
+
+def _before_after(
+    d: Path, fitted: FittedModel, meas: Measurements | None
+) -> tuple[BeforeAfter, ...]:
+    """Before and after calibration on the fitted poses and, where a held-out file lies beside
+    the run (:func:`~..reporting.calibration.heldout_file`), on those."""
+    if meas is None:
+        return ()
+    out = [before_after(fitted, meas, "the fitted poses")]
+    src = (
+        report_file.read_report(d / "report.json").get("input")
+        if (d / "report.json").is_file()
+        else None
+    )
+    held = heldout_file(d, src if isinstance(src, str) else None)
+    if held is not None:
+        try:
+            hm = measurements_file.read_measurements(held, fitted.robot.n_joints)
+        except InputError:
+            return tuple(out)
+        out.append(before_after(fitted, hm, f"held-out poses ({held.name})"))
+    return tuple(out)
 
 
 def report_run(
@@ -249,10 +292,11 @@ def report_run(
     text = report_file.with_sections(
         doc, {k: sections[k] for k in JSON_SECTIONS}, run=run, extra=extra
     )
-    out = None
+    out = pdf = None
     if write_html:
         out = Path(html) if html is not None else d / "report.html"
         write_text_atomic(out, page.render_html(rep.page))
+        pdf = write_figure(report_page(rep), out.with_suffix(".pdf"), dpi=150, format="pdf")
     write_atomic(rp, text)
     if record_verdict and archive is not None and robot is not None:
         rec = next((r for r in archive.runs(robot) if r.run_id == rep.run_id), None)
@@ -260,7 +304,36 @@ def report_run(
         # trend refuses to judge that run): the verdict here was made without it
         if rec is not None and archive.folder(rec).is_dir():
             archive.set_healthy(robot, rep.run_id, j.fit_as_baseline)
-    return ReportFiles(rep, out, rp, json.loads(text), rep.previous)
+    return ReportFiles(
+        rep, out, rp, json.loads(text), None if pdf is None else Path(pdf), rep.previous
+    )
+
+
+def run_diagnosis(
+    run_dir: Path,
+    fitted: FittedModel | None = None,
+    meas: Measurements | None = None,
+    *,
+    compute: bool = True,
+) -> dict[str, Any] | None:
+    """The run's diagnosis, as every verdict uses it: the folder's ``diagnosis.json``, else
+    the one its report.json holds for this model, else (``compute``) the diagnosis of the
+    fitted model against its measurements (``fitted``, ``meas``: read from the folder when
+    not given); None when there is none to read or compute."""
+    d = Path(run_dir)
+    diag = _json(d / "diagnosis.json")
+    if diag is None and (d / "report.json").is_file():
+        section = report_file.read_report(d / "report.json").get("diagnosis")
+        diag = section if isinstance(section, dict) and "verdict" in section else None
+    if diag is not None or not compute:
+        return diag
+    if fitted is None and (d / "model.json").is_file():
+        fitted = model_file.read_model(d / "model.json")
+    if meas is None and fitted is not None and (d / "measurements.csv").is_file():
+        meas = measurements_file.read_measurements(d / "measurements.csv", fitted.robot.n_joints)
+    if fitted is None or meas is None or meas.n_poses != fitted.n_poses:
+        return None
+    return diagnose(state_from_fitted(fitted), meas).to_dict(top=8)
 
 
 def _json(path: Path) -> dict[str, Any] | None:

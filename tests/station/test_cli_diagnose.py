@@ -79,7 +79,9 @@ def test_diagnose_names_the_hidden_effect_per_contract(backlash_run, tmp_path, c
     assert (plots / "candidate_1_backlash_j2.png").stat().st_size > 5000
     assert (plots / "spectrum.png").exists()
     stdout = capsys.readouterr().out
-    assert "verdict: missing-effect" in stdout and "backlash:j2" in stdout
+    # the words first (what is missing, what to do), the statistics after their heading
+    assert stdout.startswith("a physical effect is missing from the model: backlash:j2")
+    assert "statistics:\n  verdict: missing-effect" in stdout
     rc = main(
         [
             "diagnose",

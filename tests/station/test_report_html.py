@@ -13,8 +13,8 @@ import qh_runs as _runs
 
 from quickhealth.station.archive import Archive
 from quickhealth.station.cli import main
+from quickhealth.station.reporting.figures import joint_figure, shared_limits, trend_figure
 from quickhealth.station.reporting.iso9283 import iso9283_pose_stats
-from quickhealth.station.reporting.page import joint_figure, trend_figure
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path("/usr/bin/chromedriver")
@@ -32,6 +32,7 @@ FLAGS = [
 SECTIONS = [
     "verdict",
     "summary",
+    "calibration",
     "coverage",
     "workspace",
     "curves",
@@ -179,6 +180,7 @@ def test_report_renders_every_plot_in_chromium(reported):
     assert [(d["open"], d["rows"] > 2) for d in dom["folded"]] == [(False, True)], dom["folded"]
     # coverage, histogram, 6 joints' curves, residuals, trend, ISO 9283
     want = {"plot-coverage", "plot-workspace_hist", "plot-residuals", "plot-trend", "plot-iso9283"}
+    want |= {"plot-workspace_map", "plot-calibration"}
     want |= {f"plot-curves_j{j}" for j in range(1, 7)}
     assert {i["id"] for i in dom["imgs"]} == want
     for i in dom["imgs"]:
@@ -245,8 +247,10 @@ def test_motions_the_data_cannot_identify_are_labelled_not_identifiable(tmp_path
     d = _runs.make_run(tmp_path / "r", 0, n_poses=30, order=0, light=True)
     fm = formats.read_model(d / "model.json")
     states = {"not identifiable": 0, "drawn": 0}
-    for c in all_joint_curves(fm, n_points=21):
-        fig = joint_figure(c, fm)
+    curves = all_joint_curves(fm, n_points=21)
+    lim = shared_limits(curves)
+    for c in curves:
+        fig = joint_figure(c, fm, lim)
         for m, ax in enumerate(fig.axes):
             label = f"j{c.joint}.{MOTIONS[m]}.c0"
             texts = [t.get_text() for t in ax.texts]
@@ -255,9 +259,13 @@ def test_motions_the_data_cannot_identify_are_labelled_not_identifiable(tmp_path
                 assert texts == ["not identifiable"] and not ax.lines and not ax.collections
                 states["not identifiable"] += 1
             else:
-                assert texts == [] and len(ax.lines) == 1 and len(ax.collections) == 1, label
+                # the variation about the offset and the zero line, with its band
+                assert texts == [] and len(ax.lines) == 2 and len(ax.collections) == 1, label
                 band = ax.collections[0].get_paths()[0].vertices[:, 1]
                 assert np.ptp(band) > 0, label  # a band with a width
+                # every joint on one scale per kind: mm for translations, mrad for rotations
+                assert ax.get_ylim() == (-lim[m >= 3], lim[m >= 3]), label
+                assert "offset" in ax.get_title(), label
                 states["drawn"] += 1
     assert states["not identifiable"] >= 6 and states["drawn"] >= 12, states
 
@@ -335,3 +343,13 @@ def test_report_command_without_model_is_one_line_error(tmp_path, capsys):
     assert main(["report", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no model.json" in err[0]
+
+
+def test_the_report_has_a_one_page_pdf_beside_it(reported):
+    """report.pdf: one A4 page (matplotlib), the verdict's words on it."""
+    pdf = (reported / "report.pdf").read_bytes()
+    assert (
+        pdf.startswith(b"%PDF-") and pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1
+    )
+    assert b"/Count 1" in pdf  # one page
+    assert b"/MediaBox [ 0 0 595.44 841.68 ]" in pdf  # A4 portrait
