@@ -97,8 +97,11 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.sim:
         from ..tui.simulated import open_simulated  # the simulation, only under --sim
+        from .run import SIM_SPEED_FACTOR_ENV, _sim_setting
 
-        station = open_simulated(**common)
+        # the simulated hardware's clock, as run --sim reads it (a faster arm for a look)
+        speed = _sim_setting(None, "--sim-speed-factor", SIM_SPEED_FACTOR_ENV, 1.0, (0.1, 100.0))
+        station = open_simulated(**common, speed_factor=speed)
     else:
         station = Facade.open(
             robot_ip=args.robot_ip,

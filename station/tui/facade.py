@@ -195,8 +195,10 @@ class Analysis:
         if self._diag is None or self._diag[0] != key:
             self._diag = (key, offload(jobs.diagnose_job, fitted, self.meas))
         diag = self._diag[1]
-        res = fitted.residual_pos * 1e3  # measured − model, mm
-        pos = self.meas.pos * 1e3
+        # measured and model positions in the robot base frame (the registered base), mm
+        T_ib = fitted.registration[0]
+        res = fitted.residual_pos @ T_ib[:3, :3] * 1e3  # measured − model
+        pos = (self.meas.pos - T_ib[:3, 3]) @ T_ib[:3, :3] * 1e3
         ids = self.meas.pose_id or tuple(f"p{i:04d}" for i in range(self.meas.n_poses))
         residuals = tuple(
             PoseResidual(

@@ -201,7 +201,7 @@ class Health:
 
 @dataclass(frozen=True)
 class PoseResidual:
-    """Measured versus model at one pose."""
+    """Measured versus model at one pose (mm, robot base frame)."""
 
     pose_id: str
     measured_mm: tuple[float, float, float]

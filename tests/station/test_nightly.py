@@ -77,15 +77,20 @@ def _nightly(tmp_path, **env):
 def test_nightly_script_steps_and_exit_status(tmp_path):
     r, calls = _nightly(tmp_path, QH_DB="postgresql+psycopg://qh@db/qh", QH_THRESHOLD_MM="0.5")
     assert r.returncode == 0, r.stderr
-    assert [c.split()[0] for c in calls] == ["run", "identify", "archive", "trend"]
+    assert [c.split()[0] for c in calls] == ["run", "identify", "archive", "report", "trend"]
     assert "--unattended" in calls[0] and "--robot-ip 192.168.1.10" in calls[0]
     run_dir = calls[0].split("--out ")[1].split()[0]
     assert run_dir.startswith(str(tmp_path / "runs")) and f"--out {run_dir}" in calls[1]
     assert calls[2].endswith("--db postgresql+psycopg://qh@db/qh")
-    assert "--threshold-mm 0.5" in calls[3] and f"--json {run_dir}/trend.json" in calls[3]
+    # the report judges the run (its verdict is the one every door shows), then the trend
+    assert (
+        calls[3].startswith(f"report {run_dir} --robot ur5-cell3")
+        and "--threshold-mm 0.5" in calls[3]
+    )
+    assert "--threshold-mm 0.5" in calls[4] and f"--json {run_dir}/trend.json" in calls[4]
     # the trend flags the robot: exit 1, for the timer's unit to fail and alert
     r, calls = _nightly(tmp_path, STUB_TREND="1")
-    assert r.returncode == 1 and len(calls) == 4 and "--db" not in calls[2]
+    assert r.returncode == 1 and len(calls) == 5 and "--db" not in calls[2]
     # the cell fails: exit 3, nothing fitted or archived
     r, calls = _nightly(tmp_path, STUB_RUN="3")
     assert r.returncode == 3 and len(calls) == 1
@@ -105,7 +110,7 @@ def test_nightly_quick_check_runs_the_full_loop_only_when_changed(tmp_path):
     assert f"--archive {tmp_path / 'arch'}" in calls[0]
     r, calls = _nightly(tmp_path, QH_MODE="check", STUB_CHECK="1")  # changed: the full loop
     assert r.returncode == 0 and [c.split()[0] for c in calls] == [
-        "check", "run", "identify", "archive", "trend"
+        "check", "run", "identify", "archive", "report", "trend"
     ]  # fmt: skip
     r, calls = _nightly(tmp_path, QH_MODE="check", STUB_CHECK="3")  # the cell failed
     assert r.returncode == 3 and len(calls) == 1
@@ -138,5 +143,5 @@ def test_the_documented_cron_line_passes_the_settings_to_the_script(tmp_path):
     log = (tmp_path / "cron.log").read_text()
     assert r.returncode == 0, log
     calls = (tmp_path / "calls.log").read_text().splitlines()
-    assert [c.split()[0] for c in calls] == ["run", "identify", "archive", "trend"], log
+    assert [c.split()[0] for c in calls] == ["run", "identify", "archive", "report", "trend"], log
     assert "--robot-ip 192.168.1.10" in calls[0] and "--robot ur5-cell3" in calls[2]

@@ -1,5 +1,6 @@
-"""One answer from every door: the command line (fit, archive add, report), the TUI's analysis
-and reprocessing judge a run alike and write the same report.json."""
+"""One answer from every door: the command line (fit, archive add, report, trend), the TUI's
+Results and History screens and reprocessing judge a run alike, in the same words, and write
+the same report.json."""
 
 from __future__ import annotations
 
@@ -100,7 +101,17 @@ async def test_every_door_gives_one_verdict_and_one_report(tmp_path: Path, capsy
         h = app.screen.health
         assert h is not None
         shown = text(app, "#summary")
+        await pilot.press("6")  # History: the run's verdict as its report gave it
+        await settle(app, pilot)
+        hist = app.screen.history
+        history_head = text(app, "#trend")
     tui = json.loads((station.run_dir / "report.json").read_text())
+    # the trend command on either archive: its first lines are the latest run's verdict
+    trend_lines = []
+    for arch_dir in (a1, station.archive.root):
+        capsys.readouterr()
+        assert main(["trend", ROBOT, "--archive", str(arch_dir), "--threshold-mm", "2"]) == 0
+        trend_lines.append(capsys.readouterr().out.splitlines()[1:])
 
     # 3. fleet reprocessing of the archived run, orders selected anew, judged as reported
     jobs = jobs_for_archive(
@@ -118,7 +129,15 @@ async def test_every_door_gives_one_verdict_and_one_report(tmp_path: Path, capsy
     assert h.verdict == res.verdict == tui["verdict"]["verdict"] == rep["verdict"]["verdict"]
     assert h.verdict == verdict and h.reason == cli["verdict"]["reason"] == res.reason
     assert "DEGRADED" in shown and "backlash:j2" in shown  # the TUI shows the report's verdict
-    assert h.verdict_lines == tuple(cli["verdict"]["lines"]) == tuple(tui["verdict"]["lines"])
+    # the same words at every door: report (printed and report.json), TUI Results, TUI
+    # History, the trend command on the CLI's archive and on the TUI's
+    lines = cli["verdict"]["lines"]
+    assert h.verdict_lines == tuple(lines) == tuple(tui["verdict"]["lines"])
+    assert hist is not None and hist.latest == tuple(lines)
+    assert f"latest run: DEGRADED: {cli['verdict']['reason']}" in " ".join(history_head.split())
+    assert [r.verdict for r in hist.rows] == ["degraded"]
+    for tl in trend_lines:
+        assert tl[: len(lines)] == lines, (tl, lines)
     assert cli["run"] == {
         "run_id": RUN, "robot_name": ROBOT, "verdict": verdict, "healthy": False,
         "threshold_mm": 2.0, "threshold_figure": "max",

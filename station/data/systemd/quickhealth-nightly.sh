@@ -1,10 +1,11 @@
 #!/bin/sh
-# quickhealth nightly: measure the robot, fit the run, archive it, judge the trend.
+# quickhealth nightly: measure the robot, fit the run, archive it, report it, judge the trend.
 #
 # Settings come from the environment (systemd: EnvironmentFile=/etc/quickhealth/nightly.env;
 # cron: `. /etc/quickhealth/nightly.env` first), see nightly.env.example:
 #   QH_ROBOT QH_CELL QH_PLAN QH_ROBOT_IP QH_CALIBRATION QH_RUNS QH_ARCHIVE   (required)
-#   QH_DB (shared index URL)  QH_THRESHOLD_MM  QH_ROBOT_MODEL (ur5)  QH_BIN (quickhealth)
+#   QH_DB (shared index URL)  QH_THRESHOLD_MM (the accuracy spec, mm, instead of the cell's
+#   spec_mm)  QH_ROBOT_MODEL (ur5)  QH_BIN (quickhealth)
 #   QH_MODE: "run" (default: the full loop every night) or "check": first the quick check
 #   against the archive's baseline (recorded in the archive as a check); only when it says
 #   "changed" does the full loop run, fitted, archived and judged as above
@@ -14,7 +15,8 @@
 #   2 bad input (a setting, a file)   3 hardware or runtime failure (robot, cameras, motor,
 #                                       run lock held, archive or index unreachable)
 # Progress goes to stdout (the journal under systemd, the log file under cron) and to
-# RUN_DIR/run.log; the trend to RUN_DIR/trend.json and trend.png.
+# RUN_DIR/run.log; the report (its verdict, the one every door shows) to RUN_DIR/report.html,
+# report.pdf and report.json; the trend to RUN_DIR/trend.json and trend.png.
 set -u
 missing=""
 for v in QH_ROBOT QH_CELL QH_PLAN QH_ROBOT_IP QH_CALIBRATION QH_RUNS QH_ARCHIVE; do
@@ -54,4 +56,5 @@ echo "quickhealth-nightly: robot $QH_ROBOT, run folder $run_dir"
 if [ -n "${QH_THRESHOLD_MM:-}" ]; then
     set -- "$@" --threshold-mm "$QH_THRESHOLD_MM"
 fi
+"$QH" report "$run_dir" --robot "$QH_ROBOT" "$@" || exit $?
 exec "$QH" trend "$QH_ROBOT" "$@" --json "$run_dir/trend.json" --plot "$run_dir/trend.png"
