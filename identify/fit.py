@@ -93,6 +93,12 @@ F = NDArray[np.float64]
 
 #: Joint commands the base-and-tool registration of the health figures is computed over.
 REGISTRATION_SAMPLES = 1000
+#: The gauge's priority among the joints' constant motions, by motion (dx dy dz ex ey ez):
+#: the zero offset (εz) first, then the DH-like offset along the axis (δz), length (δx) and
+#: twist (εx), then the tilt about y and the shift along y: a constant another kept one
+#: duplicates is held, so a joint's zero offset is kept and the previous joint's tilt about y
+#: that carries the same rotation is held (docs/identify.md, "the gauge").
+CONSTANT_PRIORITY = (2, 5, 1, 3, 4, 0)
 
 
 # --------------------------------------------------------------------------- configuration
@@ -857,10 +863,16 @@ class _Problem:
         nc = spec.n_params
         nall = J.shape[1]
         setup_rank = np.where(idx[:, 0] == 0, 0, np.where(idx[:, 0] == spec.n_joints + 1, 1, 2))
-        key = np.zeros((nall, 4))
-        key[:nc] = np.stack([setup_rank, idx[:, 2], idx[:, 0], idx[:, 1]], 1)
-        key[nc:] = [3, 0, 0, 0]
-        order = np.lexsort((np.arange(nall), key[:, 3], key[:, 2], key[:, 1], key[:, 0]))
+        # joint constants motion by motion in CONSTANT_PRIORITY (every zero offset before any
+        # tilt that duplicates one), higher orders frame by frame
+        const = (setup_rank == 2) & (idx[:, 2] == 0)
+        mrank = np.asarray(CONSTANT_PRIORITY)[idx[:, 1]]
+        key = np.zeros((nall, 5))
+        key[:nc] = np.stack(
+            [setup_rank, idx[:, 2], np.where(const, mrank, 0), idx[:, 0], idx[:, 1]], 1
+        )
+        key[nc:] = [3, 0, 0, 0, 0]
+        order = np.lexsort((np.arange(nall), key[:, 4], key[:, 3], key[:, 2], key[:, 1], key[:, 0]))
         # on the Gram matrix, permuted and scaled: a permuted, normalised copy of the tall
         # J cost more than the product itself
         G = (J.T @ J)[np.ix_(order, order)]
