@@ -28,9 +28,18 @@ EXPOSURE_US = (20.0, 1_000_000.0)  # the range searched, µs
 
 def wants_search(station: Station) -> bool:
     """The cameras can set their exposure and the cell left it to the search."""
-    cfg = getattr(station.camera, "cfg", None)
-    has = getattr(station.camera, "set_exposure", None)
-    return cfg is not None and has is not None and any(c.exposure_us is None for c in cfg.cameras)
+    return bool(getattr(station.camera, "auto_exposure", False))
+
+
+def recorded_exposure(station: Station, captured: dict[int, Any]) -> dict[str, Any] | None:
+    """A resumed run keeps the exposure its first pose found: set on the cameras again and
+    returned (None: the run recorded no search)."""
+    for rec in captured.values():
+        found = (rec.camera or {}).get("exposure_search")
+        if found:
+            station.camera.set_exposure(float(found["exposure_us"]))
+            return dict(found)
+    return None
 
 
 def search_exposure(station: Station, T_pred: F) -> dict[str, Any]:
@@ -52,7 +61,7 @@ def search_exposure(station: Station, T_pred: F) -> dict[str, Any]:
         if clipped <= CLIP_FRACTION and abs(white - WHITE_AIM) <= TOLERANCE:
             break
         factor = 0.5 if clipped > CLIP_FRACTION else WHITE_AIM / max(white, 0.02)
-        exposure = float(np.clip(exposure * factor, *EXPOSURE_US))
+        exposure = round(float(np.clip(exposure * factor, *EXPOSURE_US)), 1)
         cam.set_exposure(exposure)
     else:  # no step was good enough: keep the best one seen
         good = [st for st in steps if st["white"] is not None and st["clipped"] <= CLIP_FRACTION]

@@ -49,6 +49,7 @@ from ..fsio import remove_stale_temp_files
 from ..hardware.robot import Leg
 from ..provenance import software_version
 from ..station import Station
+from .exposure import recorded_exposure, wants_search
 from .journal import JOURNAL, SCHEMA, JournalState, read_journal
 from .outputs import selfcheck_drift, write_calibration, write_outputs
 from .preflight import preflight
@@ -140,6 +141,9 @@ def run_plan(
         for folder in (run_dir, run_dir / "images"):
             remove_stale_temp_files(folder)
     r = PoseRunner(station, plan, run_dir, settings, progress, cancel)
+    if resume and wants_search(station):  # the exposure stays the one the run found
+        r.exposure_search = recorded_exposure(station, state.captured)
+        r.exposure_logged = r.exposure_search is not None
     # A capture counts once its images are on disk (they are written after the record).
     imaged = {
         i for i, rec in state.captured.items() if all((run_dir / p).is_file() for p in rec.images)

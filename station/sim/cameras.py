@@ -8,6 +8,8 @@ and fresh sensor noise is added to it on every capture.
 
 from __future__ import annotations
 
+import math
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -20,6 +22,8 @@ from ...vision.boards import TargetDescription
 from ...vision.camera import CameraModel, StereoRig
 from ...vision.render import Imaging, quantize, render_target
 from ..hardware.cameras import CameraIdentity, StereoFrame
+from ..hardware.cameras.config import CameraSpec
+from ..hardware.cameras.genicam import DeviceLost, GenICamDevice
 
 F = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -180,21 +184,75 @@ def _plate_mask(cam: CameraModel, T_cam_obj: F, d: TargetDescription) -> NDArray
 NOMINAL_EXPOSURE_US = 10_000.0
 
 
+#: Camera faults the simulated cell can give its emulated cameras (:meth:`EmulatorFeed.inject`).
+CAMERA_FAULTS = ("unplug", "timeout", "dropped_frame", "out_of_step", "reboot")
+
+
 class EmulatorFeed:
-    """Puts the rendered scene in front of a camera SDK's emulated cameras.
+    """Puts the rendered scene in front of a camera SDK's emulated cameras, and gives them the
+    faults real cameras have.
 
     The ``prepare`` hook of :class:`~quickhealth.station.hardware.cameras.genicam.TriggeredStereoCamera`:
     before each trigger it renders the pair (:class:`SimStereoCamera`, at the brightness of
     the emulated cameras' exposure) and hands each image to its emulated device
     (``device.show(image)``), which serves it on the trigger.  ``shown`` keeps the last pair
-    put in front of the cameras (a test compares the delivered frames with it)."""
+    put in front of the cameras (a test compares the delivered frames with it).
 
-    def __init__(self, renderer: SimStereoCamera) -> None:
+    :meth:`inject` queues a fault; it acts at the next capture, on the thread that owns the
+    cameras (never from outside it):
+
+    - ``dropped_frame``: the emulator fails the right camera's next buffer (lost packets);
+    - ``out_of_step``: an edge only the left camera sees (a frame nobody asked for);
+    - ``timeout``: the left camera's trigger never reaches it (a trigger cable off; the
+      emulator exposes on any software trigger, so the trigger is lost before it) until
+      :meth:`clear`;
+    - ``unplug``: the left camera is gone (closed, and not found when the backend looks for
+      it) until :meth:`clear`;
+    - ``reboot``: the left camera is gone for ``reboot_s`` and comes back by itself.
+
+    :meth:`open_device` wraps the backend's device opener so an unplugged camera is not found.
+    """
+
+    def __init__(self, renderer: SimStereoCamera, reboot_s: float = 1.0) -> None:
         self.renderer = renderer
         self.shown: tuple[np.ndarray, np.ndarray] | None = None
         self.n = 0
+        self.reboot_s = reboot_s
+        self._queued: list[str] = []
+        self._away_until = 0.0  # the left camera is not on the bus until then (inf: unplugged)
+        self._no_edge = False
+        self._lock = threading.Lock()
 
-    def __call__(self, devices: Sequence[object]) -> None:
+    def inject(self, kind: str) -> None:
+        if kind not in CAMERA_FAULTS:
+            raise ValueError(f"unknown camera fault {kind!r} (known: {', '.join(CAMERA_FAULTS)})")
+        with self._lock:
+            self._queued.append(kind)
+
+    def clear(self) -> None:
+        """The technician's fix: the camera plugged back, its trigger cable seated."""
+        with self._lock:
+            self._queued.clear()
+            self._away_until = 0.0
+            self._no_edge = False
+
+    def open_device(
+        self, opener: Callable[[CameraSpec], GenICamDevice]
+    ) -> Callable[[CameraSpec], GenICamDevice]:
+        def open_(spec: CameraSpec) -> GenICamDevice:
+            if spec.index == 0 and time.monotonic() < self._away_until:
+                raise DeviceLost(spec.side, f"{spec.side} camera not found: unplugged?")
+            return opener(spec)
+
+        return open_
+
+    def __call__(self, devices: Sequence[GenICamDevice]) -> None:
+        with self._lock:
+            queued, self._queued = self._queued, []
+        for kind in queued:  # what happens to the camera itself: before the scene is shown
+            self._act(kind, devices)
+        if self._no_edge:  # also on a camera opened (and configured) again since
+            devices[0].trigger = _lost_trigger  # type: ignore[method-assign]
         exposure = getattr(devices[0], "exposure_us", None)
         self.renderer.set_gain(1.0 if not exposure else float(exposure) / NOMINAL_EXPOSURE_US)
         frame = self.renderer.capture()
@@ -202,3 +260,38 @@ class EmulatorFeed:
             dev.show(img)  # type: ignore[attr-defined]
         self.shown = (frame.left, frame.right)
         self.n += 1
+        if "dropped_frame" in queued:  # after show (showing restarts the acquisition)
+            _force_failed_buffer(devices[1])
+        if "out_of_step" in queued:  # after show: a stray edge on the left camera alone
+            left = devices[0]
+            left.trigger()
+            t0 = time.monotonic()
+            while not left.pending() and time.monotonic() - t0 < 2.0:
+                time.sleep(0.002)
+
+    def _act(self, kind: str, devices: Sequence[GenICamDevice]) -> None:
+        if kind == "timeout":
+            self._no_edge = True
+        elif kind in ("unplug", "reboot"):
+            self._away_until = math.inf if kind == "unplug" else time.monotonic() + self.reboot_s
+            _pull(devices[0])
+
+
+def _lost_trigger() -> None:
+    """A trigger that never reaches the camera."""
+
+
+def _force_failed_buffer(dev: GenICamDevice) -> None:
+    cam = dev.cam  # type: ignore[attr-defined]
+    cam.ForceFailedBufferCount.Value = 1
+    cam.ForceFailedBuffer.Execute()
+
+
+def _pull(dev: GenICamDevice) -> None:
+    """The cable out: the device disappears under the driver (its next call fails)."""
+    cam = dev.cam  # type: ignore[attr-defined]
+    try:
+        cam.StopGrabbing()
+        cam.DestroyDevice()
+    except Exception:  # noqa: BLE001 - already gone
+        pass

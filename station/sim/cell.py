@@ -185,7 +185,8 @@ def emulated_cameras(cfg: CameraConfig, renderer: SimStereoCamera) -> StereoCame
         os.environ.setdefault("PYLON_CAMEMU", "2")  # before pylon lists its cameras
     if cfg.backend == "files":
         return open_cameras(cfg, renderer.rig)
-    return open_cameras(cfg, renderer.rig, prepare=EmulatorFeed(renderer))
+    feed = EmulatorFeed(renderer)
+    return open_cameras(cfg, renderer.rig, prepare=feed, wrap_open=feed.open_device)
 
 
 def sim_station(

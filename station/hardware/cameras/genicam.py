@@ -114,6 +114,9 @@ class TriggeredStereoCamera:
     prepare : callable, optional
         Called before each trigger (the simulated cell puts the scene in front of the
         emulated cameras here).
+    wrap_open : callable, optional
+        Wraps ``open_device`` (the simulated cell's emulated bus, where a camera can be
+        unplugged).
     """
 
     def __init__(
@@ -124,6 +127,10 @@ class TriggeredStereoCamera:
         *,
         fire: Callable[[], None] | None = None,
         prepare: Callable[[tuple[GenICamDevice, GenICamDevice]], None] | None = None,
+        wrap_open: Callable[
+            [Callable[[CameraSpec], GenICamDevice]], Callable[[CameraSpec], GenICamDevice]
+        ]
+        | None = None,
     ) -> None:
         if cfg.trigger is Trigger.LINE and fire is None:
             raise HardwareError(
@@ -131,7 +138,7 @@ class TriggeredStereoCamera:
             )
         self.rig = rig
         self.cfg = cfg
-        self._open = open_device
+        self._open = open_device if wrap_open is None else wrap_open(open_device)
         self._fire = fire
         self._prepare = prepare
         self._devices: list[GenICamDevice | None] = [None, None]
@@ -145,7 +152,8 @@ class TriggeredStereoCamera:
             self.close()
             raise
         self.identities = tuple(d.identity for d in self._devices if d is not None)
-        self.exposure_us: float | None = cfg.left.exposure_us
+        #: The cell leaves the exposure to the search at the first pose (:mod:`...run.exposure`).
+        self.auto_exposure = any(c.exposure_us is None for c in cfg.cameras)
 
     # -- devices ------------------------------------------------------------------------
     def _device(self, i: int) -> GenICamDevice:
@@ -176,15 +184,21 @@ class TriggeredStereoCamera:
     def devices(self) -> tuple[GenICamDevice, GenICamDevice]:
         return (self._device(0), self._device(1))
 
+    @property
+    def exposure_us(self) -> float | None:
+        """The left camera's exposure now (µs; None: it does not say)."""
+        return getattr(self.devices[0], "exposure_us", None)
+
     def set_exposure(self, exposure_us: float) -> None:
-        """Both cameras' exposure (µs), e.g. as the exposure search found it."""
+        """Both cameras' exposure (µs), e.g. as the exposure search found it; a camera opened
+        again (after a fault) gets it too."""
         for dev in self.devices:
             dev.set_exposure(exposure_us)
-        self.exposure_us = float(exposure_us)
+        e = float(exposure_us)
         self.cfg = replace(
             self.cfg,
-            left=replace(self.cfg.left, exposure_us=self.exposure_us),
-            right=replace(self.cfg.right, exposure_us=self.exposure_us),
+            left=replace(self.cfg.left, exposure_us=e),
+            right=replace(self.cfg.right, exposure_us=e),
         )
 
     # -- one pair -----------------------------------------------------------------------
@@ -203,6 +217,8 @@ class TriggeredStereoCamera:
                 self.stats["pairs"] += 1
                 return got
         last = problems[-1] if problems else "no pair"
+        for i in range(2):  # opened and configured again at the next capture (a camera that
+            self._drop_device(i)  # rebooted has lost its settings)
         raise HardwareError(
             f"cameras gave no good stereo pair in {self.cfg.attempts} attempts ({last}): "
             "check the cameras' cables, power and trigger wiring, then rerun with --resume"
@@ -212,20 +228,25 @@ class TriggeredStereoCamera:
         self, devs: tuple[GenICamDevice, GenICamDevice], problems: list[str]
     ) -> StereoFrame | None:
         cfg = self.cfg
-        if self._prepare is not None:
-            self._prepare(devs)
-        stray = self._drain(devs)
+        try:
+            if self._prepare is not None:
+                self._prepare(devs)
+            stray = self._drain(devs)
+            t_trig = time.monotonic()
+            if cfg.trigger is Trigger.SOFTWARE:
+                for d in devs:
+                    d.trigger()
+            elif cfg.trigger is Trigger.LINE:
+                assert self._fire is not None
+                self._fire()
+        except DeviceLost as exc:
+            problems.append(str(exc))
+            self._drop_device(0 if exc.camera == "left" else 1)
+            return None
         if stray:
             self.stats["out_of_step"] += 1
             problems.append(f"{stray} stray frame(s) before the trigger: pair out of step")
             self._resync()
-        t_trig = time.monotonic()
-        if cfg.trigger is Trigger.SOFTWARE:
-            for d in devs:
-                d.trigger()
-        elif cfg.trigger is Trigger.LINE:
-            assert self._fire is not None
-            self._fire()
         frames: list[RawFrame | None] = [None, None]
         for i, d in enumerate(devs):
             try:

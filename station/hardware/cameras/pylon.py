@@ -163,6 +163,12 @@ class PylonDevice:
         """Emulated camera only: serve the image file ``path`` from the next trigger on."""
         if not self.emulated:
             raise HardwareError("show_files is for pylon's emulated cameras only")
+        try:
+            self._show_files(path)
+        except self._genicam.GenericException as exc:
+            raise DeviceLost(self.side, f"{self.side} camera lost: {_one_line(exc)}") from None
+
+    def _show_files(self, path: Path) -> None:
         self.cam.StopGrabbing()
         import cv2  # reads the size of the file the emulator will serve
 
