@@ -22,7 +22,21 @@ pause               the program is paused from the dashboard; resume (the progra
 unknown_command     the controller stops the program with a compile error at the next
                     command (a command it does not know); resume
 kill9               ``kill -9`` of the run's process; ``--resume`` in a new process
+camera_unplug       the left camera is unplugged: the run stops in one line; plugged back in,
+                    resume
+camera_timeout      the left camera's trigger is lost (a missing edge): the run stops in one
+                    line; the trigger cable seated again, resume
+camera_dropped_frame  the right camera's next frame arrives incomplete: captured again, the
+                    run goes on
+camera_out_of_step  a stray edge on the left camera alone: the pair is out of step, captured
+                    again, the run goes on
+camera_reboot       the left camera reboots (away 1 s): opened and configured again, the run
+                    goes on (or resumes, when the reboot outlasts the captures' attempts)
 ==================  ========================================================================
+
+The cameras are pypylon's emulated cameras behind the station's pylon backend, serving the
+rendered scene (``run --sim --cameras pylon``).  Faults a camera recovers from by itself do
+not end the run: the next fault is injected into the same run.
 
 The runs execute in worker processes (this script with ``--worker``), so a crash of the
 interpreter is seen and counted, and ``kill -9`` is real.  A worker reports each fault on
@@ -66,8 +80,18 @@ IN_RUN = (
     "power_off",
     "pause",
     "unknown_command",
+    "camera_unplug",
+    "camera_timeout",
+    "camera_dropped_frame",
+    "camera_out_of_step",
+    "camera_reboot",
 )
 KINDS = (*IN_RUN, "kill9")
+CAMERA = tuple(k for k in IN_RUN if k.startswith("camera_"))
+ROBOT = tuple(k for k in IN_RUN if k not in CAMERA)
+CAMERA_SHARE = 0.35  # of the faults injected during runs (at least 50 of 200 in all)
+# Camera faults the triggered pair absorbs (a recapture) without stopping the run.
+ABSORBED = ("camera_dropped_frame", "camera_out_of_step", "camera_reboot")
 SPEED = 5.0  # the simulated arm moves this many times faster than life
 IMAGE_SCALE = 0.25
 # The controller's state machine a little faster than life, as the arm is.
@@ -93,7 +117,9 @@ def _plan_path(work: Path) -> Path:
 
 def _inject(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
     sim = cell.controller
-    if kind == "serial_garbage":
+    if kind.startswith("camera_"):
+        cell.camera._prepare.inject(kind.removeprefix("camera_"))  # the emulated cameras' feed
+    elif kind == "serial_garbage":
         cell.emulator.inject("garbage", count=3)
     elif kind == "abort":
         deadline = time.monotonic() + 5.0
@@ -130,6 +156,8 @@ def _until(host: str, line: str, want: str, timeout: float = 20.0) -> None:
 
 def _recover(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
     sim = cell.controller
+    if kind.startswith("camera_"):
+        cell.camera._prepare.clear()  # plugged back in, the trigger cable seated
     if kind == "serial_garbage":
         cell.emulator.clear()
         return
@@ -172,45 +200,72 @@ def _say(event: str, **what: object) -> None:
 
 
 def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
+    from dataclasses import replace
+
     from quickhealth.identify.errors import HardwareError
+    from quickhealth.station.hardware.cameras.config import CameraSpec, choose
     from quickhealth.station.planning import load_plan
     from quickhealth.station.run.journal import JOURNAL
     from quickhealth.station.run.loop import run_plan
     from quickhealth.station.sim.cell import sim_station
 
+    os.environ.setdefault("PYLON_CAMEMU", "2")
     rng = random.Random(seed)
     plan = load_plan(plan_path)
-    station, cell = sim_station(
-        "reference", image_scale=IMAGE_SCALE, speed_factor=SPEED, sim_options={"delays": DELAYS}
+    cameras = replace(  # pypylon's emulated pair, fixed exposure, as a cell file would set it
+        choose(None, "pylon"),
+        left=CameraSpec("", 0, 10_000.0),
+        right=CameraSpec("", 1, 10_000.0),
+        timeout_s=0.5,
     )
+    station, cell = sim_station(
+        "reference",
+        image_scale=IMAGE_SCALE,
+        speed_factor=SPEED,
+        sim_options={"delays": DELAYS},
+        cameras=cameras,
+    )
+    feed = cell.camera._prepare
     faults = 0
     try:
         while True:
-            kind = rng.choice(IN_RUN) if faults < n_faults else None
-            timer = None
-            fired = threading.Event()
-            if kind is not None:
+            fired: list[str] = []  # the faults of this call of run_plan, in order
+            done = threading.Event()
 
-                def fire(kind: str = kind, fired: threading.Event = fired) -> None:
-                    fired.set()
+            def inject_while_running(
+                fired: list[str] = fired,
+                done: threading.Event = done,
+                budget: int = n_faults - faults,
+            ) -> None:
+                # One fault at a random moment; a camera fault the pair absorbs is followed by
+                # another in the same run, any other ends this run's injections.
+                while len(fired) < budget:
+                    if done.wait(rng.uniform(0.3, 4.0)):
+                        return
+                    kind = rng.choice(CAMERA if rng.random() < CAMERA_SHARE else ROBOT)
+                    fired.append(kind)
                     _say("injected", kind=kind)
                     _inject(kind, cell, station)
+                    if kind not in ABSORBED:
+                        return
+                    while feed.queued and not done.wait(0.05):
+                        pass  # acted on at the next capture
 
-                timer = threading.Timer(rng.uniform(0.3, 4.0), fire)
-                timer.start()
+            injector = threading.Thread(target=inject_while_running, daemon=True)
+            injector.start()
             resume = (run_dir / JOURNAL).is_file()
             try:
                 stopped = run_plan(station, plan, run_dir, resume=resume).stopped
             except HardwareError as exc:  # the fault came during the pre-flight: nothing moved
                 stopped = str(exc)
-            if timer is not None:
-                timer.cancel()
-                timer.join()
-            if fired.is_set():
-                _recover(str(kind), cell, station)
+            done.set()
+            injector.join()
+            for kind in fired:
+                _recover(kind, cell, station)
                 faults += 1
                 _say("recovered", kind=kind, stopped=stopped)
-                print(f"fault {kind}: {stopped}", file=sys.stderr, flush=True)
+            if fired:
+                print(f"faults {', '.join(fired)}: {stopped}", file=sys.stderr, flush=True)
             elif stopped is not None:  # a stop nobody injected: not survived
                 raise HardwareError(f"the run stopped by itself: {stopped}")
             if stopped is None:  # the run is complete
@@ -364,7 +419,8 @@ def main() -> int:
     print("\nfault              injected  survived")
     for k in KINDS:
         print(f"  {k:<17}{injected[k]:>8}{survived[k]:>10}")
-    print(f"faults survived      {n_surv} of {n_inj}")
+    n_cam = sum(v for k, v in injected.items() if k.startswith("camera_"))
+    print(f"faults survived      {n_surv} of {n_inj} ({n_cam} camera faults)")
     print(f"poses lost           {lost}")
     print(f"poses measured twice {twice}")
     print(f"interpreter crashes  {crashes}")

@@ -6,6 +6,9 @@ that version.  This script needs only the standard library for ``bootstrap`` (it
 anything is installed); ``check`` uses ``packaging`` from the environment it checks.
 
     python tools/lockfile.py bootstrap uv     the lock's lines for uv (pip installs uv with them)
+    python tools/lockfile.py core             the lock without the pins built from source against
+                                              system libraries (FROM_SOURCE: make aravis installs
+                                              them), for uv pip sync
     .venv/bin/python tools/lockfile.py check  installed distributions == the lock, and the lock
                                               satisfies every requirement in pyproject.toml;
                                               prints each difference, exit 1 when there is one
@@ -22,6 +25,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 LOCK = ROOT / "requirements.lock"
 PROJECT = "quickhealth"
+
+#: Pins built from source against system libraries (PyGObject against libgirepository, pycairo
+#: against cairo): ``make aravis`` installs them from the lock where the system allows it; an
+#: environment without them is still the lock.
+FROM_SOURCE = ("pygobject", "pycairo")
 
 _PIN = re.compile(r"^([A-Za-z0-9][A-Za-z0-9._-]*)==(\S+?)\s*(?:;\s*(.*?))?\s*\\?$")
 
@@ -71,6 +79,19 @@ def bootstrap(names: list[str], path: Path = LOCK) -> str:
     return "\n".join(p.text for p in found) + "\n"
 
 
+def core(path: Path = LOCK) -> str:
+    """The lock as a requirements file, without the :data:`FROM_SOURCE` pins."""
+    text = path.read_text(encoding="utf-8").splitlines()
+    skip = {p.text.splitlines()[0] for p in read_lock(path) if p.name in FROM_SOURCE}
+    out, drop = [], False
+    for line in text:
+        if line and not line.startswith((" ", "\t", "#")):
+            drop = line in skip
+        if not drop:
+            out.append(line)
+    return "\n".join(out) + "\n"
+
+
 def applicable(pins: list[Pin]) -> dict[str, Pin]:
     """The pins whose marker holds in this interpreter, by name."""
     from packaging.markers import Marker
@@ -113,6 +134,8 @@ def differences(path: Path = LOCK) -> list[str]:
     for name in sorted(set(pins) | set(have)):
         want = pins[name].version if name in pins else None
         got = have.get(name)
+        if got is None and name in FROM_SOURCE:
+            continue  # built where the system allows (make aravis): absent is the lock too
         if want != got:
             out.append(
                 f"{name}: locked {want or 'absent'}, installed {got or 'absent'}"
@@ -134,6 +157,9 @@ def main(argv: list[str]) -> int:
     """Command line (see the module docstring)."""
     if len(argv) >= 2 and argv[0] == "bootstrap":
         sys.stdout.write(bootstrap(argv[1:]))
+        return 0
+    if argv == ["core"]:
+        sys.stdout.write(core())
         return 0
     if argv == ["check"]:
         diff = differences()

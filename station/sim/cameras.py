@@ -229,6 +229,12 @@ class EmulatorFeed:
         with self._lock:
             self._queued.append(kind)
 
+    @property
+    def queued(self) -> bool:
+        """A fault waits for the next capture."""
+        with self._lock:
+            return bool(self._queued)
+
     def clear(self) -> None:
         """The technician's fix: the camera plugged back, its trigger cable seated."""
         with self._lock:

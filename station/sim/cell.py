@@ -35,7 +35,7 @@ from ...identify.errors import InputError
 from ...identify.transforms import inv_T
 from ...vision.render import Imaging
 from ..hardware.cameras import StereoCamera
-from ..hardware.cameras.config import CameraConfig
+from ..hardware.cameras.config import CameraConfig, CameraSpec
 from ..hardware.cameras.registry import open_cameras
 from ..hardware.motor import PanMotor, SerialPanMotor
 from ..hardware.robot import Robot, UrRobot
@@ -178,7 +178,9 @@ def emulated_cameras(cfg: CameraConfig, renderer: SimStereoCamera) -> StereoCame
     """The simulated cell seen through a real camera backend: the renderer's pair is put in
     front of the SDK's own emulated cameras (:class:`~.cameras.EmulatorFeed`), which the
     backend triggers and checks as real ones (``pylon``: pypylon's camera emulation;
-    ``aravis``: Aravis' fake GigE Vision cameras), or a recorded folder (``files``)."""
+    ``aravis``: Aravis' in-process fake cameras, which speak its GenICam protocol without a
+    network), or a recorded folder (``files``).  The camera faults of
+    :class:`~.cameras.EmulatorFeed` act on pylon's emulated cameras."""
     if cfg.backend == "opencv":
         raise InputError("--sim cannot see through webcams: choose pylon, aravis or files")
     if cfg.backend == "pylon":
@@ -186,6 +188,19 @@ def emulated_cameras(cfg: CameraConfig, renderer: SimStereoCamera) -> StereoCame
     if cfg.backend == "files":
         return open_cameras(cfg, renderer.rig)
     feed = EmulatorFeed(renderer)
+    if cfg.backend == "aravis":  # Aravis' in-process fake cameras (no network)
+        from ..hardware.cameras.aravis import AravisDevice, FakeScreen
+
+        screens = (FakeScreen("QH-SIM-L"), FakeScreen("QH-SIM-R"))
+
+        def fake(spec: CameraSpec) -> AravisDevice:
+            dev = AravisDevice(spec, camera=screens[spec.index].camera())
+            dev.screen = screens[spec.index]
+            return dev
+
+        return open_cameras(
+            cfg, renderer.rig, prepare=feed, wrap_open=lambda _: feed.open_device(fake)
+        )
     return open_cameras(cfg, renderer.rig, prepare=feed, wrap_open=feed.open_device)
 
 

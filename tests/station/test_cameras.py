@@ -203,3 +203,38 @@ def test_a_recorded_folder_plays_its_pairs_in_order(tmp_path: Path, world) -> No
         )
     with pytest.raises(HardwareError, match="no more image pairs"):
         cam.capture()
+
+
+@pytest.fixture
+def aravis() -> None:
+    """Aravis 0.8 and PyGObject (``make aravis``): required under make test, CI or root."""
+    try:
+        import gi
+
+        gi.require_version("Aravis", "0.8")
+        from gi.repository import Aravis  # noqa: F401
+    except (ImportError, ValueError) as exc:
+        from qh_required import unavailable
+
+        unavailable(f"Aravis 0.8 with PyGObject is not installed ({exc}): make aravis")
+
+
+def test_aravis_fake_cameras_serve_the_rendered_pair_bit_for_bit(world, aravis) -> None:  # type: ignore[no-untyped-def]
+    """Through Aravis' GenICam stack (its in-process fake cameras: no network needed)."""
+    r = renderer(world, 8)
+    cam = emulated_cameras(choose(None, "aravis"), r)
+    try:
+        assert [(c.vendor, c.model) for c in cam.identities] == [("Aravis", "Fake")] * 2
+        assert [c.serial for c in cam.identities] == ["QH-SIM-L", "QH-SIM-R"]
+        for _ in range(2):
+            frame = cam.capture()
+            assert np.array_equal(frame.left, cam._prepare.shown[0])
+            assert np.array_equal(frame.right, cam._prepare.shown[1])
+        m = measure_stereo(r.rig, world.target, frame.left, frame.right)
+        m_ren = measure_stereo(r.rig, world.target, *cam._prepare.shown)
+        assert isinstance(m, PoseMeasurement) and isinstance(m_ren, PoseMeasurement)
+        assert np.max(np.abs(m.position - m_ren.position)) <= 1e-9
+        with pytest.raises(HardwareError, match="has no Mono12"):
+            emulated_cameras(replace(choose(None, "aravis"), pixel_format="Mono12"), r)
+    finally:
+        cam.close()

@@ -72,9 +72,13 @@ class GenICamDevice(Protocol):
     """One GenICam camera as :class:`TriggeredStereoCamera` needs it (an SDK adapter)."""
 
     identity: CameraIdentity
+    #: Its frame counter counts exposures and its timestamps mark them (a real camera's do;
+    #: Aravis' fake cameras count clock ticks): the pair check uses them only then.
+    counts_exposures: bool
 
-    def configure(self, spec: CameraSpec, cfg: CameraConfig) -> None:
-        """Pixel format, exposure, gain, trigger mode and source."""
+    def configure(self, spec: CameraSpec, cfg: CameraConfig, size: tuple[int, int]) -> None:
+        """Image size (the calibration's, px), pixel format, exposure, gain, trigger mode and
+        source."""
         ...
 
     def start(self) -> None:
@@ -162,7 +166,7 @@ class TriggeredStereoCamera:
             spec = self.cfg.cameras[i]
             dev = self._open(spec)
             try:
-                dev.configure(spec, self.cfg)
+                dev.configure(spec, self.cfg, self.rig.cameras[i].image_size)
                 dev.start()
             except BaseException:
                 dev.close()
@@ -232,6 +236,8 @@ class TriggeredStereoCamera:
             if self._prepare is not None:
                 self._prepare(devs)
             stray = self._drain(devs)
+            if any(getattr(d, "free_running", False) for d in devs):
+                stray = 0  # frames come by themselves: a waiting one is no evidence
             t_trig = time.monotonic()
             if cfg.trigger is Trigger.SOFTWARE:
                 for d in devs:
@@ -304,9 +310,11 @@ class TriggeredStereoCamera:
     def _out_of_step(
         self, devs: tuple[GenICamDevice, GenICamDevice], fl: RawFrame, fr: RawFrame
     ) -> str:
+        if not all(getattr(d, "counts_exposures", True) for d in devs):
+            return self._extra_frame(devs)
         for side, last, f in (("left", self._last_id[0], fl), ("right", self._last_id[1], fr)):
             fid = f.info.frame_id
-            if last is not None and fid is not None and fid != last + 1:
+            if last is not None and fid is not None and not _next_id(last, fid):
                 return (
                     f"{side} camera frame {fid} after {last}: a frame was skipped, pair out of step"
                 )
@@ -322,6 +330,11 @@ class TriggeredStereoCamera:
                     "between two pairs: pair out of step"
                 )
             self._offset_ns = off
+        return self._extra_frame(devs)
+
+    def _extra_frame(self, devs: tuple[GenICamDevice, GenICamDevice]) -> str:
+        if any(getattr(d, "free_running", False) for d in devs):
+            return ""
         if any(d.pending() for d in devs):
             self._drain(devs)
             return "a camera delivered an extra frame: pair out of step"
@@ -336,6 +349,11 @@ class TriggeredStereoCamera:
                 except Exception:  # noqa: BLE001 - closing anyway
                     pass
             self._drop_device(i)
+
+
+def _next_id(last: int, fid: int) -> bool:
+    """``fid`` follows ``last`` (GigE Vision's 16-bit block ids wrap to 1, skipping 0)."""
+    return fid == last + 1 or (last == 0xFFFF and fid in (0, 1))
 
 
 def to_host_bits(image: np.ndarray, bits: int) -> Image:

@@ -95,6 +95,7 @@ class PylonDevice:
             firmware=self._read("DeviceFirmwareVersion"),
             user_id=self._read("DeviceUserID"),
         )
+        self.counts_exposures = True
         self._bits = 8
         self._exposure: float | None = None
         self._show_dir: Path | None = None
@@ -121,9 +122,14 @@ class PylonDevice:
         node.SetValue(value)
         return True
 
-    def configure(self, spec: CameraSpec, cfg: CameraConfig) -> None:
+    def configure(self, spec: CameraSpec, cfg: CameraConfig, size: tuple[int, int]) -> None:
         g = self._genicam
         try:
+            if (self.cam.Width.Value, self.cam.Height.Value) != tuple(size):
+                self._set("OffsetX", 0)
+                self._set("OffsetY", 0)
+                self._set("Width", int(size[0]))
+                self._set("Height", int(size[1]))
             self._set("PixelFormat", cfg.pixel_format)
             self._bits = cfg.bits
             for sel in ("FrameStart",):
