@@ -123,9 +123,9 @@ def test_a_12_bit_run_through_emulated_pylon_cameras(world, plan, tmp_path) -> N
     T = world.twin.true_pose(m.q)
     err = np.linalg.norm(m.pos - T[:, :3, 3], axis=1)
     assert np.all(err < 5 * np.linalg.norm(m.sigma_pos, axis=1) + 2e-5)
-    # measuring pose k overlapped the move to pose k+1
+    # the loop did not wait for vision: pose k was measured while the arm went on to k+1
     for k in (1, 2):
-        assert st.measured[k].timing["start"] < st.captured[k + 1].timing["start"] + 0.05
+        assert st.measured[k].timing["start"] < st.captured[k + 1].time_s
 
 
 @pytest.mark.parametrize("fault", ["unplug", "timeout"])

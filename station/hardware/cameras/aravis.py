@@ -15,8 +15,10 @@ of an in-process fake camera (its fill-pattern callback), for the simulated cell
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import time
+import weakref
 from typing import Any
 
 import numpy as np
@@ -245,6 +247,8 @@ class AravisDevice:
         self.screen.show(image)
 
     def close(self) -> None:
+        if self.screen is not None:
+            self.screen.detach()
         self.stop()
         self.cam = None
 
@@ -274,6 +278,16 @@ _FILL = ctypes.CFUNCTYPE(
 #: ArvBuffer's private part (Aravis 0.8): ``received_size`` (size_t) at this offset; the fill
 #: callback must set it, as Aravis' own test pattern does.  Checked on every fake camera made.
 _PRIV_OFFSET, _RECEIVED_OFFSET = 24, 48
+
+
+_LIVE: weakref.WeakSet[FakeScreen] = weakref.WeakSet()
+
+
+@atexit.register
+def _detach_all() -> None:
+    """Before the interpreter goes: no fake camera calls back into it."""
+    for screen in list(_LIVE):
+        screen.detach()
 
 
 def _lib() -> ctypes.CDLL:
@@ -312,6 +326,14 @@ class FakeScreen:
         self.image: np.ndarray | None = None
         self._cb = _FILL(self._fill)
         self._lib.arv_fake_camera_set_fill_pattern(_address(self.fake), self._cb, None)
+        _LIVE.add(self)
+
+    def detach(self) -> None:
+        """Aravis' own pattern again: no call into Python from its stream thread any more
+        (a fake camera stopped or collected while our callback waits for the interpreter
+        would deadlock or abort)."""
+        self._lib.arv_fake_camera_set_fill_pattern(_address(self.fake), _FILL(), None)
+        _LIVE.discard(self)
 
     def camera(self) -> Any:
         return _aravis().Camera.new_with_device(self.device)

@@ -282,10 +282,16 @@ class PylonDevice:
         return None
 
     def close(self) -> None:
+        """Stop, close and release the device (a camera opened again later gets a fresh
+        one: two InstantCameras on one device must never coexist)."""
         try:
             self.stop()
             self.cam.Close()
         except Exception:  # noqa: BLE001 - closing a lost camera
+            pass
+        try:
+            self.cam.DestroyDevice()
+        except Exception:  # noqa: BLE001 - already gone (unplugged)
             pass
         if self._show_dir is not None:
             shutil.rmtree(self._show_dir, ignore_errors=True)
