@@ -122,6 +122,13 @@ def add_station_arguments(
         default=None,
         help="--sim only: change the simulated robot's true errors, e.g. j2.ex.c0=5e-4 (m or rad)",
     )
+    p.add_argument(
+        "--sim-pick-place-kg",
+        type=options.PAYLOAD_KG,
+        default=None,
+        help="--sim only: the simulated arm picks and places parts of up to this mass between "
+        "poses (a payload that changes, in the joint torques)",
+    )
     return src
 
 
@@ -144,6 +151,8 @@ def check_station_arguments(args: argparse.Namespace) -> None:
         parse_cameras_option(args.cameras)  # a bad --cameras is one line before anything starts
     if args.sim_degrade is not None and not args.sim:
         raise InputError("--sim-degrade changes the simulated robot: it needs --sim")
+    if args.sim_pick_place_kg is not None and not args.sim:
+        raise InputError("--sim-pick-place-kg changes the simulated robot: it needs --sim")
 
 
 def hardware_config(args: argparse.Namespace, robot_name: str | None) -> HardwareConfig:
@@ -174,6 +183,9 @@ def open_station(args: argparse.Namespace, robot_name: str | None) -> Station:
             speed_factor=args.sim_speed_factor,
             degrade=parse_degradation(args.sim_degrade),
             cameras=for_simulation(config.cell.cameras, args.cameras),
+            sim_options={"pick_place_kg": args.sim_pick_place_kg}
+            if args.sim_pick_place_kg
+            else None,
         )
         if robot_name:
             station.robot_name = robot_name

@@ -77,7 +77,11 @@ class Captured:
     (8 to 16: the stored images' depth), ``trigger``, ``left`` / ``right`` (``frame_id``,
     ``timestamp_ns``, ``exposure_us``, ``gain_db``, ``temperature_c`` where the camera says),
     ``exposure`` (the markers' white level as a fraction of full scale and ``ok``,
-    ``saturated`` or ``dark``)."""
+    ``saturated`` or ``dark``).
+
+    ``joint_temp`` (°C) and ``joint_torque`` (N·m), one per joint (absent in older journals
+    and where the controller reports none): what the controller said about each joint at the
+    pose, its temperature and the torque its drive exerted (CSV v1 ``temp_jK``, ``tau_jK``)."""
 
     index: int
     name: str
@@ -91,6 +95,8 @@ class Captured:
     search: tuple[Box, Box] | None = None
     timing: dict[str, float] | None = None
     camera: dict[str, Any] | None = None
+    joint_temp: F | None = None
+    joint_torque: F | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -176,6 +182,8 @@ def encode(rec: Record) -> dict[str, Any]:
             **({} if rec.search is None else {"search_px": [list(b) for b in rec.search]}),
             **({} if rec.timing is None else {"timing_s": dict(rec.timing)}),
             **({} if rec.camera is None else {"camera": dict(rec.camera)}),
+            **({} if rec.joint_temp is None else {"joint_temp_c": _plain(rec.joint_temp)}),
+            **({} if rec.joint_torque is None else {"joint_torque_nm": _plain(rec.joint_torque)}),
         }
     if isinstance(rec, Measured):
         out = {
@@ -208,6 +216,20 @@ def encode(rec: Record) -> dict[str, Any]:
         "reason": rec.reason,
         "time_s": rec.time_s,
     }
+
+
+def _plain(v: F) -> list[float]:
+    return np.asarray(v, float).tolist()
+
+
+def _joint_values(v: object, what: str) -> F | None:
+    """A capture's per-joint values (finite numbers), or None when not recorded."""
+    if v is None:
+        return None
+    a = np.asarray(v, dtype=float)
+    if a.ndim != 1 or not np.all(np.isfinite(a)):
+        raise ValueError(f"{what} must be one finite number per joint")
+    return a
 
 
 def _m(v: object) -> F | None:
@@ -291,6 +313,8 @@ def decode(obj: Mapping[str, Any]) -> Record:
             search=_boxes(obj.get("search_px")),
             timing=_timing(obj.get("timing_s")),
             camera=_camera(obj.get("camera")),
+            joint_temp=_joint_values(obj.get("joint_temp_c"), "joint_temp_c"),
+            joint_torque=_joint_values(obj.get("joint_torque_nm"), "joint_torque_nm"),
         )
     if kind is RecordKind.MEASURED:
         if not obj["ok"]:

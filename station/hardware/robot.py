@@ -1,6 +1,7 @@
 """The robot behind a small interface: a reader that cannot move the arm, and a commander.
 
-- :class:`RobotReader` — joints, TCP pose, controller time, robot mode and safety status.
+- :class:`RobotReader` — joints, TCP pose, controller time, robot mode and safety status, each
+  joint's temperature and measured torque (:class:`JointSensors`).
 - :class:`Robot` — a reader that also moves (joint or linear leg to a joint target) and stops.
 - :class:`UrRobot` — the adapter on ur-rtde (``rtde_receive`` + ``rtde_control``), run in a
   child process (:mod:`.ur_client`) that alone calls into the C++ client.  Moves are sent
@@ -35,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ...identify.errors import HardwareError, InputError
+from ...identify.jointload import torque_constant
 from ...identify.robot import RobotModel, ur5
 from ...identify.transforms import exp_so3, make_T
 from .legs import Leg
@@ -47,6 +49,9 @@ MAX_JOINT_SPEED = 3.14  # rad/s, UR5 joint limit
 MAX_JOINT_ACCEL = 40.0  # rad/s²
 MAX_TOOL_SPEED = 3.0  # m/s
 MAX_TOOL_ACCEL = 150.0  # m/s²
+
+#: Where a UR's joint torques come from (RTDE ``actual_current`` × the torque constant).
+TORQUE_FROM_CURRENT = "RTDE actual_current × the joints' torque constants (an estimate)"
 
 
 def _enum(cls: type[Enum], v: int) -> Enum:
@@ -108,6 +113,21 @@ class JointSample:
     q: F
 
 
+@dataclass(frozen=True)
+class JointSensors:
+    """What the controller reports about each joint now.
+
+    ``temperature`` (n,) °C, or None when the controller reports none; ``torque`` (n,) N·m:
+    what each joint's drive exerts (at rest it holds the arm and its payload against gravity),
+    or None; ``torque_source`` says where the torque comes from (e.g. the motor currents
+    times the joints' torque constants).
+    """
+
+    temperature: F | None = None
+    torque: F | None = None
+    torque_source: str = ""
+
+
 @runtime_checkable
 class RobotReader(Protocol):
     """Read-only view of a robot: cannot move the arm."""
@@ -128,6 +148,10 @@ class RobotReader(Protocol):
 
     def status(self) -> RobotStatus:
         """Robot mode, safety mode, program state."""
+        ...
+
+    def joint_sensors(self) -> JointSensors:
+        """Each joint's temperature and measured torque now (what the controller reports)."""
         ...
 
 
@@ -205,6 +229,9 @@ class ReadOnly:
 
     def status(self) -> RobotStatus:
         return self._robot.status()
+
+    def joint_sensors(self) -> JointSensors:
+        return self._robot.joint_sensors()
 
 
 def _pose_to_T(p: ArrayLike) -> F:
@@ -501,6 +528,21 @@ class UrRobot:
             _enum(RobotMode, s["robot_mode"]),  # type: ignore[arg-type]
             _enum(SafetyMode, s["safety_mode"]),  # type: ignore[arg-type]
             int(s["runtime_state"]) == 2,
+        )
+
+    def joint_sensors(self) -> JointSensors:
+        """RTDE ``joint_temperatures`` and ``actual_current`` times each joint's torque
+        constant (:func:`~quickhealth.identify.jointload.torque_constant`: ur-rtde 1.6 reads
+        no measured torque; an error in a joint's constant only rescales a compliance fitted
+        on its torques)."""
+        s = self._fresh()
+        temps = np.asarray(s.get("joint_temperatures", ()), dtype=float)
+        current = np.asarray(s.get("actual_current", ()), dtype=float)
+        nj = self.model.n_joints
+        return JointSensors(
+            temps if temps.shape == (nj,) else None,
+            current * torque_constant(nj) if current.shape == (nj,) else None,
+            TORQUE_FROM_CURRENT,
         )
 
     def reader(self) -> RobotReader:

@@ -74,6 +74,8 @@ class Snapshot:
     robot_mode: int = -1
     safety_mode: int = -1
     runtime_state: int = -1
+    joint_temperatures: tuple[float, ...] = ()  # °C, RTDE joint_temperatures
+    actual_current: tuple[float, ...] = ()  # A, RTDE actual_current (each joint's motor)
     busy: str = ""  # the C++ call the commander is inside, "" when none
     busy_for: float = 0.0  # s it has been inside it
 
@@ -181,6 +183,8 @@ class Client:
                     robot_mode=int(rr.getRobotMode()),
                     safety_mode=int(rr.getSafetyMode()),
                     runtime_state=int(rr.getRuntimeState()),
+                    joint_temperatures=tuple(rr.getJointTemperatures()),
+                    actual_current=tuple(rr.getActualCurrent()),
                     busy=busy,
                     busy_for=now - since if busy else 0.0,
                 )

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ...identify.measurements import Measurements
 from ...identify.transforms import log_so3
@@ -66,12 +67,23 @@ def journal_measurements(
         return None
     cap = [state.captured[i] for i in idx]
     mea = [state.measured[i] for i in idx]
+
+    def per_joint(
+        attr: str,
+    ) -> NDArray[np.float64] | None:  # every pose's, or none (a resumed older journal)
+        rows = [getattr(c, attr) for c in cap]
+        if any(r is None or np.shape(r) != np.shape(cap[0].q) for r in rows):
+            return None
+        return np.array(rows, dtype=float)
+
     return Measurements(
         q=np.array([c.q for c in cap]),
         pos=np.array([m.position for m in mea]),
         rpy=np.array([m.rpy for m in mea]),
         time=np.array([c.time_s for c in cap]),
         pan=np.array([c.pan for c in cap]),
+        joint_temp=per_joint("joint_temp"),
+        joint_torque=per_joint("joint_torque"),
         sigma_pos=np.array([m.sigma_pos for m in mea]),
         sigma_rpy=np.array([m.sigma_rpy for m in mea]),
         pose_id=tuple(c.name for c in cap),

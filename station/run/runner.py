@@ -156,6 +156,7 @@ class PoseRunner:
             self.emit(ProgressKind.POSE, pose.index, pose.name, "failed", reason)
             return
         td = time.monotonic()
+        joints = s.robot.reader().joint_sensors()  # temperatures and torques at the pose
         images = [f"images/{pose.index:04d}_{pose.name}_{side}.png" for side in "LR"]
         t_capture = time.time() - (time.monotonic() - frame.time) - self.t_epoch
         search = search_boxes(s.camera.rig, T_pred, s.target)
@@ -168,7 +169,7 @@ class PoseRunner:
         self.append(Captured(
             pose.index, pose.name, q_read, pan, t_capture, tuple(images),
             q_cmd=pose.q, attempts=attempt, markers=counts, search=search, timing=timing,
-            camera=camera,
+            camera=camera, joint_temp=joints.temperature, joint_torque=joints.torque,
         ))  # fmt: skip
         te = time.monotonic()
         self.tick("journal_s", te - td)

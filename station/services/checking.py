@@ -261,7 +261,10 @@ class CheckSequence:
         ids = tuple(p.name for p in poses)
         if bm is not None and self.model.paired:
             sub = bm.subset(np.array([self.model.pairs[p.name] for p in poses]))
-            return replace(sub, q=q, pose_id=ids, time=None, temp=None, excluded=None)
+            return replace(
+                sub, q=q, pose_id=ids, time=None, temp=None, excluded=None,
+                joint_temp=None, joint_torque=None,
+            )  # fmt: skip
         T = self.base.fitted.predict(q)
         return Measurements(q=q, pos=T[:, :3, 3], rpy=R_to_rpy(T[:, :3, :3]), pose_id=ids)
 

@@ -427,7 +427,8 @@ def ik_ur(robot: RobotModel, T: F) -> tuple[F, NDArray[np.bool_]]:
     return _ik_ur(robot, T)
 
 
-Truth = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (q, approach) -> T_instr_target
+# (q, approach, joint_temp=, joint_torque=) -> T_instr_target: the arm's state at the pose
+Truth = Callable[..., np.ndarray]
 
 
 class Arm:

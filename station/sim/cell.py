@@ -320,7 +320,9 @@ def inprocess_sim_station(
 
     def scene() -> list[tuple[np.ndarray, Any]]:
         pan = math.radians(emu.position_deg())
-        return [(world.T_instr_plate(robot.joints(), pan), world.target)]
+        js = robot.joint_sensors()  # a hidden warm-up or torque effect acts at the arm's state
+        T = world.T_instr_plate(robot.joints(), pan, None, js.temperature, js.torque)
+        return [(T, world.target)]
 
     camera = SimStereoCamera(
         scaled_rig(world.rig, image_scale), scene, static=[(world.T_instr_board, world.board)]

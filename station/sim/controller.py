@@ -54,6 +54,9 @@ from .kinematics import JointLimits, check_joint_move, check_path
 from .states import Delays, PowerStates
 from .wire import CB3_VERSION, CONTROL_PORT, HOST, max_stream_hz
 
+#: Where a picked part sits on the flange (m, flange frame): in the gripper beyond the target.
+PART_COM = (0.0, 0.0, 0.12)
+
 # Register commands of the rtde_control script (rtde.h).
 CMD_NONE = 0
 CMD_MOVEJ = 1
@@ -234,6 +237,11 @@ class Controller:
         self.dyn_true = ArmDynamics(dyn_robot, payload_kg, np.asarray(payload_com, float))
         self.dyn_model = ArmDynamics(dyn_robot, 0.0)
         self.thermal = Thermal.start(arm.robot.n_joints)
+        # pick and place (pick_and_place): at each move the gripper takes up or puts down a
+        # part of up to this mass (kg) on top of the true payload; 0: the payload stays
+        self.part_max_kg = 0.0
+        self._part_rng = np.random.default_rng(23)
+        self.part_kg = 0.0
         self._derived_lock = threading.Lock()
         self._rng = np.random.default_rng(11)
         self.runtime_state = RuntimeState.STOPPED
@@ -398,7 +406,15 @@ class Controller:
             else:  # brakes hold it (or it is off): no current
                 tau_true = tau_model = noise = np.zeros(6)
             current = tau_true / TORQUE_CONSTANT + noise
-            temps = self.thermal.advance(s["timestamp"], current, tau_true, qd, powered)
+            # the joints warm on the arm's own clock: N× faster than life at the speed
+            # factor N, with the loads the motion has at life speed
+            k = self.speed_factor
+            tau_life = tau_true
+            if running and k != 1.0 and moving:
+                tau_life = self.dyn_true.torques(qa, qd / k, qdd / (k * k))
+            temps = self.thermal.advance(
+                s["timestamp"], tau_life / TORQUE_CONSTANT, tau_life, qd / k, powered, k
+            )
             qd_actual = qd + (self._rng.normal(0.0, 1e-4, 6) if moving else 0.0)
         s.update(
             target_q=q_target,
@@ -518,6 +534,7 @@ class Controller:
         if cmd in MOVES:
             self.n_moves += 1
             self._fire_move_faults()
+            self.next_part()
             if self.safety_mode != SafetyMode.NORMAL or self.runtime_state != RuntimeState.PLAYING:
                 return
             if not self.power.can_move:  # a program cannot move an arm that is not running
@@ -640,6 +657,33 @@ class Controller:
     def is_steady(self, t: float) -> bool:
         """Not moving, and the ringing after the last stop has died down."""
         return not self.arm.moving(t) and t - self.arm.stop_time > 8 * self.arm.RING_TAU
+
+    def pick_and_place(self, max_kg: float) -> None:
+        """From the next move on, the real arm carries a part of up to ``max_kg`` or none,
+        changed at the start of every move (seeded): what the joint torques show and a
+        compliance bends under, which the controller's model is never told."""
+        self.part_max_kg = max(float(max_kg), 0.0)
+
+    def next_part(self) -> None:
+        """At the start of a move: take up or put down a part (:meth:`pick_and_place`)."""
+        if self.part_max_kg <= 0.0:
+            return
+        rng = self._part_rng
+        part = 0.0 if rng.random() < 0.5 else float(rng.uniform(0.2, 1.0)) * self.part_max_kg
+        mass, com = self.true_payload
+        total = mass + part
+        at = (np.asarray(com) * mass + np.array(PART_COM) * part) / max(total, 1e-12)
+        dyn = ArmDynamics(self.arm.ik_model or self.arm.robot, total, at)
+        with self._derived_lock:
+            self.dyn_true, self.part_kg = dyn, part
+
+    def joint_conditions(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """What the real arm's joints are at, now, at rest at ``q``: their temperatures (°C)
+        and the torques their drives exert (N·m, the true payload held against gravity)."""
+        with self._derived_lock:
+            temps = self.thermal.temps
+            tau = self.dyn_true.torques(np.asarray(q, float), np.zeros(len(q)), np.zeros(len(q)))
+        return {"joint_temp": temps, "joint_torque": tau}
 
     def set_payload(self, mass: float, cog: Any) -> None:
         """The payload the controller's model carries (``set_payload``)."""

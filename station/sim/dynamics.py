@@ -23,7 +23,11 @@ What is reported, as on a real controller:
   friction, etc.)": the real torque minus the controller's model, so a payload the
   controller was not told about shows here.
 - ``joint_temperatures`` (°C): a first-order thermal model per joint, heated by the
-  winding's I²R and the mechanical work |τ q̇|, cooled towards the ambient temperature.
+  winding's I²R and the mechanical work |τ q̇|, cooled towards the ambient temperature with
+  each joint's time constant (:mod:`quickhealth.identify.jointload`, the digital twin's
+  model too: 1500 s for base and shoulder, 1200 s for the elbow, 700 s for the wrists).  An
+  arm run N× faster than life (the speed factor) warms as in N× the time, with the loads of
+  the motion at life speed.
 """
 
 from __future__ import annotations
@@ -34,21 +38,17 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ...identify.jointload import TORQUE_CONSTANT, JointThermal, joint_power
 from ...identify.robot import GRAVITY, RobotModel, with_payload
+
+__all__ = ["TORQUE_CONSTANT", "ArmDynamics", "Thermal"]
 
 F = NDArray[np.float64]
 
 GYRATION_M = 0.04  # m, radius of gyration of a 1 kg link; scales with mass^(1/3)
-# Torque constant at the joint output (N·m per A of motor current): motor constant times
-# gear ratio (101), for the three large and three small UR joint sizes.  An estimate.
-TORQUE_CONSTANT = np.array([13.0, 13.0, 13.0, 9.3, 9.3, 9.3])
 FRICTION_COULOMB = np.array([2.5, 2.5, 2.0, 0.8, 0.8, 0.8])  # N·m
 FRICTION_VISCOUS = np.array([3.0, 3.0, 2.0, 0.8, 0.8, 0.8])  # N·m·s/rad
-WINDING_OHM = 0.25  # Ω, per joint
-THERMAL_RESISTANCE = 1.6  # K/W, joint to ambient
-THERMAL_TAU_S = 900.0  # s, time constant of a joint's temperature
 AMBIENT_C = 25.0
-IDLE_W = 2.5  # W of electronics in every powered joint
 
 
 def _pin_model(robot: RobotModel):  # type: ignore[no-untyped-def]
@@ -104,26 +104,29 @@ class ArmDynamics:
 
 @dataclass
 class Thermal:
-    """Joint temperatures (°C): first-order heating by I²R + |τ q̇| towards ambient."""
+    """Joint temperatures (°C): :class:`~quickhealth.identify.jointload.JointThermal` on the
+    controller's clock, heated by I²R + |τ q̇| (+ idle) towards :data:`AMBIENT_C`."""
 
-    temps: F
+    joints: JointThermal
     t_last: float | None = None
 
     @classmethod
     def start(cls, n: int = 6, powered: bool = True) -> Thermal:
-        rise = THERMAL_RESISTANCE * IDLE_W if powered else 0.0
-        return cls(np.full(n, AMBIENT_C + rise))
+        return cls(JointThermal.start(n, AMBIENT_C, powered))
 
-    def advance(self, t: float, current: F, tau: F, qd: F, powered: bool) -> F:
-        """Integrate to controller time ``t`` with the present loads; returns the temperatures."""
+    @property
+    def temps(self) -> F:
+        """The temperatures now (°C)."""
+        return self.joints.temps.copy()
+
+    def advance(
+        self, t: float, current: F, tau: F, qd: F, powered: bool, time_scale: float = 1.0
+    ) -> F:
+        """Integrate to controller time ``t`` with the present loads (at life speed) over
+        ``time_scale`` × the elapsed time; returns the temperatures."""
         if self.t_last is None or t <= self.t_last:
             self.t_last = t
-            return self.temps.copy()
-        dt = min(t - self.t_last, 1.0)
+            return self.temps
+        dt = min(t - self.t_last, 1.0) * time_scale
         self.t_last = t
-        power = WINDING_OHM * current**2 + np.abs(tau * qd)
-        if powered:
-            power = power + IDLE_W
-        steady = AMBIENT_C + THERMAL_RESISTANCE * power
-        self.temps = steady + (self.temps - steady) * np.exp(-dt / THERMAL_TAU_S)
-        return self.temps.copy()
+        return self.joints.advance(dt, joint_power(current, tau, qd, powered), AMBIENT_C)

@@ -15,11 +15,13 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ...identify.jointload import JointThermal, drive_torques, joint_power, torque_constant
 from ...identify.robot import RobotModel, ur5
 from ..hardware.robot import (
     RECOVERY_HINT,
     ConnectionLost,
     JointSample,
+    JointSensors,
     Leg,
     MoveStopped,
     ProgramStopped,
@@ -34,6 +36,8 @@ from ..hardware.urtypes import RobotMode, SafetyMode
 from .arm import HOME_Q_DEG, Arm
 
 F = NDArray[np.float64]
+
+AMBIENT_C = 25.0  # the air around the fake arm (°C), as the controller simulator's
 
 
 class FakeRobot:
@@ -78,6 +82,10 @@ class FakeRobot:
         # the controller's stream in simulated time: 125 Hz (CB3) or 500 Hz (e-Series)
         self.sample_period = 1.0 / (self.model.control_hz or 125.0) / self.time_scale
         self._halted = threading.Event()
+        # the joints' temperatures, on the simulated clock (the controller simulator's model)
+        self._thermal = JointThermal.start(self.model.n_joints, AMBIENT_C)
+        self._thermal_at: tuple[float, F] = (self.now(), self.arm.actual(self.now()))
+        self._thermal_lock = threading.Lock()
 
     def now(self) -> float:
         """Simulated controller time, s."""
@@ -134,6 +142,26 @@ class FakeRobot:
         return RobotStatus(
             self.robot_mode, self.safety_mode, self.program_running, connected=self.connected
         )
+
+    def joint_sensors(self) -> JointSensors:
+        """Each joint's temperature (warmed since the last call by the torque it held and the
+        way it moved, :mod:`~quickhealth.identify.jointload`) and the torque its drive holds
+        the model's masses with (None for a model without masses)."""
+        t = self._check_stream()
+        q = self.arm.actual(t)
+        has = self.model.masses is not None and self.model.coms is not None
+        tau = drive_torques(self.model, q)[0] if has else None
+        with self._thermal_lock:
+            t0, q0 = self._thermal_at
+            dt = t - t0
+            if dt > 0:
+                held = tau if tau is not None else np.zeros_like(q)
+                kt = torque_constant(len(q))
+                power = joint_power(held / kt, held, (q - q0) / dt)
+                self._thermal.advance(dt, power, AMBIENT_C)
+                self._thermal_at = (t, q)
+            temps = self._thermal.temps.copy()
+        return JointSensors(temps, tau, "the model's masses held against gravity (simulated)")
 
     def reader(self) -> RobotReader:
         return ReadOnly(self)

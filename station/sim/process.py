@@ -248,6 +248,7 @@ def start_sim_controller(
     powered_off: bool = False,
     programs: str | None = None,
     payload_kg: float | None = None,
+    pick_place_kg: float | None = None,
 ) -> SimControllerHandle:
     """Start the simulator as a separate process and wait until it answers.
 
@@ -264,7 +265,9 @@ def start_sim_controller(
     ``factory:SEED``, ``nominal`` or a UR calibration YAML); ``delays``: its state-machine
     delays (``--delays``, e.g. ``boot=0.2,brake_release=0.2,unlock_after=0.3``);
     ``powered_off``: start with the arm off; ``programs``: the folder ``load`` finds programs
-    in; ``payload_kg``: the real payload (default: the cell's smart target).
+    in; ``payload_kg``: the real payload (default: the cell's smart target);
+    ``pick_place_kg``: the arm picks and places parts of up to this mass between moves
+    (:meth:`~.controller.Controller.pick_and_place`).
 
     Raises
     ------
@@ -303,6 +306,8 @@ def start_sim_controller(
         args += ["--programs", programs]
     if payload_kg is not None:
         args += ["--payload-kg", f"{payload_kg:.9g}"]
+    if pick_place_kg:
+        args += ["--pick-place-kg", f"{pick_place_kg:.9g}"]
     if verbose:
         args.append("--verbose")
     tried: set[str] = set()
@@ -475,6 +480,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the arm's real payload, kg (the controller's model has none until set_payload; "
         f"default the cell's smart target, else {SMART_TARGET_KG})",
     )
+    p.add_argument(
+        "--pick-place-kg",
+        type=float,
+        default=0.0,
+        help="the arm picks and places parts of up to this mass (kg) between moves: a payload "
+        "that changes between poses, in the joint torques (default 0: none)",
+    )
     p.add_argument("--verbose", action="store_true", help="log controller events to stderr")
     p.add_argument(
         "--speed-factor",
@@ -538,6 +550,10 @@ def run_from_args(args: argparse.Namespace) -> int:
     if payload is not None and not (math.isfinite(payload) and 0.0 <= payload <= 100.0):
         sys.stderr.write("quickhealth: error: --payload-kg must be in 0..100\n")
         return 2
+    part = float(getattr(args, "pick_place_kg", 0.0) or 0.0)
+    if not (math.isfinite(part) and 0.0 <= part <= 100.0):
+        sys.stderr.write("quickhealth: error: --pick-place-kg must be in 0..100\n")
+        return 2
     try:
         degrade = parse_degradation(getattr(args, "degrade", None))
         ctrl = build_controller(
@@ -557,6 +573,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         sys.stderr.write(f"quickhealth: error: {exc}\n")
         return 2
     ctrl.speed_factor = float(args.speed_factor)
+    ctrl.pick_and_place(part)
     ctrl.programs_dir = getattr(args, "programs", None)
     if getattr(args, "powered_off", False):
         ctrl.power.power_off()

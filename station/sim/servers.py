@@ -352,13 +352,15 @@ def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
             approach = ctrl.arm.approach.copy()
             moving = ctrl.arm.moving(t)
         truth = ctrl.arm.truth
-        T = truth(q, approach) if truth is not None else ctrl.arm.robot.fk(q)
+        cond = ctrl.joint_conditions(q)  # a warm joint, a carried part: the arm's true state
+        T = truth(q, approach, **cond) if truth is not None else ctrl.arm.robot.fk(q)
         return {
             "t": t,
             "q": list(map(float, q)),
             "approach": list(map(float, approach)),
             "moving": moving,
             "T_instr_target0": np.asarray(T).tolist(),
+            **{k: list(map(float, v)) for k, v in cond.items()},
         }
     if cmd == "twin":
         if ctrl.world is None:

@@ -166,6 +166,7 @@ class ProgramHost:
                     m.duration = max(m.duration, t / k)
                 arm.start(m)
                 ctrl.n_moves += 1
+                ctrl.next_part()
             if self._wait(m):
                 return
 

@@ -63,15 +63,39 @@ class SimWorld:
         """The self-check board in the instrument frame."""
         return self.T_instr_world @ self.T_world_board
 
-    def T_instr_target0(self, q: ArrayLike, approach: ArrayLike | None = None) -> F:
-        """True target frame at pan 0 for encoder joints ``q`` (6,), rad."""
+    def T_instr_target0(
+        self,
+        q: ArrayLike,
+        approach: ArrayLike | None = None,
+        joint_temp: ArrayLike | None = None,
+        joint_torque: ArrayLike | None = None,
+    ) -> F:
+        """True target frame at pan 0 for encoder joints ``q`` (6,), rad, with the joints at
+        ``joint_temp`` (°C) carrying ``joint_torque`` (N·m; the arm's true state, which an
+        effect hidden in it may depend on)."""
         q = np.asarray(q, dtype=float).reshape(1, -1)
-        app = None if approach is None else np.asarray(approach, dtype=float).reshape(1, -1)
-        return self.twin.true_pose(q, approach=app)[0]
 
-    def T_instr_plate(self, q: ArrayLike, pan: float, approach: ArrayLike | None = None) -> F:
+        def row(v: ArrayLike | None) -> F | None:
+            return None if v is None else np.asarray(v, dtype=float).reshape(1, -1)
+
+        return self.twin.true_pose(
+            q,
+            approach=row(approach),
+            joint_temp=row(joint_temp),
+            joint_torque=row(joint_torque),
+        )[0]
+
+    def T_instr_plate(
+        self,
+        q: ArrayLike,
+        pan: float,
+        approach: ArrayLike | None = None,
+        joint_temp: ArrayLike | None = None,
+        joint_torque: ArrayLike | None = None,
+    ) -> F:
         """True pose of the printed plate (what the cameras see) with the motor at ``pan`` rad."""
-        return self.T_instr_target0(q, approach) @ T_target_plate(pan)
+        T0 = self.T_instr_target0(q, approach, joint_temp, joint_torque)
+        return T0 @ T_target_plate(pan)
 
 
 def parse_degradation(text: str | None) -> dict[str, float]:
@@ -104,9 +128,12 @@ def degrade_truth(
     with a colon) to the effect's size (:func:`~quickhealth.identify.twin.effect_params`: a
     compliance in rad/(N·m), a backlash play in rad), which needs the twin's ``robot``.  The
     simulated cell uses it for "a month later" runs and for effects a run must find.
-    Effects that need a channel the simulated arm does not record (:data:`SIM_CHANNELS`: the
-    time or the temperature, as ``thermal`` and ``drift`` do) or belong to the camera
-    (``depthscale``, an instrument effect) are refused: the images are rendered.
+    Effects that need a channel the simulated arm does not give its true pose
+    (:data:`SIM_CHANNELS`: the time or the air's temperature, as ``thermal`` and ``drift``
+    do) or belong to the camera (``depthscale``, an instrument effect) are refused: the
+    images are rendered.  An effect of the joints' temperatures or torques (``thermal:j2``,
+    ``compliance:j2:torque``) acts at the controller's joint temperatures and the torques the
+    real arm carries.
     """
     labels = truth.spec.labels()
     coeffs = truth.coeffs.copy()
@@ -125,8 +152,10 @@ def degrade_truth(
 
 
 #: The channels the simulated arm gives its true pose (:data:`~quickhealth.identify.effects.
-#: CHANNELS`): an effect that needs another cannot be hidden in it.
-SIM_CHANNELS = frozenset({"approach"})
+#: CHANNELS`): the approach directions, each joint's temperature and the torque it carries
+#: (the controller's thermal model and dynamics); an effect that needs another cannot be
+#: hidden in it.
+SIM_CHANNELS = frozenset({"approach", "joint_temp", "joint_torque"})
 
 
 def _hidden_effect(
@@ -144,8 +173,8 @@ def _hidden_effect(
     lacking = sorted(set(e.requires()) - SIM_CHANNELS)
     if lacking:
         raise InputError(
-            f"degradation {name!r}: the simulated arm hides arm effects only: it has no clock "
-            f"or temperature ({e.name} needs the {', '.join(CHANNELS[c].words for c in lacking)})"
+            f"degradation {name!r}: the simulated arm has no clock or temperature of the air, "
+            f"and {e.name} needs the {', '.join(CHANNELS[c].words for c in lacking)}"
         )
     return {e.name: list(map(float, effect_params(e, size, np.random.default_rng(seed))))}
 

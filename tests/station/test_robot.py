@@ -59,6 +59,21 @@ def test_fake_moves_in_time_and_ends_at_target():
     assert r.status().ready
 
 
+def test_the_fake_reports_its_joints_temperatures_and_torques():
+    """The in-process cell's robot says what a controller says about each joint: the torque
+    its drive holds the arm with, and a temperature that rises as the arm works."""
+    from quickhealth.identify.robot import gravity_torques
+
+    r = FakeRobot(time_scale=100)
+    before = r.reader().joint_sensors()
+    for q in (Q1, np.radians([0, -90, 90, -90, -90, 0]), Q1):
+        r.move(q, Leg.JOINT, speed=1.0, accel=2.0)
+    after = r.reader().joint_sensors()
+    assert after.temperature[1] > before.temperature[1] > 25.0  # the shoulder warmed
+    # at the reading it was taken at (the readings carry encoder noise and ringing)
+    np.testing.assert_allclose(after.torque, -gravity_torques(r.model, r.joints())[0], atol=0.01)
+
+
 def test_trapezoid_profile_is_monotonic_and_complete():
     D, v, a = 0.8, 1.0, 2.0
     T = trapezoid_duration(D, v, a)

@@ -21,6 +21,7 @@ import pytest
 import qh_station_plan as _station_plan
 from qh_dashboard import dashboard
 
+from quickhealth.identify.jointload import drive_torques
 from quickhealth.station.cli import main
 from quickhealth.station.formats import read_measurements
 from quickhealth.station.planning import load_plan
@@ -28,6 +29,7 @@ from quickhealth.station.run.journal import JOURNAL, iter_records, read_journal
 from quickhealth.station.run.loop import run_plan
 from quickhealth.station.run.settings import RunSettings
 from quickhealth.station.sim.cell import sim_station
+from quickhealth.station.sim.process import SMART_TARGET_COM, SMART_TARGET_KG
 from quickhealth.station.sim.states import TESTING
 from quickhealth.station.sim.world import build_world
 
@@ -72,6 +74,12 @@ def test_twenty_poses_match_the_twin_within_the_vision_accuracy(
     assert "done: complete 20 measured" in (out / "run.log").read_text()
     m = read_measurements(out / "measurements.csv")
     assert m.n_poses == 20 and m.pose_id == tuple(p.name for p in load_plan(plan20).poses)
+    # each joint's temperature and torque at each pose, as the controller streams them (RTDE
+    # joint_temperatures; actual_current x the torque constant): the arm holding the smart
+    # target it was not told about, within the currents' noise
+    assert np.all((m.joint_temp > 25.0) & (m.joint_temp < 60.0))
+    held = drive_torques(world.twin.robot, m.q, SMART_TARGET_KG, SMART_TARGET_COM)
+    assert np.abs(m.joint_torque - held).max() < 1.0 and np.abs(held[:, 1]).max() > 10.0
     T = world.twin.true_pose(m.q)  # the twin's true target frame (pan 0) at the read joints
     z = (m.pos - T[:, :3, 3]) / m.sigma_pos  # normalised by the reported uncertainty
     assert np.sqrt(np.mean(z**2)) < 2.5, z
@@ -92,6 +100,35 @@ def test_twenty_poses_match_the_twin_within_the_vision_accuracy(
     m2 = read_measurements(again)
     # the same search boxes (the journal's search_px): the same detection, the same poses
     assert m2.pose_id == m.pose_id and np.abs(m2.pos - m.pos).max() < 1e-9  # 1 nm
+
+
+@pytest.mark.timeout(120)
+def test_hidden_joint_effects_act_at_the_joint_state_the_run_records(plan20, tmp_path, monkeypatch):
+    """A warm-up of joint 2 and a compliance of joint 2 under its measured torque, hidden in
+    the simulated arm, while it picks and places parts of up to 2 kg between poses: the
+    cameras see the twin at the joint temperatures and torques measurements.csv records."""
+    monkeypatch.setenv("QUICKHEALTH_LOCK_DIR", str(tmp_path / "lock"))
+    plan = _station_plan.plan_file(plan20.parent, 8)
+    out = tmp_path / "run"
+    hidden = {"thermal:j2": 3e-5, "compliance:j2:torque": 2.5e-5}
+    code = main(
+        ["run", "--cell", "reference", "--plan", str(plan), "--out", str(out), *SIM,
+         "--unattended", "--sim-degrade", ",".join(f"{k}={v}" for k, v in hidden.items()),
+         "--sim-pick-place-kg", "2"]
+    )  # fmt: skip
+    assert code == 0
+    m = read_measurements(out / "measurements.csv")
+    worn = build_world("reference", twin_seed=1, degrade=hidden).twin
+    T = worn.true_pose(m.q, joint_temp=m.joint_temp, joint_torque=m.joint_torque)
+    plain = build_world("reference", twin_seed=1).twin.true_pose(m.q)
+    err = np.linalg.norm(m.pos - T[:, :3, 3], axis=1)
+    moved = np.linalg.norm(plain[:, :3, 3] - T[:, :3, 3], axis=1)
+    assert err.max() < 0.1e-3 and moved.min() > 3 * err.max(), (err, moved)
+    part = (
+        m.joint_torque[:, 1]
+        - drive_torques(worn.robot, m.q, SMART_TARGET_KG, SMART_TARGET_COM)[:, 1]
+    )
+    assert np.abs(part).max() > 2.0 and np.abs(part).min() < 1.0  # carrying, and not
 
 
 @pytest.mark.timeout(150)
