@@ -123,7 +123,9 @@ def test_hidden_joint_effects_act_at_the_joint_state_the_run_records(plan20, tmp
     plain = build_world("reference", twin_seed=1).twin.true_pose(m.q)
     err = np.linalg.norm(m.pos - T[:, :3, 3], axis=1)
     moved = np.linalg.norm(plain[:, :3, 3] - T[:, :3, 3], axis=1)
-    assert err.max() < 0.1e-3 and moved.min() > 3 * err.max(), (err, moved)
+    rms = float(np.sqrt(np.mean(err**2)))  # the vision accuracy: ~0.01-0.04 mm per axis
+    assert rms < 0.06e-3 and err.max() < 0.3e-3, err
+    assert np.sqrt(np.mean(moved**2)) > 5 * rms and np.all(moved > err), (err, moved)
     part = (
         m.joint_torque[:, 1]
         - drive_torques(worn.robot, m.q, SMART_TARGET_KG, SMART_TARGET_COM)[:, 1]
