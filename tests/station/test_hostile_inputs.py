@@ -2260,11 +2260,17 @@ _URDF3 = """<?xml version="1.0"?>
 """
 
 
+def _plan12(b) -> Path:
+    """A 12-pose plan of the reference cell, made once per worker (an input: never changed)."""
+    plan = b["dir"] / "plan12" / "plan.json"
+    if not plan.is_file():
+        assert main(["plan", "--cell", "reference", "--n", "12", "--out", str(plan.parent)]) == 0
+    return plan
+
+
 @case("run-out-cannot-be-made")
 def _(b, t):
-    plan = t / "plan" / "plan.json"
-    plan.parent.mkdir()
-    assert main(["plan", "--cell", "reference", "--n", "12", "--out", str(plan.parent)]) == 0
+    plan = _plan12(b)
     out = Path("/sys/qh-corpus-run")  # the kernel refuses a new folder here, even to root
     return Case(
         ["run", "--cell", "reference", "--plan", str(plan), "--out", str(out), "--sim"], 2,
@@ -2470,8 +2476,7 @@ def _(b, t):
     victim = t / "victim.txt"
     victim.write_text("the victim's file\n")
     (d / "run.lock").symlink_to(victim)
-    plan = t / "plan" / "plan.json"
-    assert main(["plan", "--cell", "reference", "--n", "12", "--out", str(plan.parent)]) == 0
+    plan = _plan12(b)
     return Case(
         ["run", "--cell", "reference", "--plan", str(plan), "--out", str(t / "r"), "--sim"],
         3,
@@ -2485,8 +2490,7 @@ def _(b, t):
 # issue 32, failure 9: a run folder's name forged '# calibration_id' and '# time_utc' lines
 @case("run-folder-name-injects-metadata")
 def _(b, t):
-    plan = t / "plan" / "plan.json"
-    assert main(["plan", "--cell", "reference", "--n", "12", "--out", str(plan.parent)]) == 0
+    plan = _plan12(b)
     out = t / "run7\n# calibration_id: FAKE-CAL\n# time_utc: 1999-01-01T00:00:00Z"
     return Case(
         ["run", "--cell", "reference", "--plan", str(plan), "--out", str(out), "--sim"],
