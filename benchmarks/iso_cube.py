@@ -8,7 +8,7 @@ on the real UR10 series the 6-DoF fit ended at 71 mm RMS and was refused while t
 fitted to 0.33 mm position-only.
 
 This builds that series on the twin: a UR10 with random geometric and position-dependent
-errors, an ``--grid``³ cube of ``--edge-mm`` at one flange orientation (one IK branch), probe
+errors, an ``--grid``³ cube of ``--edge-mm`` at one flange orientation (down, tilted; one IK branch), probe
 93 mm off the flange, instrument 3 m away, noise 0.03 mm / 0.1 mrad; held out: the cube's
 grid shifted by half a step.  It fits the series as ``identify fit`` does (BIC orders), 6-DoF
 and position-only, and prints the held-out position RMS against the noise floor (the
@@ -21,32 +21,19 @@ floor, and never worse than position-only.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from quickhealth.identify.robot import builtin_robot
-from quickhealth.identify.select import select_orders
-from quickhealth.identify.transforms import make_T, rot_y
-from quickhealth.identify.twin import camera_pose, make_twin
-from quickhealth.station.planning.ik_ur import ik_ur, within_limits
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "helpers"))
 
-PROBE = make_T(np.eye(3), [0.0, 0.0, 0.093])  # the T-Mac 93 mm out along the flange axis
+from qh_iso import PROBE, cube_joints  # noqa: E402
 
-
-def cube_joints(robot, centre, edge: float, grid: int, shift: float = 0.0) -> np.ndarray:  # type: ignore[no-untyped-def]
-    """Joint readings of a ``grid``³ cube of flange positions at one orientation (flange z
-    along base +x, towards the tracker), one IK branch throughout."""
-    ax = (np.arange(grid) + shift) / (grid - 1) - 0.5
-    pts = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3) * edge + centre
-    R = rot_y(np.pi / 2)
-    T = np.broadcast_to(make_T(R, np.zeros(3)), (len(pts), 4, 4)).copy()
-    T[:, :3, 3] = pts
-    q, ok = ik_ur(robot, T)
-    ok &= within_limits(q.reshape(-1, 6), robot).reshape(ok.shape)
-    branch = int(np.argmax(ok.sum(axis=0)))  # the branch that reaches most of the cube
-    keep = ok[:, branch]
-    return q[keep, branch]
+from quickhealth.identify.robot import builtin_robot  # noqa: E402
+from quickhealth.identify.select import select_orders  # noqa: E402
+from quickhealth.identify.twin import camera_pose, make_twin  # noqa: E402
 
 
 def main() -> None:
@@ -56,7 +43,7 @@ def main() -> None:
     ap.add_argument("--edge-mm", type=float, default=500.0)
     args = ap.parse_args()
     robot = builtin_robot("ur10")
-    centre = np.array([0.75, 0.1, 0.35])
+    centre = np.array([0.1, -0.75, 0.35])
     T_ib = camera_pose(distance=3.0, height=0.4, azimuth=0.0, look_at_z=0.35)
     print(f"{'seed':>4} {'poses':>5}  {'6-DoF held-out':>15} {'position-only':>14} {'floor':>8}  "
           f"{'6-DoF/floor':>11} {'pos/floor':>9}  fit s")  # fmt: skip

@@ -64,14 +64,25 @@ def held_out(pred: Path) -> dict[str, float]:
 
 
 def user_path(name: str, d: Path, train: Path, held: Path, robot: str) -> list[tuple[str, ...]]:
-    """fit, diagnose, fit with the advice, predict; and the classic calibration."""
+    """fit, diagnose, fit with the advice, predict; and the classic calibration.  Full-pose
+    data are also fitted position only (the same rows' x, y, z): the 6-DoF fit must never be
+    worse than that (issue 31)."""
+    from quickhealth.station import formats
+
     rows = []
-    for label, out, extra in (("classic kinematic calibration (--max-order 0)", "classic", ["--max-order", "0"]),
-                              ("identify fit (defaults)", "fit", [])):  # fmt: skip
+    meas = formats.read_measurements(train, formats.load_robot(robot).n_joints)
+    runs = [("classic kinematic calibration (--max-order 0)", "classic", ["--max-order", "0"], train),
+            ("identify fit (defaults)", "fit", [], train)]  # fmt: skip
+    if meas.has_orientation:
+        pos = d / "train_xyz.csv"
+        formats.write_measurements(pos, meas.position_only())
+        runs += [(f"{label}, position only (the same rows)", f"{out}_xyz", extra, pos)
+                 for label, out, extra, _ in runs]  # fmt: skip
+    for label, out, extra, data in runs:
         t, _ = qh(
             "identify",
             "fit",
-            str(train),
+            str(data),
             "--robot",
             robot,
             "--out",

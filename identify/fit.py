@@ -91,6 +91,12 @@ __all__ = [
 
 F = NDArray[np.float64]
 
+#: Largest flange rotation (rad) between poses below which data count as one orientation
+#: (the start then puts the target at the flange: its offset is not in the data).
+ONE_ORIENTATION = 0.01
+#: A set-up parameter held because base and tool could trade it (one flange orientation) is
+#: estimated after all when the data fix it to this share of its prior σ (1 m, 1 rad).
+WEAK_SETUP_SHARE = 0.01
 #: Joint commands the base-and-tool registration of the health figures is computed over.
 REGISTRATION_SAMPLES = 1000
 #: The gauge's priority among the joints' constant motions, by motion (dx dy dz ex ey ez):
@@ -550,12 +556,24 @@ def initial_setup(robot: RobotModel, meas: Measurements, n_iter: int = 30) -> tu
         T_bf = T_bf[None]
     Rf, pf = T_bf[:, :3, :3], T_bf[:, :3, 3]
     P = meas.pos
-    closed = _hand_eye(Rf, pf, meas.R, P) if meas.has_orientation else _point_hand_eye(Rf, pf, P)
-    if closed is None:
-        Rb, pb, t = _kabsch_alternating(Rf, pf, P, n_iter)
+    spread = float(np.max(np.linalg.norm(log_so3(np.swapaxes(Rf[:1], -1, -2) @ Rf), axis=-1)))
+    if spread < ONE_ORIENTATION:
+        # one flange orientation throughout (an ISO 9283 cube): the target's offset on the
+        # flange moves every measured point alike, as the base's position does, so the data
+        # cannot tell them apart.  The start puts the target at the flange (its offset 0:
+        # least wrong of all, where a least-squares split gave 2 m) and the fit estimates the
+        # offset from what the robot's errors turn (:meth:`_Problem.solve`, second pass)
+        T_ib = kabsch(pf, P)
+        Rb, pb, t = T_ib[:3, :3], T_ib[:3, 3], np.zeros(3)
     else:
-        Rb, pb, t = closed
-    Rb, pb, t = _polish_positions(Rf, pf, P, Rb, pb, t)
+        closed = (
+            _hand_eye(Rf, pf, meas.R, P) if meas.has_orientation else _point_hand_eye(Rf, pf, P)
+        )
+        if closed is None:
+            Rb, pb, t = _kabsch_alternating(Rf, pf, P, n_iter)
+        else:
+            Rb, pb, t = closed
+        Rb, pb, t = _polish_positions(Rf, pf, P, Rb, pb, t)
     Rt = np.eye(3)
     if meas.has_orientation:  # tool rotation: polar decomposition of the mean R_fᵀ R_bᵀ R_meas
         M = (np.swapaxes(Rf, -1, -2) @ Rb.T[None] @ meas.R).mean(0)
@@ -922,6 +940,28 @@ class _Problem:
         p[~free & ~held] = 0.0
         if np.any(p != p_nom):  # a warm start: linearise at the start point
             r, J = self.residual_and_jacobian(p)
+        p, r, J, it, converged = self._iterate(p, r, J, free, max_iter, tol)
+        weak = self._weak_setup(J, free, held)
+        if np.any(weak):  # second pass: the set-up directions the data fix after all
+            free = free | weak
+            p, r, J, it2, converged = self._iterate(p, r, J, free, max_iter, tol)
+            it += it2
+        D = self.sigma_p[free]
+        # covariance at the estimate
+        Jf = J[:, free] * D
+        H = Jf.T @ Jf
+        H[np.diag_indices_from(H)] += 1.0
+        Hinv = _spd_solve(H, np.eye(H.shape[0]))
+        cov = np.zeros((p.size, p.size))
+        cov[np.ix_(free, free)] = D[:, None] * Hinv * D[None, :]
+        return self._result(p, r, cov, free, labels, it, converged)
+
+    def _iterate(
+        self, p: F, r: F, J: F, free: NDArray[np.bool_], max_iter: int, tol: float
+    ) -> tuple[F, F, F, int, bool]:
+        """Levenberg–Marquardt on the ``free`` parameters from ``p`` (its residual ``r`` and
+        Jacobian ``J``); returns the estimate, its residual and Jacobian, the iterations and
+        whether it converged."""
         D = self.sigma_p[free]
         lam = 0.0  # Gauss-Newton first (the loop is nearly linear); damp only on failure
         converged = False
@@ -966,14 +1006,31 @@ class _Problem:
             if rel < tol or np.linalg.norm(dz) < 1e-10 * (1 + np.linalg.norm(z)):
                 converged = True
                 break
-        # covariance at the estimate
-        Jf = J[:, free] * D
-        H = Jf.T @ Jf
-        H[np.diag_indices_from(H)] += 1.0
-        Hinv = _spd_solve(H, np.eye(H.shape[0]))
-        cov = np.zeros((p.size, p.size))
-        cov[np.ix_(free, free)] = D[:, None] * Hinv * D[None, :]
-        return self._result(p, r, cov, free, labels, it, converged)
+        return p, r, J, it, converged
+
+    def _weak_setup(
+        self, J: F, free: NDArray[np.bool_], held: NDArray[np.bool_]
+    ) -> NDArray[np.bool_]:
+        """Set-up parameters (base, tool) held because, at the nominal robot, another set-up
+        parameter moves every pose alike (one flange orientation: the target's offset and the
+        base's position), but which the data fix at the estimate through what the robot's
+        errors turn: their σ given the free parameters below :data:`WEAK_SETUP_SHARE` of the
+        prior's.  A direction the data cannot see at all (a tool rotation seen by positions
+        only) stays held."""
+        idx = self.spec.index()
+        nc = self.spec.n_params
+        setup = np.zeros(J.shape[1], bool)
+        setup[:nc] = (idx[:, 0] == 0) | (idx[:, 0] == self.spec.n_joints + 1)
+        cand = np.flatnonzero(setup & ~free & ~held)
+        if cand.size == 0:
+            return np.zeros(J.shape[1], bool)
+        Jf = J[:, free]
+        proj = np.linalg.lstsq(Jf, J[:, cand], rcond=None)[0]
+        rest = J[:, cand] - Jf @ proj
+        info = np.sum(rest**2, axis=0) + self.sigma_p[cand] ** -2.0
+        out = np.zeros(J.shape[1], bool)
+        out[cand] = 1.0 / np.sqrt(info) < WEAK_SETUP_SHARE * self.sigma_p[cand]
+        return out
 
     def _result(
         self,
