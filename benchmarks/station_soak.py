@@ -158,6 +158,7 @@ def _recover(kind: str, cell, station) -> None:  # type: ignore[no-untyped-def]
     sim = cell.controller
     if kind.startswith("camera_"):
         cell.camera._prepare.clear()  # plugged back in, the trigger cable seated
+        return  # the arm only stopped (the next run starts it): nothing to recover there
     if kind == "serial_garbage":
         cell.emulator.clear()
         return
