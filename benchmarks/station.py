@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import tempfile
 import time
@@ -100,6 +101,7 @@ def main() -> int:
         t0 = time.monotonic()
         res = run_plan(station, plan, Path(d) / "run", settings=RunSettings())
         wall = time.monotonic() - t0
+        timing = json.loads((Path(d) / "run" / "run.json").read_text())["timing"]
         size = sum(f.stat().st_size for f in (Path(d) / "run" / "images").iterdir())
     station.close()
     t = res.timings
@@ -122,6 +124,14 @@ def main() -> int:
     )
     print(f"  move       {t.get('move_s', 0) * 1e3:7.1f}   (robot motion at 2x speed; not counted)")
     print(f"  settle     {t.get('settle_s', 0) * 1e3:7.1f}   (not counted)")
+    if timing:
+        print(
+            "from the journal: the measurement of pose k overlaps the arm's work on pose k+1 "
+            f"by {100 * timing['overlap_median']:.0f} % (median over {timing['pairs']} poses); "
+            f"{timing['done_before_next_capture']} of {timing['pairs']} done before the next "
+            f"pair was taken; measure {timing['measure_s_median']:.3f} s, arm "
+            f"{timing['arm_s_median']:.3f} s per pose; the loop waited {timing['waited_s']:.2f} s"
+        )
     return 0 if res.n_measured == res.n_poses else 1
 
 

@@ -61,28 +61,27 @@ def detector_parameters(
     return p
 
 
-def grey_levels(
-    image: NDArray[np.uint8] | NDArray[np.uint16], bits: int | None = None
-) -> tuple[NDArray[np.uint8], NDArray[np.float32] | NDArray[np.uint8]]:
-    """An image of any depth as detection and refinement need it.
-
-    ArUco's candidate search takes 8 bits only: the first image is the picture rounded to
-    8 bits.  Corner refinement measures edge profiles: the second image keeps every bit of a
-    10- to 16-bit camera as float32 on the 8-bit scale (0..255, the extra bits as fractions),
-    so thresholds in 8-bit grey levels hold at any depth.  An 8-bit image is returned as is
-    (twice).
-
-    ``bits``: significant bits of a uint16 image (LSB-aligned; default 16)."""
+def full_scale(image: NDArray[np.uint8] | NDArray[np.uint16], bits: int | None = None) -> int:
+    """The white level of a grey image: 255 for uint8, ``2**bits - 1`` for uint16 holding
+    ``bits`` significant bits (LSB-aligned; default 16)."""
     if image.dtype == np.uint8:
-        return image, image
+        return 255
     if image.dtype != np.uint16:
         raise ValueError(f"expected a uint8 or uint16 grey image, got {image.dtype}")
     b = 16 if bits is None else int(bits)
     if not 9 <= b <= 16:
         raise ValueError(f"a uint16 image holds 9 to 16 bits, not {b}")
-    levels = image.astype(np.float32) * np.float32(255.0 / ((1 << b) - 1))
-    u8 = np.clip(np.rint(levels), 0, 255).astype(np.uint8)
-    return u8, levels
+    return (1 << b) - 1
+
+
+def to_8bit(
+    image: NDArray[np.uint8] | NDArray[np.uint16], bits: int | None = None
+) -> NDArray[np.uint8]:
+    """The image rounded to 8 bits (ArUco's candidate search takes 8 bits only)."""
+    full = full_scale(image, bits)
+    if full == 255:
+        return image  # type: ignore[return-value]
+    return cv2.convertScaleAbs(image, alpha=255.0 / full)  # rounded and saturated
 
 
 def detect_markers(
@@ -93,6 +92,7 @@ def detect_markers(
     min_perimeter_px: float = 24.0,
     cell_px: float | None = None,
     upscale: float | None = None,
+    bits: int | None = None,
 ) -> MarkerDetection:
     """Detect ArUco markers of ``dictionary`` in a grey image, optionally only inside ``roi``.
 
@@ -101,8 +101,8 @@ def detect_markers(
 
     Parameters
     ----------
-    image : ndarray, shape (h, w), uint8 (or uint16: detected on its 8-bit rounding,
-        :func:`grey_levels` with 16 bits)
+    image : ndarray, shape (h, w), uint8, or uint16 holding ``bits`` significant bits
+        (detected on its 8-bit rounding, :func:`to_8bit`: only the search region is converted)
     dictionary : str
         OpenCV dictionary name.
     roi : (x0, y0, x1, y1), optional
@@ -118,12 +118,10 @@ def detect_markers(
     """
     if image.ndim != 2:
         raise ValueError(f"expected a grey image (h, w), got shape {image.shape}")
-    if image.dtype != np.uint8:
-        image = grey_levels(image)[0]
     h, w = image.shape
     x0, y0, x1, y1 = (0, 0, w, h) if roi is None else _clip_box(roi, w, h)
     box = None if roi is None else (x0, y0, x1, y1)
-    sub = image[y0:y1, x0:x1]
+    sub = to_8bit(image[y0:y1, x0:x1], bits)
     empty = MarkerDetection(np.zeros(0, np.int64), np.zeros((0, 4, 2)), box)
     if sub.size == 0:
         return empty
@@ -177,9 +175,10 @@ def _clip_box(box: Box, w: int, h: int) -> Box:
 
 
 def refine_marker_corners(
-    image: NDArray[np.uint8] | NDArray[np.float32],
+    image: NDArray[np.uint8] | NDArray[np.uint16],
     corners: F,
     *,
+    bits: int | None = None,
     cell_px: F | None = None,
     to_ideal: Callable[[F], F] | None = None,
     from_ideal: Callable[[F], F] | None = None,
@@ -194,8 +193,9 @@ def refine_marker_corners(
 
     Parameters
     ----------
-    image : ndarray, shape (h, w), uint8, or float32 on the 8-bit scale (a deeper camera's
-        image from :func:`grey_levels`: its extra bits sharpen the edge crossings)
+    image : ndarray, shape (h, w), uint8, or uint16 holding ``bits`` significant bits: the
+        edge profiles are read at the image's depth, then put on the 8-bit scale (a deeper
+        camera's extra bits sharpen the edge crossings)
     corners : ndarray, shape (n, 4, 2), px
         Corners from :func:`detect_markers`.
     cell_px : ndarray, shape (n,), optional
@@ -231,9 +231,15 @@ def refine_marker_corners(
     pts = base[..., None, :] + u[:, None, None, :, None] * nrm[:, :, None, None, :]  # (n,4,m,k,2)
     mx = pts[..., 0].reshape(-1, k).astype(np.float32)
     my = pts[..., 1].reshape(-1, k).astype(np.float32)
-    prof = cv2.remap(
-        image.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
-    )
+    full = full_scale(image, bits) if image.dtype != np.float32 else 255
+    if full == 255:
+        prof = cv2.remap(
+            np.asarray(image, dtype=np.float32), mx, my, cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )  # fmt: skip
+    else:  # read at depth (1 DN of 4095 is 1/16 of an 8-bit level), then to the 8-bit scale
+        prof = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        prof = prof.astype(np.float32) * np.float32(255.0 / full)
     prof = prof.reshape(n, 4, m, k)
     q = k // 5
     lo = prof[..., :q].mean(-1)  # inside (black border)

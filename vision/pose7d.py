@@ -31,7 +31,7 @@ from quickhealth.identify.transforms import R_to_rpy, exp_so3, log_so3, make_T
 
 from .boards import TargetDescription
 from .camera import CameraModel, StereoRig
-from .markers import Box, detect_markers, grey_levels, refine_marker_corners
+from .markers import Box, detect_markers, refine_marker_corners
 
 F = NDArray[np.float64]
 
@@ -194,10 +194,9 @@ def detect_target(
     """Target corners seen in one image: (object points (k, 3) m, pixels (k, 2)).
 
     Unknown ids are ignored; corners are refined by line fits in the ideal image, at the
-    image's full depth (``bits`` of a uint16 image, :func:`~.markers.grey_levels`).
+    image's full depth (``bits`` significant bits of a uint16 image).
     """
-    u8, levels = grey_levels(image, bits)
-    det = detect_markers(u8, target.dictionary, roi=roi)
+    det = detect_markers(image, target.dictionary, roi=roi, bits=bits)
     pos = {int(i): k for k, i in enumerate(target.ids)}
     keep = [k for k, i in enumerate(det.ids) if int(i) in pos]
     if not keep:
@@ -212,7 +211,9 @@ def detect_target(
     def from_ideal(x: F) -> F:
         return camera.project(np.concatenate([x / f, np.ones((*x.shape[:-1], 1))], -1))
 
-    refined = refine_marker_corners(levels, corners, to_ideal=to_ideal, from_ideal=from_ideal)
+    refined = refine_marker_corners(
+        image, corners, bits=bits, to_ideal=to_ideal, from_ideal=from_ideal
+    )
     obj = target.corners[[pos[int(i)] for i in ids]].reshape(-1, 3)
     return obj, refined.reshape(-1, 2)
 

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ...vision.boards import TargetDescription
-from ...vision.markers import Box, detect_markers, grey_levels
+from ...vision.markers import Box, detect_markers
 from ...vision.pose7d import PoseMeasurement, Rejection, measure_stereo, roi_from_pose
 from ..formats.journal import Measured
 from ..hardware.cameras import Image, StereoFrame
@@ -32,7 +32,7 @@ def quick_check(
         (rig.right, frame.right, rig.T_right_left @ T_pred),
     ):
         roi = roi_from_pose(cam, T, target, margin=0.5)
-        det = detect_markers(grey_levels(img, frame.bits)[0], target.dictionary, roi=roi)
+        det = detect_markers(img, target.dictionary, roi=roi, bits=frame.bits)
         counts.append(sum(1 for i in det.ids if int(i) in ids))
     c = (counts[0], counts[1])
     if min(c) >= min_markers:

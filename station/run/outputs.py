@@ -18,6 +18,7 @@ from ..formats.vision import rig_to_json
 from ..station import Station
 from .journal import JournalState, write_bytes_atomic
 from .settings import RunSettings
+from .timing import overlap
 
 if TYPE_CHECKING:  # types only: the planner loads the collision library
     from ..planning.planfile import Plan
@@ -142,6 +143,7 @@ def write_outputs(
         "complete": state.ended,
         "resumes": state.resumes,
         "cameras": start.get("cameras", []),
+        "timing": overlap(state),
         "selfcheck": {
             "drift_mm": None if drift is None else drift[0],
             "drift_deg": None if drift is None else drift[1],

@@ -126,6 +126,8 @@ def test_a_12_bit_run_through_emulated_pylon_cameras(world, plan, tmp_path) -> N
     # the loop did not wait for vision: pose k was measured while the arm went on to k+1
     for k in (1, 2):
         assert st.measured[k].timing["start"] < st.captured[k + 1].time_s
+    timing = json.loads((run / "run.json").read_text())["timing"]
+    assert timing["pairs"] == 2 and timing["done_before_next_capture"] >= 1
 
 
 @pytest.mark.parametrize("fault", ["unplug", "timeout"])
