@@ -200,11 +200,7 @@ class AravisDevice:
                 break
             self.stream.push_buffer(buf)  # a fake camera's frame of the image shown before
         if buf is None:
-            raise FrameTimeout(
-                self.side,
-                f"no frame from the {self.side} camera within {timeout_s * 1e3:.0f} ms of the "
-                "trigger (a missing trigger edge?)",
-            )
+            raise FrameTimeout.after(self.side, timeout_s)
         try:
             t = time.monotonic()
             status = buf.get_status()

@@ -50,6 +50,15 @@ class CameraFault(HardwareError):
 class FrameTimeout(CameraFault):
     """No frame within the time-out after a trigger."""
 
+    @classmethod
+    def after(cls, camera: str, timeout_s: float) -> FrameTimeout:
+        """The one line for ``camera`` (left or right) silent for ``timeout_s``."""
+        return cls(
+            camera,
+            f"no frame from the {camera} camera within {timeout_s * 1e3:.0f} ms of the "
+            "trigger (a missing trigger edge?)",
+        )
+
 
 class DeviceLost(CameraFault):
     """The camera is gone (unplugged, rebooting, powered off)."""

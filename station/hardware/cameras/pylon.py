@@ -246,11 +246,7 @@ class PylonDevice:
         if res is None or not res.IsValid():
             if self.cam.IsCameraDeviceRemoved():
                 raise DeviceLost(self.side, f"{self.side} camera was unplugged or rebooted")
-            raise FrameTimeout(
-                self.side,
-                f"no frame from the {self.side} camera within {timeout_s * 1e3:.0f} ms of the "
-                "trigger (a missing trigger edge?)",
-            )
+            raise FrameTimeout.after(self.side, timeout_s)
         try:
             t = time.monotonic()
             if not res.GrabSucceeded():
