@@ -34,7 +34,7 @@ from pathlib import Path
 
 from ..identify.errormodel import MOTION_WORDS
 from ..identify.errors import HardwareError, QuickhealthError
-from .archive import Archive, trend_for
+from .archive import Archive
 from .formats import load_robot, read_measurements, read_model
 from .planning.cell import load_cell
 from .planning.planfile import Plan
@@ -319,14 +319,6 @@ def _assess(
         [f"archived {rec.robot}/{rec.run_id} ({rec.time_utc}) in {arch.folder(rec)}"],
     )
     result = DemoRunResult(run, arch.folder(rec), figures_mm=figs, diagnosis=diagnosis)
-    if baseline:
-        result.verdict = "baseline"
-    else:
-        result.flags = list(trend_for(arch, robot_name).flags())
-        result.verdict = "FLAGGED" if result.flags else "healthy"
-        say(f"   trend against the baseline: {result.verdict}")
-        for line in result.flags:
-            say(f"     - {line}")
 
     html = result.folder / "report.html"
     argv = ["report", str(result.folder), "--out", str(html), "--robot", robot_name, "--run-id"]
@@ -339,11 +331,13 @@ def _assess(
         log.step(argv, [f"quickhealth: error: {exc}"])
         say(f"   report: failed ({exc})")
         return result
-    j = rep.report.judgement
-    log.step(
-        argv,
-        [f"{j.verdict.value.upper()}: {j.reason}", f"wrote {html} and updated {rep.report_json}"],
-    )
+    j = rep.report.judgement  # the one verdict, as every door gives it
+    result.verdict = "baseline" if baseline else j.verdict.value
+    result.flags = list(j.changes)
+    say(f"   {j.headline()}")
+    for line in result.flags:
+        say(f"     - {line}")
+    log.step(argv, [*j.lines(), f"wrote {html} and updated {rep.report_json}"])
     result.report_html = html
     return result
 

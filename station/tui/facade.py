@@ -633,8 +633,8 @@ class Facade:
             if kind == "measured" and getattr(p, "status", "") == "measured":
                 measured[0] += 1
             if kind in ("pose", "measured", "stop", "done"):
-                line = f"{kind}: {getattr(p, 'name', '')} {getattr(p, 'status', '')}".rstrip()
-                step(measured[0], total, line)
+                what = " ".join(x for x in (getattr(p, "name", ""), getattr(p, "status", "")) if x)
+                step(measured[0], total, f"{kind}: {what}")
 
         def say(line: str) -> None:
             step(measured[0], total, line)
