@@ -65,6 +65,9 @@ class Station:
         Its nominal pose (search region).
     cell_name, cell_sha256 : str
         The cell this station is (pre-flight checks the plan against it).
+    spec_mm : float or None
+        The cell's accuracy spec (``spec_mm``: the TCP error the application accepts, mm),
+        which every run records for its verdict; None when the cell states none.
     instrument : str
         For the CSV metadata.
     camera_ids : tuple of CameraIdentity
@@ -82,6 +85,7 @@ class Station:
     T_instr_board: F | None = None
     cell_name: str = ""
     cell_sha256: str = ""
+    spec_mm: float | None = None
     instrument: str = "stereo camera"
     robot_name: str = ""
     closers: list[Callable[[], None]] = field(default_factory=list)
@@ -227,6 +231,7 @@ def real_station(config: HardwareConfig) -> Station:
         T_instr_board=None,
         cell_name=c.name,
         cell_sha256=c.sha256,
+        spec_mm=c.spec_mm,
         instrument=f"stereo camera {config.calibration} ({config.cameras.describe()})",
         robot_name=config.robot_name or f"ur-{config.robot_ip}",
         closers=closers,

@@ -233,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--archive needs --robot-name (the robot's name in the archive)")
     lock = RunLock.acquire(out)
     try:
-        return _run_locked(args, plan, out, cell.spec_mm)
+        return _run_locked(args, plan, out)
     finally:
         lock.release()
 
@@ -268,9 +268,7 @@ def _sim_setting(
     return float(value)
 
 
-def _run_locked(
-    args: argparse.Namespace, plan: Plan, out: Path, spec_mm: float | None = None
-) -> int:
+def _run_locked(args: argparse.Namespace, plan: Plan, out: Path) -> int:
     from ..run.loop import run_plan  # the drivers: ur-rtde, OpenCV
     from ..run.progress import Progress
 
@@ -297,11 +295,7 @@ def _run_locked(
                     f"The arm will move through {len(plan.poses)} poses. Clear the cell, then press Enter (Ctrl-C aborts). "
                 )
         try:
-            # the cell's accuracy spec travels with the run (run.json, measurements.csv)
-            extra = {} if spec_mm is None else {"spec_mm": spec_mm}
-            res = run_plan(
-                station, plan, out, resume=args.resume, progress=progress, start_extra=extra
-            )
+            res = run_plan(station, plan, out, resume=args.resume, progress=progress)
         finally:
             station.close()
         if res.stopped:

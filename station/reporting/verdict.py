@@ -229,7 +229,7 @@ class Judgement:
         """The verdict in the technician's words, the same at every door: the headline, the
         spec, the baseline, what to do."""
         out = [self.headline(), self.spec_line(), self.baseline_line()]
-        out += [f"  - {c}" for c in self.changes[1:4]]
+        out += [f"  - {c}" for c in self.changes[1:6]]
         out.append(f"what to do: {self.action}")
         return tuple(out)
 
@@ -316,6 +316,10 @@ def judge(
         changes = () if this_is_baseline else tuple(trend.change_flags(i))
         named = [] if this_is_baseline else getattr(trend, "named_changes", lambda i: [])(i)
         fault_action = named[0].action if named and getattr(named[0], "action", "") else ""
+        if named and changes:  # the named fault first, in words and units; its statistics last
+            c = named[0]
+            rest = [x for x in changes if x != c.line()]
+            changes = (f"{c.words} changed by {c.size_words()}", *rest, f"in full: {c.line()}")
     rose = [
         (what, now, was)
         for what, now, was in (

@@ -233,6 +233,8 @@ def _start_record(
         "started_utc": _utc(), "epoch": r.t_epoch, "software": f"quickhealth {software_version()}",
         "instrument": station.instrument,
         "cameras": [c.to_json() for c in station.camera_ids],
+        # the cell's accuracy spec travels with the run (run.json, measurements.csv)
+        **({} if station.spec_mm is None else {"spec_mm": station.spec_mm}),
         **(extra or {}),
     }  # fmt: skip
 

@@ -279,6 +279,7 @@ def station_in_world(
         T_instr_board=world.T_instr_board,
         cell_name=cell.name,
         cell_sha256=cell.sha256,
+        spec_mm=cell.spec_mm,
         instrument=instrument,
         robot_name=robot_name or sim_robot_name(cell),
         closers=list(closers or []),
