@@ -264,6 +264,14 @@ def workspace_error(
     cond = reference_conditions(fitted) if conditions is None else conditions
     q = workspace_commands(fitted, n_samples, seed)
     err = fitted.tcp_error(q, approach=np.ones_like(q), **cond.arrays(q, fitted.robot))
+    return error_distribution(q, np.asarray(err, float), cond, bins)
+
+
+def error_distribution(q: F, err: F, conditions: Conditions, bins: int = 40) -> WorkspaceError:
+    """The :class:`WorkspaceError` of TCP errors ``err`` (m) at commands ``q`` (a
+    :class:`WorkspaceMap`'s: the figures and the map from one evaluation)."""
+    n_samples = len(err)
+    cond = conditions
     counts, edges = np.histogram(err, bins=bins, range=(0.0, float(err.max()) * 1.0001 + 1e-12))
     return WorkspaceError(
         n_samples=n_samples,

@@ -34,7 +34,8 @@ from ...identify.workspace import (
     WorkspaceError,
     WorkspaceMap,
     all_joint_curves,
-    workspace_error,
+    error_distribution,
+    reference_conditions,
     workspace_map,
 )
 from ..archive import Archive, missing_words, run_metadata, run_state, trend_runs
@@ -161,8 +162,9 @@ def build_report(
             meta = {**meta, **{k: v for k, v in rec.meta.items() if v}, "time_utc": rec.time_utc}
 
     q_plan, plan_source = _plan_joints(d, meas)
-    ws = workspace_error(fitted, n_samples=options.workspace_samples)
-    wm = workspace_map(fitted, n_samples=options.workspace_samples)
+    cond = reference_conditions(fitted)
+    wm = workspace_map(fitted, n_samples=options.workspace_samples, conditions=cond)
+    ws = error_distribution(wm.q, wm.err, cond)  # the same evaluation as the map's
     curves = all_joint_curves(fitted, n_points=61)
     calib = _before_after(d, fitted, meas)
     diag = run_diagnosis(d, fitted, meas, compute=options.diagnose_if_missing)
