@@ -260,7 +260,8 @@ def redetect_run(
     failed = []
     for i in sorted(st.captured):
         rec = st.captured[i]
-        left, right = (read_gray(d / p) for p in rec.images)
+        left, right = (read_gray(d / p, depth=True) for p in rec.images)  # at their depth
+        bits = int((rec.camera or {}).get("bits", 8))
         for cam, img in zip(rig.cameras, (left, right), strict=True):
             if tuple(cam.image_size) != (img.shape[1], img.shape[0]):
                 raise InputError(
@@ -268,9 +269,10 @@ def redetect_run(
                     f"images, the run's are {img.shape[1]}×{img.shape[0]} px"
                 )
         hint = old[rec.name] @ T_target_plate(rec.pan) if rec.name in old else None
-        m = measure_stereo(rig, target, left, right, roi_hint=hint, pan=rec.pan)
-        if isinstance(m, Rejection) and hint is not None:
-            m = measure_stereo(rig, target, left, right, pan=rec.pan)  # search the whole images
+        deep = bits if bits > 8 else None
+        m = measure_stereo(rig, target, left, right, bits=deep, roi_hint=hint, pan=rec.pan)
+        if isinstance(m, Rejection) and hint is not None:  # search the whole images
+            m = measure_stereo(rig, target, left, right, bits=deep, pan=rec.pan)
         if isinstance(m, Rejection):
             failed.append(rec.name)
             continue

@@ -132,7 +132,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
 def _read_journal(
     run: Path,
-) -> tuple[list[str], F, F, F, F, list[tuple[Path, Path]], list[tuple[Box, Box] | None]]:
+) -> tuple[list[str], F, F, F, F, list[tuple[Path, Path]], list[tuple[Box, Box] | None], list[int]]:
     """Captured poses of a `quickhealth run` folder (journal.jsonl), in execution order, with
     the pixel boxes each capture was first searched in (None where not recorded)."""
     from ..formats import vision as io  # OpenCV
@@ -157,7 +157,8 @@ def _read_journal(
         io.check_pose_id(pid, f"{run / JOURNAL}: captured pose {i + 1}")
     if q.ndim != 2 or not np.all(np.isfinite(q)):
         raise InputError(f"{run / JOURNAL}: captured joint angles are not all finite numbers")
-    return ids, q, pan, time, np.full(len(ids), np.nan), files, [r.search for r in recs]
+    bits = [int((r.camera or {}).get("bits", 8)) for r in recs]  # the depth they were taken at
+    return ids, q, pan, time, np.full(len(ids), np.nan), files, [r.search for r in recs], bits
 
 
 @workers.owns_workers
@@ -183,10 +184,10 @@ def run_measure(args: argparse.Namespace) -> int:
     target = io.read_target(tpath)
     from_journal = (run / JOURNAL).is_file()
     if from_journal:
-        ids, q, pan, time, temp, files, search = _read_journal(run)
+        ids, q, pan, time, temp, files, search, bits = _read_journal(run)
     else:
         ids, q, pan, time, temp = io.read_image_index(run / "images" / "index.csv")
-        search = [None] * len(ids)
+        search, bits = [None] * len(ids), [8] * len(ids)
         files = [(run / "images" / f"{p}_left.png", run / "images" / f"{p}_right.png") for p in ids]
     if len(set(ids)) != len(ids):
         raise InputError(f"{run}: pose ids repeat; each pose needs its own id")
@@ -201,6 +202,7 @@ def run_measure(args: argparse.Namespace) -> int:
             None if np.isnan(pan[k]) else float(pan[k]),
             None if np.isnan(time[k]) else float(time[k]),
             search[k],
+            bits[k] if bits[k] > 8 else None,
         )
         for k, pid in enumerate(ids)
     ]  # fmt: skip

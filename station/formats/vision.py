@@ -60,8 +60,10 @@ def _header_pixels(path: Path) -> int | None:
         return None
 
 
-def read_gray(path: Path) -> U8:
-    """One image as 8-bit grey; InputError for unreadable, corrupt or oversized files.
+def read_gray(path: Path, *, depth: bool = False) -> U8:
+    """One image as 8-bit grey (``depth``: at its depth, uint16 for a 16-bit PNG or TIFF, as
+    a run stores a 10- to 16-bit camera's images); InputError for unreadable, corrupt or
+    oversized files.
 
     Limits (docs/vision.md): a regular file of at most 200 MiB whose header claims at most
     ``MAX_IMAGE_PIXELS`` pixels; the header is read before anything is decoded.
@@ -85,7 +87,8 @@ def read_gray(path: Path) -> U8:
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     try:
-        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+        flags = cv2.IMREAD_GRAYSCALE | (cv2.IMREAD_ANYDEPTH if depth else 0)
+        img = cv2.imdecode(data, flags) if data.size else None
     except cv2.error as exc:
         msg = " ".join(str(exc).split())[-160:]
         raise InputError(f"{path}: OpenCV cannot decode this image: {msg}") from None

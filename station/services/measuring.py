@@ -40,6 +40,7 @@ class StoredPair:
     pan: float | None = None
     time: float | None = None
     search: tuple[Box, Box] | None = None  # px boxes the run searched first (its journal)
+    bits: int | None = None  # significant bits of 16-bit images (its journal); None: 8 or 16
 
 
 # the rig and target of a worker process (set once by its initializer)
@@ -54,7 +55,7 @@ def _measure_one(pair: StoredPair) -> tuple[str, Result]:
     rig, target = _RIG[0]
     imgs = []
     for p, cam in ((pair.left, rig.left), (pair.right, rig.right)):
-        img = read_gray(p)
+        img = read_gray(p, depth=True)  # measured at the depth the cameras took it
         w, h = cam.image_size
         if img.shape != (h, w):
             raise InputError(
@@ -62,8 +63,9 @@ def _measure_one(pair: StoredPair) -> tuple[str, Result]:
             )
         imgs.append(img)
     return pair.pose_id, measure_stereo(
-        rig, target, imgs[0], imgs[1], roi_hint=pair.search, pan=pair.pan, time=pair.time
-    )
+        rig, target, imgs[0], imgs[1], bits=pair.bits, roi_hint=pair.search, pan=pair.pan,
+        time=pair.time,
+    )  # fmt: skip
 
 
 def measure_pairs(

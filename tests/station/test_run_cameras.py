@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import qh_station_plan as _station_plan
 
+from quickhealth.station.cli import main
 from quickhealth.station.formats import read_measurements
 from quickhealth.station.hardware.cameras.config import choose
 from quickhealth.station.hardware.motor import SerialPanMotor
@@ -123,6 +124,10 @@ def test_a_12_bit_run_through_emulated_pylon_cameras(world, plan, tmp_path) -> N
     T = world.twin.true_pose(m.q)
     err = np.linalg.norm(m.pos - T[:, :3, 3], axis=1)
     assert np.all(err < 5 * np.linalg.norm(m.sigma_pos, axis=1) + 2e-5)
+    # measured again offline from the stored 16-bit PNGs, at their depth: the same numbers
+    assert main(["vision", "measure", str(run), "--out", str(tmp_path / "again.csv")]) == 0
+    again = read_measurements(tmp_path / "again.csv")
+    assert np.max(np.abs(again.pos - m.pos)) < 1e-9
     # the loop did not wait for vision: pose k was measured while the arm went on to k+1
     for k in (1, 2):
         assert st.measured[k].timing["start"] < st.captured[k + 1].time_s
