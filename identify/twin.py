@@ -495,3 +495,22 @@ def payloads(n: int, max_kg: float, seed: int = 0) -> F:
     to ``max_kg``, drawn from ``seed``."""
     rng = np.random.default_rng(seed)
     return np.where(rng.random(n) < 0.5, 0.0, rng.uniform(0.2, 1.0, n) * max_kg)
+
+
+def warm_run(
+    twin: Twin,
+    q: ArrayLike,
+    seed: int,
+    *,
+    duration: float = 3600.0,
+    temp_rise: float = 1.0,
+    payload_kg: float = 2.0,
+) -> Measurements:
+    """Measurements of a run of the twin at ``q`` (n, nj) with every channel a controller
+    reports: over ``duration`` s the air warms by ``temp_rise`` K and each joint by its duty
+    (:func:`joint_schedules`), each pose empty or carrying up to ``payload_kg`` (the joint
+    torques); noise drawn from ``seed``."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    t, temp = schedules(len(q), duration, temp_rise)
+    jt, tau = joint_schedules(twin.robot, q, t, temp, payloads(len(q), payload_kg, seed=seed))
+    return twin.measure(q, t, temp, seed=seed, joint_temp=jt, joint_torque=tau)

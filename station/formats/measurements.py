@@ -11,7 +11,7 @@ import csv
 import io
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +73,21 @@ JOINT_COLUMNS = {
     "temp_j": ("joint_temp", "°C", (-50.0, 200.0)),
     "tau_j": ("joint_torque", "N·m", (-5000.0, 5000.0)),
 }
+
+
+def check_joint_values(vals: F, prefix: str, where: Callable[[int, int], str]) -> F:
+    """``vals`` (n, nj) of the per-joint group ``prefix`` (:data:`JOINT_COLUMNS`), refused in one
+    line at ``where(row, joint)`` when a value is outside what a controller reports."""
+    _, unit, (lo, hi) = JOINT_COLUMNS[prefix]
+    bad = np.argwhere((vals < lo) | (vals > hi))
+    if bad.size:
+        i, j = (int(v) for v in bad[0])
+        raise InputError(
+            f"{where(i, j)}: {vals[i, j]:.6g} {unit} is outside what a controller reports "
+            f"({lo:g} to {hi:g} {unit}): another unit?"
+        )
+    return vals
+
 
 #: How far from 1 a quaternion's norm may be (rounding of written cells) before it is refused.
 QUAT_NORM_TOL = 1e-3
@@ -436,15 +451,9 @@ def parse_measurements(
         if cols[0] not in col:
             return None
         vals = np.stack([numbers(c) for c in cols], axis=1)
-        _, unit, (lo, hi) = JOINT_COLUMNS[prefix]
-        bad = np.argwhere((vals < lo) | (vals > hi))
-        if bad.size:
-            i, j = (int(v) for v in bad[0])
-            raise InputError(
-                f"{name}:{rows[i][0]}:{col[cols[j]] + 1}: column {cols[j]!r}: {vals[i, j]:.6g} "
-                f"{unit} is outside what a controller reports ({lo:g} to {hi:g} {unit})"
-            )
-        return vals
+        return check_joint_values(
+            vals, prefix, lambda i, j: f"{name}:{rows[i][0]}:{col[cols[j]] + 1}: column {cols[j]!r}"
+        )
 
     return Measurements(
         q=q,

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from ...identify.errors import InputError
 from ...identify.measurements import Measurements
 from .common import MAX_CELL_CHARS, MAX_ROWS, one_line, read_text_limited
-from .measurements import JOINT_COLUMNS
+from .measurements import check_joint_values
 
 F = NDArray[np.float64]
 
@@ -513,16 +513,13 @@ def parse_tracker(text: str, name: str, layout: TrackerLayout) -> Measurements:
             continue
         keys = [f"{prefix}{i + 1}" for i in range(n_j)]
         vals = np.stack([numbers(k) for k in keys], axis=1)
-        _, unit, (lo, hi) = JOINT_COLUMNS[prefix]
-        out = np.argwhere((vals < lo) | (vals > hi))
-        if out.size:
-            i, j = (int(v) for v in out[0])
-            raise InputError(
-                f"{name}:{rows[i][0]}:{cols[keys[j]].index + 1}: {cols[keys[j]].role} "
-                f"{vals[i, j]:.6g} is outside what a controller reports ({lo:g} to {hi:g} {unit}):"
-                f" the column must be in {unit}"
-            )
-        per_joint[field_] = vals
+        per_joint[field_] = check_joint_values(
+            vals,
+            prefix,
+            lambda i, j, keys=keys: (
+                f"{name}:{rows[i][0]}:{cols[keys[j]].index + 1}: {cols[keys[j]].role}"
+            ),
+        )
     pose_id = None
     if layout.pose_id is not None:
         j = cols["pose_id"].index

@@ -11,11 +11,10 @@ from quickhealth.identify.jointload import drive_torques
 from quickhealth.identify.robot import ur5
 from quickhealth.identify.select import select_orders
 from quickhealth.identify.twin import (
-    joint_schedules,
     make_twin,
     payloads,
     random_joints,
-    schedules,
+    warm_run,
 )
 
 
@@ -51,13 +50,7 @@ def test_a_payload_that_changes_between_poses_is_followed_by_the_torque_form():
     seed = 100
     twin = make_twin(seed=seed, effects={"compliance:j2:torque": 2.5e-5})
     q = random_joints(twin.robot, 600, seed=seed + 1, T_instr_base=twin.truth.T_instr_base)
-
-    def run(qq, s):
-        t, temp = schedules(len(qq), 3600.0, 1.0)
-        jt, tau = joint_schedules(twin.robot, qq, t, temp, payloads(len(qq), 2.0, seed=s))
-        return twin.measure(qq, t, temp, seed=s, joint_temp=jt, joint_torque=tau)
-
-    train, held = run(q[:300], seed + 2), run(q[300:], seed + 3)
+    train, held = warm_run(twin, q[:300], seed + 2), warm_run(twin, q[300:], seed + 3)
     true = twin.true_pose(held.q, held.time, held.temp, joint_torque=held.joint_torque)
     floor = rms_pos_mm(pose_residuals(held, true))
 

@@ -12,11 +12,9 @@ from quickhealth.identify.robot import ur5
 from quickhealth.identify.select import select_orders
 from quickhealth.identify.twin import (
     camera_pose,
-    joint_schedules,
     make_twin,
-    payloads,
     random_joints,
-    schedules,
+    warm_run,
 )
 
 
@@ -55,13 +53,7 @@ def test_a_warming_shoulder_is_named_and_fitted_to_the_noise_floor():
     seed = 100
     twin = make_twin(seed=seed, effects={"thermal:j2": 1.5e-5})
     q = random_joints(twin.robot, 600, seed=seed + 1, T_instr_base=twin.truth.T_instr_base)
-
-    def run(qq, s):
-        t, temp = schedules(len(qq), 3600.0, 1.0)
-        jt, tau = joint_schedules(twin.robot, qq, t, temp, payloads(len(qq), 2.0, seed=s))
-        return twin.measure(qq, t, temp, seed=s, joint_temp=jt, joint_torque=tau)
-
-    train, held = run(q[:300], seed + 2), run(q[300:], seed + 3)
+    train, held = warm_run(twin, q[:300], seed + 2), warm_run(twin, q[300:], seed + 3)
     assert np.ptp(train.joint_temp[:, 1]) > 8.0 and np.ptp(train.temp) < 1.01
     true = twin.true_pose(held.q, held.time, held.temp, joint_temp=held.joint_temp)
     floor = rms_pos_mm(pose_residuals(held, true))

@@ -535,7 +535,7 @@ def test_joint_temperatures_and_torques_are_mapped_when_the_file_has_them(tmp_pa
     with pytest.raises(InputError, match=r"--joint-temps 'T1,T2': needs one column per joint"):
         parse_tracker(other, "f.csv", layout_with(_MAP, separator=",", joint_temps=("T1", "T2")))
     hot = other.replace(repr(float(temps[0, 1])), "250.0", 1)
-    with pytest.raises(InputError, match=r"f\.csv:2:\d+: joint 2 temperature 250 is outside"):
+    with pytest.raises(InputError, match=r"f\.csv:2:\d+: joint 2 temperature: 250 °C is outside"):
         parse_tracker(
             hot,
             "f.csv",
