@@ -411,7 +411,9 @@ def main() -> int:
         for k in pending:
             survived[k] += int(ok)
         print(
-            f"  run {runs}: {len(pending)} faults ({', '.join(sorted(set(pending))) or '-'}), "
+            f"  run {runs}: {len(pending)} faults "
+            f"({sum(k.startswith('camera_') for k in pending)} camera; "
+            f"{', '.join(sorted(set(pending))) or '-'}), "
             f"{'complete' if ended else 'NOT complete'}, lost {lo}, twice {tw}  "
             f"[{time.monotonic() - t0:.0f} s]",
             flush=True,
