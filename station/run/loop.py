@@ -28,7 +28,7 @@ measurement of a pair), :mod:`.runner` (one pose, the measurement worker, the se
 (measurements.csv, run.json), :mod:`.lock` (one run drives the cell; one writer per output).
 
 SYNOPSIS
-    >>> station = real_station(cell, robot_ip, motor_port=..., cameras=..., calibration=...)  # doctest: +SKIP
+    >>> station = real_station(HardwareConfig.from_options(cell, robot_ip=ip, ...))  # doctest: +SKIP
     >>> result = run_plan(station, plan, Path("runs/n1"), progress=print)  # doctest: +SKIP
 """
 
