@@ -49,6 +49,7 @@ Prints: faults injected and survived, poses lost, poses measured twice, interpre
 inject nothing (workers failing before their first fault) end the soak too, as a FAIL.
 
     .venv/bin/python benchmarks/station_soak.py [--faults 200] [--seed 0] [--max-runs N]
+                                                [--camera-share 0.35]
 """
 
 from __future__ import annotations
@@ -200,7 +201,9 @@ def _say(event: str, **what: object) -> None:
     print(json.dumps({"event": event, **what}), flush=True)
 
 
-def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
+def worker(
+    run_dir: Path, plan_path: Path, n_faults: int, seed: int, camera_share: float = CAMERA_SHARE
+) -> int:
     from dataclasses import replace
 
     from quickhealth.identify.errors import HardwareError
@@ -243,7 +246,7 @@ def worker(run_dir: Path, plan_path: Path, n_faults: int, seed: int) -> int:
                 while len(fired) < budget:
                     if done.wait(rng.uniform(0.3, 4.0)):
                         return
-                    kind = rng.choice(CAMERA if rng.random() < CAMERA_SHARE else ROBOT)
+                    kind = rng.choice(CAMERA if rng.random() < camera_share else ROBOT)
                     fired.append(kind)
                     _say("injected", kind=kind)
                     _inject(kind, cell, station)
@@ -329,6 +332,12 @@ def main() -> int:
     ap.add_argument("--per-run", type=int, default=12, help="faults per run of the plan")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument(
+        "--camera-share",
+        type=float,
+        default=CAMERA_SHARE,
+        help=f"share of camera faults among the in-run faults (default {CAMERA_SHARE})",
+    )
+    ap.add_argument(
         "--max-runs",
         type=int,
         default=None,
@@ -338,7 +347,7 @@ def main() -> int:
     ap.add_argument("--plan", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker is not None:
-        return worker(args.worker, args.plan, args.per_run, args.seed)
+        return worker(args.worker, args.plan, args.per_run, args.seed, args.camera_share)
 
     from quickhealth.station.planning import load_plan
 
@@ -368,7 +377,8 @@ def main() -> int:
         worker_failed = False
         for k in range(kills + 1):
             cmd = [sys.executable, __file__, "--worker", str(run_dir), "--plan", str(plan_path),
-                   "--per-run", str(in_run if k == kills else 0), "--seed", str(rng.randrange(1 << 30))]  # fmt: skip
+                   "--per-run", str(in_run if k == kills else 0), "--seed", str(rng.randrange(1 << 30)),
+                   "--camera-share", str(args.camera_share)]  # fmt: skip
             proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             if k < kills:  # kill -9 mid-run, then --resume in a new process
                 time.sleep(rng.uniform(6.0, 14.0))
