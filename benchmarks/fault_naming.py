@@ -90,8 +90,9 @@ class Case:
         return bool(res.flags()), trend_top, chk.changed, check_top
 
 
-def _judge(top, fault: F.Fault, size: float) -> tuple[bool, bool, bool]:  # type: ignore[no-untyped-def]
-    """(named right, named right or as its geometric twin, size within 2σ)."""
+def _judge(top, fault: F.Fault, size: float, images: F.FaultImages) -> tuple[bool, bool, bool]:  # type: ignore[no-untyped-def]
+    """(named right, named right or as its geometric twin, size within 2σ: a twin's size is
+    the true size carried over to it through the two faults' images)."""
     if top is None:
         return False, False, False
     right = top.fault == fault.key
@@ -101,7 +102,14 @@ def _judge(top, fault: F.Fault, size: float) -> tuple[bool, bool, bool]:  # type
         < 0.05 * top.probability * a.prior
         for a in top.alternatives
     )  # the same evidence: only the prior told them apart
-    within = (right or twin) and abs(top.size - size) < 2 * top.sigma
+    expect = size
+    if twin and not right:
+        keys = [f.key for f in images.faults]
+        if top.fault in keys:
+            g_true = images.G[:, images.columns[keys.index(fault.key)]][:, 0]
+            g_top = images.G[:, images.columns[keys.index(top.fault)]][:, 0]
+            expect = size * float(g_true @ g_top) / float(g_top @ g_top)
+    within = (right or twin) and abs(top.size - expect) < 2 * top.sigma
     return right, twin, within
 
 
@@ -140,7 +148,7 @@ def main() -> None:
                     sizes.append(abs(size))
                     flag, ttop, cflag, ctop = case.run(f, size, r, d)
                     for path, fl, top in (("trend", flag, ttop), ("check", cflag, ctop)):
-                        right, twin, within = _judge(top, f, size)
+                        right, twin, within = _judge(top, f, size, case.images)
                         row[path][0] += fl
                         row[path][1] += right
                         row[path][2] += twin

@@ -991,10 +991,12 @@ class _Problem:
                     break
                 p_try = p.copy()
                 p_try[free] += dz * D
-                r_try, J_try = self.residual_and_jacobian(p_try)
+                loop = self._loop(p_try)  # the Jacobian only for a step that is taken
+                r_try = self._white(loop[-1]).reshape(-1)
                 c_try = cost(r_try, p_try)
                 if c_try <= c:
                     accepted = True
+                    r_try, J_try = self._residual_and_jacobian(loop)
                     break
                 lam = max(lam * 10.0, 1e-6)
             if at_minimum or not accepted:

