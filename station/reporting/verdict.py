@@ -474,7 +474,7 @@ def recorded_verdict(report: Mapping[str, Any]) -> tuple[HealthVerdict, str] | N
 
 
 def _first(changes: tuple[str, ...]) -> str:
-    more = len(changes) - 1
+    more = sum(not c.startswith("in full: ") for c in changes[1:])
     return changes[0] + (f" (and {more} more)" if more > 0 else "")
 
 

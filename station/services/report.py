@@ -364,9 +364,14 @@ def _uncertainty_words(fitted: FittedModel) -> str:
     n = fitted.noise
     if not n.rescaled:
         return ""
+    added = [
+        f"{v * k:.3g} {unit}"
+        for v, k, unit in ((n.excess_pos, 1e3, "mm"), (n.excess_rot, 1e3, "mrad"))
+        if v > 0
+    ]
     return (
         "uncertainty estimated from the residuals (the stated instrument uncertainty was too "
-        f"small: {n.excess_pos * 1e3:.3g} mm added per axis)"
+        f"small: {' and '.join(added) or 'a scatter'} added per axis)"
     )
 
 
