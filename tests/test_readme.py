@@ -80,7 +80,7 @@ def test_readme_tutorial_runs_as_written(tmp_path, monkeypatch, capsys):
         done.append(f"{cmd}: exit {rc}")
     print("\n".join(done))
     # each step's output fed the next
-    for p in ("l/view01.png", "r/view01.png", "export.csv", "cal.json", "meas.csv",
+    for p in ("l/view01.png", "r/view01.png", "export.csv", "cal.json", "remeasured.csv", "meas.csv",
               "plan/plan.json", "plan/loop.script", "run1/measurements.csv", "run1/model.json",
               "run1/report.json", "pred.csv", "diag.json", "t/meas.csv", "t/meas.heldout.csv",
               "t/model.json", "run1/report.html", "run1/report.pdf", "corrected.urdf",

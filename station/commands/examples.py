@@ -2,7 +2,7 @@
 
 quickhealth examples [--out DIR] [--sim-image-scale S]
     DIR/l/*.png, DIR/r/*.png: a ChArUco board (charuco:10x7:60:45:DICT_4X4_50) seen by the
-    simulated cell's stereo camera from 12 places (``vision calibrate`` reads them);
+    simulated cell's stereo camera from 8 places (``vision calibrate`` reads them);
     DIR/export.csv: a laser tracker export of a simulated UR10 in the ipa-ur10 layout
     (``import tracker``).  The images have the simulated camera's size (``run --sim``'s
     --sim-image-scale or $QUICKHEALTH_SIM_IMAGE_SCALE, default 0.5), so a calibration made
