@@ -1,17 +1,19 @@
 """Optimal experimental design: which poses to measure so the fitted model predicts best.
 
 The fit (:mod:`.fit`, with the order search of :mod:`.select`) will choose the error model's
-orders from the data; the design cannot know them.  It uses a *stated prior for the orders*
-instead (:class:`DesignPrior`): every error motion of every joint is a Chebyshev series up to
-order ``max_order`` whose coefficient ``k`` is a priori ``N(0, σ0² · decay^{2k})`` (``σ0``: 0.1 mm
-for the translations, 0.3 mrad for the rotations, the size of the geometric errors of a
-UR-class arm; ``decay`` 0.5: higher orders are smaller), base and tool are free (1 m, 1 rad).
+orders from the data; the design cannot know them.  It uses a *prior for the orders*
+instead (:class:`DesignPrior`): stated, every error motion of every joint a Chebyshev series up
+to order ``max_order`` whose coefficient ``k`` is a priori ``N(0, σ0² · decay^{2k})`` (``σ0``:
+0.1 mm for the translations, 0.3 mrad for the rotations, the size of the geometric errors of a
+UR-class arm; ``decay`` 0.5: higher orders are smaller), base and tool free (1 m, 1 rad); or
+taken from a fitted baseline (:func:`prior_from_baseline`: its orders, the sizes of its
+coefficients and effects, and the share of its residual scatter the model leaves unexplained).
 With the instrument's noise (:class:`~.linearize.InstrumentNoise`) each pose adds the
-information ``Jᵢᵀ Σ⁻¹ Jᵢ`` of its loop Jacobian at the nominal robot (the loop is nearly
-linear in the coefficients), and the posterior covariance of the coefficients after poses
-``S`` is ``P(S) = (Π⁻¹ + Σ_{i∈S} Jᵢᵀ Σ⁻¹ Jᵢ)⁻¹``.
+information ``Jᵢᵀ Σ⁻¹ Jᵢ`` of its loop Jacobian at the nominal robot (the loop is nearly linear
+in the coefficients), and the posterior covariance of the coefficients after poses ``S`` is
+``P(S) = (Π⁻¹ + Σ_{i∈S} Jᵢᵀ Σ⁻¹ Jᵢ)⁻¹``.
 
-Criteria (Bayesian, so a handful of poses already has a finite value):
+Information criteria (Bayesian, so a handful of poses already has a finite value):
 
 - **I-optimal** (default): the mean over the workspace of the predicted variance of the TCP
   position error that every health figure reports, ``tr(M P)`` with ``M = E_q[Gᵀ G]`` and
@@ -20,33 +22,64 @@ Criteria (Bayesian, so a handful of poses already has a finite value):
   predicted workspace TCP error band of the model fitted later" (squared, averaged).
 - **D-optimal**: ``log det P`` (the volume of the coefficients' uncertainty).
 
+**The guard against what the model does not know.**  A design optimal for the model it
+assumes concentrates the poses where that model is most sensitive (the joints' extremes).  A
+real robot has errors no model of the fit describes; a least-squares fit then returns the
+model closest to the truth *on the poses measured*, and on concentrated poses that is not the
+model closest to it over the workspace.  So the information criterion chooses only the first
+``k`` poses; every later pose is chosen to make the set *representative* of the candidates:
+the one that most lowers the maximum mean discrepancy between the chosen poses and all
+candidates (kernel herding; Gaussian kernel in joint space, length ``spread_length`` times each
+joint's standard deviation over the candidates), with the first ``k`` already in the set.
+``k = ⌈saturation · r / d / s⌉``: ``r`` the number of coefficients the candidates can
+identify, ``d`` the components a pose measures (6 or 3), so ``r / d`` poses saturate the
+model; ``s`` the share of the residual variance the model leaves unexplained (a baseline's
+estimated scatter ``τ`` against its instrument's ``σ``: ``τ² / (τ² + σ²)``; 1 without a
+baseline, 0 when the baseline's residuals are the instrument's noise: then every pose is
+chosen by the information criterion).  ``saturation`` 1.3 and ``spread_length`` 0.4 were tuned
+on the digital twin and on the training part of the shared UR10 series only (docs/plan.md).
+
 The workspace is the candidates themselves (they are where the robot can be measured).
 Selection is greedy: each step takes the pose with the largest decrease of the criterion,
 computed for all candidates at once by rank-``d`` updates of ``P`` (``O(m d² p)`` per step for
-``m`` candidates and ``p`` coefficients).  Fedorov exchange passes after it were tried and
-dropped: on the twin they lowered the criterion by 1–3 % and the held-out error not at all,
-at 5–10 times the time.  Only joint angles are read: selection never sees measurements.
+``m`` candidates and ``p`` coefficients); the representative steps cost ``O(m)`` each after
+one ``O(m w)`` kernel mean.  Only joint angles are read: selection never sees measurements.
 
 SYNOPSIS::
 
-    from quickhealth.identify.design import select_poses, DesignSettings
+    from quickhealth.identify.design import select_poses, DesignSettings, prior_from_baseline
     res = select_poses(ur5(), q_candidates, 50, DesignSettings(orientation=False))
-    res.indices, res.criterion, res.random_criterion
+    res.indices, res.n_information, res.n_spread, res.band_mm, res.random_band_mm
+    settings = DesignSettings(prior=prior_from_baseline(fitted_model))   # the next plan
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .effects import Effect, effect_context
 from .errormodel import ErrorModelSpec
 from .errors import InputError
-from .linearize import InstrumentNoise, coefficient_columns, forward, motion_jacobian
+from .linearize import (
+    InstrumentNoise,
+    coefficient_columns,
+    effect_channels,
+    effect_jacobian,
+    forward,
+    motion_jacobian,
+    sensitivities,
+)
 from .robot import RobotModel
 from .transforms import make_T, skew
+
+if TYPE_CHECKING:  # the type only: the fit's module loads scipy
+    from .fit import FittedModel
 
 F = NDArray[np.float64]
 
@@ -60,25 +93,61 @@ class Criterion(StrEnum):
 
 @dataclass(frozen=True)
 class DesignPrior:
-    """The stated prior for the orders and sizes of the error model (SI)."""
+    """The prior for the orders and sizes of the error model (SI).
+
+    Stated (the defaults), or from a fitted baseline (:func:`prior_from_baseline`): then
+    ``fitted_orders`` (``(nj + 2, 6)``) raises each motion's series to the baseline's order where
+    that is higher than ``max_order``, ``fitted_sizes`` (coefficient label, size) sets a
+    coefficient's prior to the larger of the stated one and the baseline's ``|estimate| ⊕ σ``,
+    ``effects`` adds the baseline's effects (each with a prior standard deviation per
+    parameter), and ``unexplained`` is the share of the residual variance the baseline's model
+    did not explain (1: as much as assumed without a baseline; 0: none).
+    """
 
     max_order: int = 3
     sigma_pos: float = 1e-4  # m, order 0 of a translation
     sigma_rot: float = 3e-4  # rad, order 0 of a rotation
     decay: float = 0.5  # factor per order
     setup: float = 1.0  # m and rad: base and tool (free)
+    fitted_orders: tuple[tuple[int, ...], ...] | None = None
+    fitted_sizes: tuple[tuple[str, float], ...] = ()
+    effects: tuple[tuple[Effect, tuple[float, ...]], ...] = ()
+    unexplained: float = 1.0
+    source: str = "stated"
+
+    def orders(self, n_joints: int) -> NDArray[np.int64]:
+        """Order of every motion's series, ``(n_joints + 2, 6)`` (base and tool constant)."""
+        o = np.full((n_joints + 2, 6), self.max_order, dtype=np.int64)
+        if self.fitted_orders is not None:
+            fo = np.asarray(self.fitted_orders, dtype=np.int64)
+            if fo.shape != o.shape:
+                raise InputError(
+                    f"the baseline's model has {fo.shape[0] - 2} joints, the robot {n_joints}"
+                )
+            o = np.maximum(o, fo)
+        o[0] = o[-1] = 0
+        return o
 
     def sigmas(self, spec: ErrorModelSpec) -> F:
         """Prior standard deviation of every coefficient of ``spec``."""
         idx = spec.index()
         setup = (idx[:, 0] == 0) | (idx[:, 0] == spec.n_joints + 1)
         base = np.where(idx[:, 1] < 3, self.sigma_pos, self.sigma_rot) * self.decay ** idx[:, 2]
+        base = np.where(idx[:, 2] <= self.max_order, base, 0.0)
+        if self.fitted_sizes:
+            fitted = dict(self.fitted_sizes)
+            base = np.maximum(base, [fitted.get(lab, 0.0) for lab in spec.labels()])
         return np.where(setup, self.setup, base)
 
 
 @dataclass(frozen=True)
 class DesignSettings:
-    """Criterion, instrument and the measured point of a design."""
+    """Criterion, instrument, prior and the guard against misspecification of a design.
+
+    ``spread``: choose the poses after the first ``k`` to make the set representative (the
+    module docstring); ``spread_length``: the kernel's length in each joint's standard
+    deviation over the candidates; ``saturation``: ``k`` in poses that saturate the model.
+    """
 
     criterion: Criterion = Criterion.I_OPTIMAL
     orientation: bool = True  # full pose (7D) or position only
@@ -87,17 +156,23 @@ class DesignSettings:
     prior: DesignPrior = field(default_factory=DesignPrior)
     workspace_samples: int = 1000
     registered: bool = True  # the health figures' TCP error (base and tool registered out)
+    spread: bool = True
+    spread_length: float = 0.4
+    saturation: float = 1.3
 
 
 @dataclass(frozen=True, eq=False)
 class DesignResult:
     """The chosen poses and what the criterion says about them.
 
-    ``indices``: rows of the candidates chosen (in the order the greedy step took them);
-    ``criterion``: the criterion's value for them; ``band_mm``: the root mean square over the
-    workspace of the predicted TCP error's standard deviation (mm), the I-criterion's square
-    root; ``random_band_mm``: the same for ``n`` candidates drawn at random (median of 20
-    draws), for comparison.
+    ``indices``: rows of the candidates chosen (in the order they were taken: the first
+    ``n_information`` by the information criterion, the ``n_spread`` after them to make the
+    set representative); ``criterion``: the information criterion's value for them;
+    ``band_mm``: the root mean square over the workspace of the predicted TCP error's standard
+    deviation (mm), the I-criterion's square root; ``random_band_mm``: the same for ``n``
+    candidates drawn at random (median of 20 draws); ``identifiable``: coefficients (and
+    effect parameters) the candidates can identify (``r``); ``effects``: the baseline's
+    effects in the design; ``left_out``: those not in it, with the reason.
     """
 
     indices: NDArray[np.int64]
@@ -106,35 +181,51 @@ class DesignResult:
     random_band_mm: float
     n_candidates: int
     n_params: int
+    n_information: int = 0
+    n_spread: int = 0
+    identifiable: int = 0
+    prior_source: str = "stated"
+    effects: tuple[str, ...] = ()
+    left_out: tuple[str, ...] = ()
 
 
 def design_spec(robot: RobotModel, q: F, prior: DesignPrior) -> ErrorModelSpec:
     """The prior's error model over the candidates' joint ranges."""
     lo, hi = q.min(axis=0), q.max(axis=0)
     hi = np.where(hi - lo < 1e-6, lo + 1e-6, hi)
-    return ErrorModelSpec.uniform(robot.n_joints, prior.max_order, lo, hi)
+    return ErrorModelSpec(prior.orders(robot.n_joints), lo, hi)
 
 
 def pose_information(
     robot: RobotModel, q: F, spec: ErrorModelSpec, settings: DesignSettings
 ) -> tuple[F, F]:
     """Whitened loop Jacobian of every candidate ``(n, d, P)`` at the nominal robot, and the
-    registered TCP position Jacobian ``(n, 3, P)`` (zero columns for base and tool)."""
+    registered TCP position Jacobian ``(n, 3, P)`` (zero columns for base and tool); ``P``:
+    the coefficients of ``spec``, then the parameters of the prior's effects."""
     q = np.atleast_2d(np.asarray(q, float))
     coeffs = np.zeros(spec.n_params)
     T, A, mot = forward(robot, spec, coeffs, np.eye(4), settings.T_flange_target, q)
     assert A is not None
     d = 6 if settings.orientation else 3
-    Jm = motion_jacobian(T, A, mot)[:, :d]
-    J = coefficient_columns(spec, q, Jm)
+    Jm = motion_jacobian(T, A, mot)
+    Jfull = coefficient_columns(spec, q, Jm[:, :d])
+    G = coefficient_columns(spec, q, Jm[:, :3])
+    effects = [e for e, _ in settings.prior.effects]
+    if effects:
+        ctx = effect_context(robot, q, np.ones_like(q))
+        sens = sensitivities(robot, spec, coeffs, np.eye(4), settings.T_flange_target, q,
+                             channels=effect_channels(effects, ctx), loop=(T, A, mot))  # fmt: skip
+        Je = np.concatenate([effect_jacobian(e, ctx, sens) for e in effects], axis=2)
+        Jfull = np.concatenate([Jfull, Je[:, :d]], axis=2)
+        G = np.concatenate([G, Je[:, :3]], axis=2)
     w = np.r_[[1.0 / settings.noise.sigma_pos_effective] * 3,
               [1.0 / settings.noise.sigma_rot_effective] * 3][:d]  # fmt: skip
-    Jw = J * w[None, :, None]
-    G = coefficient_columns(spec, q, motion_jacobian(T, A, mot)[:, :3])
+    Jw = Jfull * w[None, :, None]
     if not settings.registered:  # the predicted measured point: base and tool count too
         return Jw, G
     idx = spec.index()
-    setup = (idx[:, 0] == 0) | (idx[:, 0] == spec.n_joints + 1)
+    setup = np.zeros(G.shape[-1], bool)
+    setup[: spec.n_params] = (idx[:, 0] == 0) | (idx[:, 0] == spec.n_joints + 1)
     G[:, :, setup] = 0.0
     p = T[:, :3, 3]
     R = np.concatenate([-skew(p), np.broadcast_to(np.eye(3), (len(q), 3, 3)), T[:, :3, :3]], axis=2)
@@ -148,6 +239,66 @@ def _register(G: F, R: F) -> F:
     return (Gf - Rf @ np.linalg.lstsq(Rf, Gf, rcond=None)[0]).reshape(G.shape)
 
 
+def design_effects(
+    robot: RobotModel, q: F, prior: DesignPrior
+) -> tuple[DesignPrior, tuple[str, ...]]:
+    """The prior with only the effects a design can weigh from joint angles alone, and the
+    others with the reason: an effect that needs the run's time or temperature, or whose
+    regressor depends on the direction each joint approached the pose from (the loop's order,
+    decided after the selection), is left out of the information."""
+    if not prior.effects:
+        return prior, ()
+    keep, out = [], []
+    q = np.atleast_2d(q)
+    up, down = effect_context(robot, q, np.ones_like(q)), effect_context(robot, q, -np.ones_like(q))
+    for e, sd in prior.effects:
+        if e.requires():
+            out.append(f"{e.name} (needs the run's {', '.join(e.requires())})")
+            continue
+        k = np.eye(e.n_params)
+        a = [e.perturbation(up, k[i]).dq for i in range(e.n_params)]
+        b = [e.perturbation(down, k[i]).dq for i in range(e.n_params)]
+        if any((x is None) != (y is None) or (x is not None and not np.allclose(x, y))
+               for x, y in zip(a, b, strict=True)):  # fmt: skip
+            out.append(f"{e.name} (depends on the loop's order)")
+            continue
+        keep.append((e, sd))
+    return replace(prior, effects=tuple(keep)), tuple(out)
+
+
+def prior_from_baseline(fitted: FittedModel, source: str = "baseline") -> DesignPrior:
+    """The next plan's prior from a fitted baseline: its orders (a motion's series goes up to
+    the baseline's order where that is above the stated ``max_order``), its coefficients' and
+    effects' sizes (``|estimate| ⊕ σ``, never below the stated prior), and the share of the
+    residual variance its model left unexplained: ``τ² / (τ² + σ²)`` with ``τ`` the scatter the
+    fit estimated beyond the instrument's stated ``σ`` (0 when the residuals were the
+    instrument's noise)."""
+    spec = fitted.spec
+    n = spec.n_params
+    size = np.hypot(fitted.coeffs, fitted.sigma[:n])
+    labels = spec.labels()
+    idx = spec.index()
+    joint = (idx[:, 0] > 0) & (idx[:, 0] <= spec.n_joints)
+    sizes = tuple((labels[i], float(size[i])) for i in np.flatnonzero(joint) if size[i] > 0)
+    effects, at = [], n
+    for e, p in zip(fitted.effects, fitted.effect_params, strict=True):
+        k = e.n_params
+        sd = np.hypot(np.asarray(p, float), fitted.sigma[at : at + k])
+        sd = np.maximum(sd, np.asarray(e.prior_sigma, float) * 1e-3)  # never a zero prior
+        effects.append((e, tuple(float(v) for v in sd)))
+        at += k
+    tau, sigma = fitted.noise.excess_pos, fitted.noise.sigma_pos
+    share = tau**2 / (tau**2 + sigma**2) if tau > 0 else 0.0
+    orders = np.where(spec.orders < 0, 0, spec.orders)
+    return DesignPrior(
+        fitted_orders=tuple(tuple(int(v) for v in r) for r in orders),
+        fitted_sizes=sizes,
+        effects=tuple(effects),
+        unexplained=float(share),
+        source=source,
+    )
+
+
 def select_poses(
     robot: RobotModel,
     q_candidates: ArrayLike,
@@ -157,7 +308,9 @@ def select_poses(
     allowed_groups: NDArray[np.int64] | None = None,
     seed: int = 0,
 ) -> DesignResult:
-    """Choose ``n`` of the candidate joint configurations (rad, (m, nj)) by the criterion.
+    """Choose ``n`` of the candidate joint configurations (rad, (m, nj)) by the criterion,
+    the first ``k`` by information and the rest to make the set representative (module
+    docstring; ``settings.spread`` False: all by information).
 
     Parameters
     ----------
@@ -165,12 +318,12 @@ def select_poses(
         A group label per candidate: at most one candidate of a group is chosen (the IK
         configurations of one target).
     seed : int
-        For the random comparison draws.
+        For the workspace sample and the random comparison draws.
 
     Raises
     ------
     InputError
-        ``n`` < 1 or more than the candidates (or groups).
+        ``n`` < 1 or more than the candidates (or groups); candidates of another arm.
     """
     q = np.atleast_2d(np.asarray(q_candidates, float))
     m = q.shape[0]
@@ -180,14 +333,22 @@ def select_poses(
         raise InputError(f"--n {n}: choose between 1 and {n_groups} of the {m} candidates")
     if q.shape[1] != robot.n_joints:
         raise InputError(f"candidates have {q.shape[1]} joints, {robot.name} has {robot.n_joints}")
-    spec = design_spec(robot, q, settings.prior)
+    prior, left_out = design_effects(robot, q, settings.prior)
+    settings = replace(settings, prior=prior)
+    spec = design_spec(robot, q, prior)
     J, G = pose_information(robot, q, spec, settings)
     rng = np.random.default_rng(seed)
     ws = rng.choice(m, size=min(m, settings.workspace_samples), replace=False)
     Gw = G[ws].reshape(-1, G.shape[-1])
     M = Gw.T @ Gw / len(ws)
-    P0 = np.diag(settings.prior.sigmas(spec) ** 2)
-    chosen = _greedy(J, M, P0, n, groups, settings.criterion)
+    P0 = np.diag(np.r_[prior.sigmas(spec), [v for _, sd in prior.effects for v in sd]] ** 2)
+    live = np.diag(P0) > 0  # coefficients the prior leaves out (above its orders) drop
+    J, M, P0 = J[:, :, live], M[np.ix_(live, live)], P0[np.ix_(live, live)]
+    r = identifiable(J[ws])
+    k = n if not settings.spread else information_poses(n, r, J.shape[1], prior, settings)
+    chosen = _greedy(J, M, P0, k, groups, settings.criterion)
+    if k < n:
+        chosen = _spread(q, n, groups, chosen, ws, settings.spread_length)
     crit = _criterion(J, M, P0, chosen, settings.criterion)
     rand = [
         _criterion(J, M, P0, _random_groups(groups, n, rng), Criterion.I_OPTIMAL) for _ in range(20)
@@ -199,8 +360,65 @@ def select_poses(
         band_mm=float(np.sqrt(max(band, 0.0))) * 1e3,
         random_band_mm=float(np.sqrt(max(np.median(rand), 0.0))) * 1e3,
         n_candidates=m,
-        n_params=spec.n_params,
+        n_params=int(live.sum()),
+        n_information=k,
+        n_spread=n - k,
+        identifiable=r,
+        prior_source=prior.source,
+        effects=tuple(e.name for e, _ in prior.effects),
+        left_out=left_out,
     )
+
+
+def identifiable(J: F) -> int:
+    """How many parameters the candidates' stacked Jacobian ``(m, d, p)`` identifies (the
+    rank of its column-normalised Gram matrix, relative tolerance 1e-10)."""
+    A = np.einsum("mdp,mdq->pq", J, J)
+    s = np.sqrt(np.clip(np.diag(A), 1e-300, None))
+    ev = np.linalg.eigvalsh(A / np.outer(s, s))
+    return int(np.sum(ev > ev[-1] * 1e-10))
+
+
+def information_poses(
+    n: int, identifiable: int, d: int, prior: DesignPrior, settings: DesignSettings
+) -> int:
+    """``k``: how many of ``n`` poses the information criterion chooses,
+    ``⌈saturation · r / d / s⌉`` (module docstring), at least 1 and at most ``n``."""
+    if prior.unexplained <= 0.0:
+        return n
+    k = math.ceil(settings.saturation * identifiable / d / min(prior.unexplained, 1.0))
+    return int(min(n, max(k, 1)))
+
+
+def _spread(
+    q: F, n: int, groups: NDArray[np.int64], start: list[int], ws: NDArray[np.int64], length: float
+) -> list[int]:
+    """``start`` extended to ``n`` poses by kernel herding: each step the candidate that most
+    lowers the maximum mean discrepancy between the chosen poses and the candidates (sampled
+    at ``ws``), Gaussian kernel of ``length`` times each joint's standard deviation."""
+    sd = q.std(axis=0)
+    z = np.where(sd > 1e-9, q / (length * np.where(sd > 1e-9, sd, 1.0)), 0.0)
+    zz = np.sum(z * z, axis=1)
+    zw = z[ws]
+    mu = np.empty(len(q))
+    for a in range(0, len(q), 2048):  # the kernel mean over the workspace, in blocks
+        d2 = zz[a : a + 2048, None] + zz[ws][None, :] - 2.0 * z[a : a + 2048] @ zw.T
+        mu[a : a + 2048] = np.exp(-0.5 * np.clip(d2, 0.0, None)).mean(axis=1)
+    ksum = np.zeros(len(q))
+    allowed = np.ones(len(q), dtype=bool)
+    chosen: list[int] = []
+
+    def take(j: int) -> None:
+        chosen.append(j)
+        allowed[groups == groups[j]] = False
+        ksum[:] += np.exp(-0.5 * np.clip(zz + zz[j] - 2.0 * z @ z[j], 0.0, None))
+
+    for j in start:
+        take(j)
+    while len(chosen) < n:
+        score = np.where(allowed, (len(chosen) + 1) * mu - ksum, -np.inf)
+        take(int(np.argmax(score)))
+    return chosen
 
 
 def _random_groups(groups: NDArray[np.int64], n: int, rng: np.random.Generator) -> list[int]:
@@ -267,7 +485,11 @@ __all__ = [
     "DesignPrior",
     "DesignResult",
     "DesignSettings",
+    "design_effects",
     "design_spec",
+    "identifiable",
+    "information_poses",
     "pose_information",
+    "prior_from_baseline",
     "select_poses",
 ]
