@@ -1,17 +1,20 @@
 """quickhealth plan — generate the fixed measurement loop (paper Sec. 3, Fig. 3).
 
-    quickhealth plan --cell CELL --n N [--seed S] [--optimal K] [--iso9283 [CYCLES]]
-        [--model-order K] [--strict] --out DIR
+    quickhealth plan --cell CELL --n N [--seed S] [--optimal K [--baseline RUN_DIR]]
+        [--iso9283 [CYCLES]] [--model-order K] [--strict] --out DIR
     quickhealth plan select CANDIDATES.csv --robot ROBOT --n N --out CHOSEN.csv
+        [--baseline RUN_DIR]
 
 CELL is a cell file (TOML, docs/plan.md) or the built-in name ``reference`` (a UR5 on an
 optical table, the stereo camera about 2 m in front).  Writes DIR/plan.json (poses with joint
 targets and leg types, every dropped candidate with its reason, the summary and a content
 hash), DIR/loop.script (URScript of the loop) and the Fig. 6 plots DIR/fig6_joints.png and
 DIR/fig6_targets.png.  Nothing is written when the input is refused (exit status 2).
---optimal K keeps K of the feasible targets, chosen by an I-optimal design (the predicted
-workspace TCP error band of the model fitted later; docs/plan.md), then orders them and
-checks their legs as for any plan.  --iso9283 adds the ISO 9283 cube's five poses, visited in
+--optimal K keeps K of the feasible targets, chosen by a design (the first by the predicted
+workspace TCP error band of the model fitted later, I-optimal, the rest to represent the
+feasible candidates; docs/plan.md), then orders them and checks their legs as for any plan;
+--baseline RUN_DIR takes the design's prior from a fitted run (its orders, effects and
+residual scatter).  --iso9283 adds the ISO 9283 cube's five poses, visited in
 cycles after the loop (:mod:`~quickhealth.station.planning.iso_cube`).  The first lines say
 whether the plan supports the error model it is for (--model-order, default 2; the rule:
 :mod:`~quickhealth.station.planning.adequacy`): a warning when not, exit 2 with --strict.
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -65,6 +69,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=None,
         metavar="K",
         help="keep K of the feasible targets, chosen by an I-optimal design",
+    )
+    p.add_argument(
+        "--baseline",
+        type=Path,
+        default=None,
+        metavar="RUN_DIR",
+        help="with --optimal: a fitted run folder whose orders, effects and residual scatter "
+        "are the design's prior (default: the stated prior)",
     )
     p.add_argument(
         "--iso9283",
@@ -131,6 +143,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=0.1,
         help="instrument orientation noise (0.1)",
     )
+    s.add_argument(
+        "--baseline",
+        type=Path,
+        default=None,
+        metavar="RUN_DIR",
+        help="a fitted run folder of this robot: its orders, effects and residual scatter are "
+        "the design's prior (default: the stated prior)",
+    )
     s.set_defaults(func=run_select)
 
 
@@ -151,7 +171,14 @@ def run(args: argparse.Namespace) -> int:
     cell_file = Path(args.cell) if Path(args.cell).is_file() else None
     refuse_overwriting_inputs([("--out", out / n) for n in PLAN_FILES], [cell_file])
     claim_output_folder(out, foreign_results(out, "plan"), force=args.force)  # before the work
+    if args.baseline is not None and args.optimal is None:
+        args.plan_parser.error("--baseline: only with --optimal K (the design's prior)")
     cell = load_cell(args.cell)
+    prior = None
+    if args.baseline is not None:
+        from ..services.planning import baseline_prior
+
+        prior = baseline_prior(args.baseline, cell.robot)
 
     tty = sys.stderr.isatty()
 
@@ -182,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
 
     res = plan_folder(
         cell, args.n, args.seed, out, force=args.force, progress=progress,
-        optimal=args.optimal, iso_cycles=args.iso9283, check=check,
+        optimal=args.optimal, design_prior=prior, iso_cycles=args.iso9283, check=check,
     )  # fmt: skip
     if res.replacing:
         print(res.replacing, file=sys.stderr)
@@ -223,13 +250,21 @@ def run_select(args: argparse.Namespace) -> int:
         noise=InstrumentNoise(args.sigma_pos_mm * 1e-3, args.sigma_rot_mrad * 1e-3),
         T_flange_target=make_T(np.eye(3), tool),
     )
+    if args.baseline is not None:
+        from ..services.planning import baseline_prior
+
+        settings = replace(settings, prior=baseline_prior(args.baseline, robot))
     sel = select_rows(args.candidates, robot, args.n, settings)
     write_atomic(args.out, sel.text)
     r = sel.result
     print(
         f"chose {len(sel.rows)} of {r.n_candidates} rows ({args.criterion}-optimal, "
-        f"{r.n_params} coefficients): predicted workspace TCP band {r.band_mm:.4f} mm rms "
-        f"(median of 20 random choices of {len(sel.rows)}: {r.random_band_mm:.4f} mm)"
+        f"{r.n_params} coefficients; {r.n_information} by information, {r.n_spread} to "
+        f"represent the candidates; prior: {r.prior_source}): predicted workspace TCP band "
+        f"{r.band_mm:.4f} mm rms (median of 20 random choices of {len(sel.rows)}: "
+        f"{r.random_band_mm:.4f} mm)"
     )
+    if r.left_out:
+        print(f"the baseline's effects left out of the design: {', '.join(r.left_out)}")
     print(f"wrote {args.out}")
     return 0

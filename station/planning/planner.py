@@ -38,6 +38,7 @@ from functools import cache
 import numpy as np
 from numpy.typing import NDArray
 
+from ...identify.design import DesignPrior
 from ...identify.errors import InputError
 from ...identify.robot import RobotModel, ur5
 from ...identify.transforms import exp_so3, inv_T, log_so3, make_T
@@ -187,8 +188,11 @@ class PlanResult:
             if self.design is None
             else [
                 f"optimal design: {self.design['chosen']} of {self.design['candidates']} feasible "
-                f"configurations, predicted TCP band {self.design['predicted_band_mm']:.4f} mm "
-                f"(random: {self.design['random_band_mm']:.4f} mm)"
+                f"configurations ({self.design['information_poses']} by information, "
+                f"{self.design['spread_poses']} to represent the workspace; prior: "
+                f"{self.design['prior']}), predicted TCP band "
+                f"{self.design['predicted_band_mm']:.4f} mm (random: "
+                f"{self.design['random_band_mm']:.4f} mm)"
             ]
         )
 
@@ -200,6 +204,7 @@ def plan_loop(
     progress: Progress | None = None,
     *,
     optimal: int | None = None,
+    design_prior: DesignPrior | None = None,
 ) -> PlanResult:
     """Plan a fixed measurement loop of up to ``n`` poses in ``cell`` (steps 1–6).
 
@@ -214,6 +219,8 @@ def plan_loop(
     optimal : int, optional
         Keep only this many of the feasible targets, chosen by the optimal design of
         :mod:`.optimal` (``plan --optimal K``); the others are dropped as ``not-selected``.
+    design_prior : DesignPrior, optional
+        The design's prior (``plan --optimal K --baseline RUN_DIR``); default the stated one.
 
     Returns
     -------
@@ -233,7 +240,7 @@ def plan_loop(
     _check_camera_view(cell, world)
     rng = np.random.default_rng(seed)
     T_wt = sample_targets(cell, n, rng)
-    return _plan(cell, world, T_wt, seed, progress or (lambda s, i, k: None), optimal)
+    return _plan(cell, world, T_wt, seed, progress or (lambda s, i, k: None), optimal, design_prior)
 
 
 def sample_targets(cell: Cell, n: int, rng: np.random.Generator) -> F:
@@ -311,6 +318,7 @@ def _plan(
     seed: int,
     progress: Progress,
     optimal: int | None = None,
+    design_prior: DesignPrior | None = None,
 ) -> PlanResult:
     robot = cell.robot
     n = len(T_wt)
@@ -350,7 +358,7 @@ def _plan(
             progress("optimal design", 0, 1)
             pool = feasible.copy()
             pool[out] = False
-            pick = choose(cell, Q, pool, optimal)
+            pick = choose(cell, Q, pool, optimal, design_prior)
             progress("optimal design", 1, 1)
             # the chosen targets, each with the configuration the design chose and, should
             # no leg reach that one, its other feasible configurations

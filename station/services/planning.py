@@ -22,7 +22,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from ...identify.design import DesignResult, DesignSettings, select_poses
+from ...identify.design import (
+    DesignPrior,
+    DesignResult,
+    DesignSettings,
+    prior_from_baseline,
+    select_poses,
+)
 from ...identify.errors import InputError
 from ...identify.robot import RobotModel
 from ..formats.common import csv_cell, csv_text, read_text_limited
@@ -59,13 +65,15 @@ def plan_folder(
     force: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
     optimal: int | None = None,
+    design_prior: DesignPrior | None = None,
     iso_cycles: int | None = None,
     check: Callable[[PlanResult], None] | None = None,
 ) -> PlanFiles:
     """Plan ``cell`` from ``n_candidates`` random targets (``seed``) and write the plan to ``out``.
 
     ``optimal``: keep this many of the feasible targets by the optimal design
-    (``plan --optimal K``, :mod:`quickhealth.station.planning.optimal`).  ``iso_cycles``: add
+    (``plan --optimal K``, :mod:`quickhealth.station.planning.optimal`), with ``design_prior``
+    (``--baseline``, :func:`baseline_prior`; default the stated prior).  ``iso_cycles``: add
     the ISO 9283 cube's five poses, visited that many times after the loop (``plan
     --iso9283``, :mod:`quickhealth.station.planning.iso_cube`).  ``check``: called with the
     plan before anything is written; it refuses a plan by raising (``plan --strict``).
@@ -78,7 +86,7 @@ def plan_folder(
     """
     foreign = foreign_results(out, "plan")
     claim_output_folder(out, foreign, force=force)  # before the planning work
-    res = plan_loop(cell, n_candidates, seed, progress, optimal=optimal)
+    res = plan_loop(cell, n_candidates, seed, progress, optimal=optimal, design_prior=design_prior)
     if iso_cycles:
         res = with_iso_cycles(res, iso_cycles)
     if check is not None:
@@ -112,6 +120,30 @@ def _other_plan(path: Path, new_hash: str) -> list[str]:
 
 
 # --------------------------------------------------------------------------- plan select
+
+
+def baseline_prior(folder: Path, robot: RobotModel) -> DesignPrior:
+    """The design's prior from a fitted baseline run folder (``--baseline RUN_DIR``): its
+    model's orders, sizes, effects and residual scatter
+    (:func:`~quickhealth.identify.design.prior_from_baseline`).
+
+    Raises
+    ------
+    InputError
+        Not a fitted run folder (one line, as ``check --baseline`` says it), or a fit of
+        another arm than ``robot``.
+    """
+    from .checking import load_baseline  # the check's service: its one reading of a baseline
+
+    base = load_baseline(folder)
+    fr = base.fitted.robot
+    if fr.n_joints != robot.n_joints or fr.name.lower() != robot.name.lower():
+        raise InputError(
+            f"--baseline {folder}: a fit of {fr.name} ({fr.n_joints} joints), not of "
+            f"{robot.name} ({robot.n_joints} joints)"
+        )
+    sha = base.model_sha256[:12]
+    return prior_from_baseline(base.fitted, f"baseline {base.run_id} (model sha256:{sha}…)")
 
 
 @dataclass(frozen=True)
@@ -167,8 +199,9 @@ def select_rows(
         chosen.append(buf.getvalue())
     note = (
         f"# selected: {n} of {meas.n_poses} rows by the {settings.criterion.value}-optimal "
-        f"design (quickhealth plan select); predicted TCP band {res.band_mm:.4f} mm rms, "
-        f"random {n}: {res.random_band_mm:.4f} mm"
+        f"design (quickhealth plan select; {res.n_information} by information, "
+        f"{res.n_spread} to represent the candidates; prior: {res.prior_source}); predicted "
+        f"TCP band {res.band_mm:.4f} mm rms, random {n}: {res.random_band_mm:.4f} mm"
     )
     out = "\n".join([*head, note, header, *chosen]) + "\n"
     return Selection(rows, out, res)

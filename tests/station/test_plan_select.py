@@ -4,13 +4,17 @@ over as they were; one-line refusals (exit 2)."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from quickhealth.identify.fit import fit_model
 from quickhealth.identify.robot import ur5
-from quickhealth.identify.twin import random_joints
+from quickhealth.identify.select import data_spec
+from quickhealth.identify.twin import make_twin, random_joints
 from quickhealth.station.cli import main
+from quickhealth.station.formats import write_model
 from quickhealth.station.planning.planfile import load_plan
 
 
@@ -101,8 +105,66 @@ def test_optimal_plan_keeps_the_chosen_poses_with_their_legs(tmp_path, capsys):
     assert design["chosen"] == 12 and design["kept"] == len(plan.poses)
     assert 10 <= len(plan.poses) <= 12
     assert design["predicted_band_mm"] < design["random_band_mm"]
+    # 12 poses do not saturate the model (1.3 x its identifiable coefficients / 6): all 12
+    # are chosen by information, none to represent the rest
+    assert (design["information_poses"], design["spread_poses"], design["prior"]) == (
+        12,
+        0,
+        "stated",
+    )
     reasons = {d["reason"] for d in doc["dropped"]}
     assert "not-selected" in reasons
     # the design spreads the poses: on 12 poses from 60 targets every joint's usable range is
     # mostly covered (the reference cell's --optimal 30 covers 100 %: docs/plan.md)
     assert min(doc["summary"]["joints"]["coverage"]) >= 0.5
+
+
+def _baseline(folder, excess_mm=0.0):
+    """A fitted run folder (model.json) of a twin UR5, its residual scatter beyond the
+    instrument's ``excess_mm`` per axis."""
+    twin = make_twin(seed=4)
+    q = random_joints(twin.robot, 80, seed=6, T_instr_base=twin.truth.T_instr_base)
+    meas = twin.measure(q, seed=7)
+    fm = fit_model(twin.robot, meas, data_spec(twin.robot, meas, order=1),
+                   setup=(twin.truth.T_instr_base, twin.truth.T_flange_target))  # fmt: skip
+    fm = replace(fm, noise=replace(fm.noise, excess_pos=excess_mm * 1e-3))
+    folder.mkdir()
+    write_model(folder / "model.json", fm)
+    return folder
+
+
+def test_plan_select_takes_its_prior_from_a_baseline(tmp_path, capsys):
+    """--baseline RUN_DIR: the fitted run's orders and scatter are the prior; a run whose model
+    leaves much unexplained gets fewer poses by information, more to represent the rest."""
+    _candidates(tmp_path / "cand.csv", n=120)
+    base = ["plan", "select", str(tmp_path / "cand.csv"), "--robot", "ur5", "--n", "50"]
+    rc = main([*base, "--out", str(tmp_path / "a.csv"), "--baseline",
+               str(_baseline(tmp_path / "quiet"))])  # fmt: skip
+    out = capsys.readouterr().out
+    assert (
+        rc == 0 and "50 by information, 0 to represent the candidates; prior: baseline quiet" in out
+    )
+    assert "prior: baseline quiet (model sha256:" in (tmp_path / "a.csv").read_text()
+    rc = main([*base, "--out", str(tmp_path / "b.csv"), "--baseline",
+               str(_baseline(tmp_path / "scatter", excess_mm=0.2))])  # fmt: skip
+    out = capsys.readouterr().out
+    assert rc == 0 and "31 by information, 19 to represent the candidates" in out
+
+
+@pytest.mark.parametrize(
+    ("args", "pattern"),
+    [
+        (["select", "CAND", "--robot", "ur10", "--n", "5", "--baseline", "BASE"], "a fit of ur5"),
+        (["select", "CAND", "--robot", "ur5", "--n", "5", "--baseline", "EMPTY"], "no model.json"),
+        (["--cell", "reference", "--n", "10", "--baseline", "BASE"], "only with --optimal"),
+    ],
+)
+def test_plan_baseline_refusals(tmp_path, capsys, args, pattern):
+    _candidates(tmp_path / "cand.csv")
+    _baseline(tmp_path / "base")
+    (tmp_path / "empty").mkdir()
+    sub = {"CAND": tmp_path / "cand.csv", "BASE": tmp_path / "base", "EMPTY": tmp_path / "empty"}
+    rc = main(["plan", *(str(sub.get(a, a)) for a in args), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and pattern in err[0], err
+    assert not (tmp_path / "o").exists()
