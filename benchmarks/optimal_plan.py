@@ -22,8 +22,10 @@ sets random rows), over ``--draws`` draws (each a new draw and, on the twin, new
 median and quartiles.  "Chosen N": ``quickhealth plan select``'s design (identify/design.py),
 twice: with the stated prior (no baseline) and with a baseline's prior (``--baseline``: the
 twin's paper loop, 150 random pool poses measured once; the UR10's and the WAM's whole pool
-fitted, i.e. the previous session), each the median over noise draws on the twin.  Every model
-is fitted as ``identify fit`` fits (``services.fitting.assess``: BIC order search, defaults).
+fitted, i.e. the previous session), each the median over noise draws on the twin; and the
+method's spread over pools: the median (and range) of the designs from ``--pool-draws``
+random 90 % subsets of the pool.  Every model is fitted as ``identify fit`` fits
+(``services.fitting.assess``: BIC order search, defaults).
 
 "Random poses for the same error / N": the number of random poses whose median error
 (log-log interpolation of the random curve, made monotone) equals the chosen N's error,
@@ -34,7 +36,10 @@ Random curves are cached in ``--cache`` (keyed by the set, the draws and the ide
 package's source): a rerun after a design change recomputes only the chosen poses.
 
     nice -n 10 .venv/bin/python benchmarks/optimal_plan.py [--sets twin7d,twinpos,ur10,wam]
-        [--draws 25] [--twin-draws 40] [--noise-draws 15] [--quick]
+        [--draws 25] [--twin-draws 40] [--noise-draws 15] [--pool-draws 5] [--quick]
+
+About 40 min on this shared 2-core machine from scratch (the random curves: most of it),
+10 min with them cached.
 """
 
 from __future__ import annotations
@@ -267,43 +272,64 @@ def ratio_text(err: float, n: int, curve: dict[int, list[float]]) -> str:
     return f"{mid[1]}{mid[0] / n:.2f} [{lo[1]}{lo[0] / n:.2f}, {hi[1]}{hi[0] / n:.2f}]"
 
 
-def chosen_error(ds, res: DesignResult, n: int, noise_draws: int) -> float:  # type: ignore[no-untyped-def]
+def choose(ds, n: int, prior: DesignPrior, rows: np.ndarray | None = None) -> DesignResult:  # type: ignore[no-untyped-def]
+    """The design's ``n`` poses of the pool (or of its ``rows``), as pool indices."""
+    rows = np.arange(len(ds.q)) if rows is None else rows
+    settings = replace(ds.settings, prior=prior)
+    res = select_poses(ds.robot, ds.q[rows], n, settings, allowed_groups=ds.groups[rows])
+    return replace(res, indices=rows[res.indices])
+
+
+def chosen_errors(ds, n: int, prior: DesignPrior, noise_draws: int, pool_draws: int):  # type: ignore[no-untyped-def]
+    """Held-out error of the design from the whole pool (median over noise draws on the
+    twin), and of the designs from ``pool_draws`` random 90 % subsets of the pool (each with
+    its own noise draw; for N near the pool's size, all but half of the rest): the method's
+    spread over pools."""
+    res = choose(ds, n, prior)
     k = noise_draws if ds.noisy else 1
-    return float(np.median([ds.error(res.indices, 5000 + 10 * n + j) for j in range(k)]))
+    full = float(np.median([ds.error(res.indices, 5000 + 10 * n + j) for j in range(k)]))
+    rng = np.random.default_rng(n)
+    sub = []
+    m = len(ds.q)
+    size = max(int(0.9 * m), (n + m) // 2)  # near the pool's size: half of what is left out
+    for j in range(pool_draws):
+        rows = np.sort(rng.choice(m, size, replace=False))
+        sub.append(ds.error(choose(ds, n, prior, rows).indices, 7000 + 10 * n + j))
+    return res, full, np.array(sub)
 
 
-def run(ds, ns: list[int], draws: int, noise_draws: int, cache: Path) -> None:  # type: ignore[no-untyped-def]
+def run(ds, ns: list[int], draws: int, noise_draws: int, pool_draws: int, cache: Path) -> None:  # type: ignore[no-untyped-def]
     print(f"\n## {ds.name}: pool {len(ds.q)} candidates", flush=True)
     curve = random_curve(ds, draws, cache)
-    priors = {"stated prior": ds.settings.prior, "baseline": ds.baseline()}
-    b = priors["baseline"]
+    b = ds.baseline()
     print(f"  baseline prior ({b.source}): unexplained share {b.unexplained:.3f}, "
           f"{len(b.fitted_sizes)} fitted coefficients, effects {[e.name for e, _ in b.effects]}",
           flush=True)  # fmt: skip
-    rows = []
-    for n in ns:
-        med = float(np.median(curve[n])) if n in curve else float("nan")
-        q25, q75 = (np.percentile(curve[n], q) if n in curve else np.nan for q in (25, 75))
-        cells = [f"{n}", f"{med:.4f} [{q25:.4f}, {q75:.4f}]"]
-        for label, prior in priors.items():
+    for label, prior in (("stated prior", ds.settings.prior), ("baseline prior", b)):
+        rows = []
+        for n in ns:
+            med = float(np.median(curve[n]))
+            q25, q75 = np.percentile(curve[n], [25, 75])
             t0 = time.perf_counter()
-            settings = replace(ds.settings, prior=prior)
-            res = select_poses(ds.robot, ds.q, n, settings, allowed_groups=ds.groups)
-            ts = time.perf_counter() - t0
-            err = chosen_error(ds, res, n, noise_draws)
-            never = "yes" if err <= med else "**no**"
-            print(f"  chosen {n:4d} ({label}): {err:.4f} mm, {res.n_information} by information + "
-                  f"{res.n_spread} spread (selection {ts:.1f} s)", flush=True)  # fmt: skip
-            cells += [f"{err:.4f}", never, ratio_text(err, n, curve),
-                      f"{res.n_information}+{res.n_spread}"]  # fmt: skip
-        rows.append(cells)
-    print("\n| N | random N: median [quartiles] (mm) | chosen N, stated prior (mm) | ≤ random median | "
-          "random poses for the same error / N [spread] | information + spread poses | "
-          "chosen N, baseline prior (mm) | ≤ random median | random poses for the same error / N "
-          "[spread] | information + spread poses |")  # fmt: skip
-    print("|" + " --- |" * 10)
-    for cells in rows:
-        print("| " + " | ".join(cells) + " |", flush=True)
+            res, full, sub = chosen_errors(ds, n, prior, noise_draws, pool_draws)
+            m = float(np.median(sub))
+            print(f"  chosen {n:4d} ({label}): {full:.4f} mm, over pools {m:.4f} mm; "
+                  f"{res.n_information} by information + {res.n_spread} spread "
+                  f"({time.perf_counter() - t0:.0f} s)", flush=True)  # fmt: skip
+            rows.append([f"{n}", f"{med:.4f} [{q25:.4f}, {q75:.4f}]",
+                         f"{full:.4f}", "yes" if full <= med else "**no**",
+                         ratio_text(full, n, curve),
+                         f"{m:.4f} [{sub.min():.4f}, {sub.max():.4f}]",
+                         "yes" if m <= med else "**no**", ratio_text(m, n, curve),
+                         f"{res.n_information}+{res.n_spread}"])  # fmt: skip
+        print(f"\n{ds.name}, {label}:\n")
+        print("| N | random N: median [quartiles] (mm) | chosen N (mm) | ≤ random median | "
+              "random poses for the same error / N [spread] | chosen N from 90 % pools: median "
+              f"of {pool_draws} [range] (mm) | ≤ random median | random poses / N [spread] | "
+              "information + spread poses |")  # fmt: skip
+        print("|" + " --- |" * 9)
+        for cells in rows:
+            print("| " + " | ".join(cells) + " |", flush=True)
 
 
 def main() -> None:
@@ -312,6 +338,7 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=25, help="random draws per N, real sets")
     ap.add_argument("--twin-draws", type=int, default=40, help="random draws per N, twin")
     ap.add_argument("--noise-draws", type=int, default=15, help="noise draws of a twin choice")
+    ap.add_argument("--pool-draws", type=int, default=5, help="90 %% pool subsets per choice")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/quickhealth-bench-optimal"))
     ap.add_argument("--quick", action="store_true", help="N = 50 only, 7 draws")
     a = ap.parse_args()
@@ -323,7 +350,7 @@ def main() -> None:
     for key in a.sets.split(","):
         ds = sets[key]()
         draws = a.twin_draws if ds.noisy else a.draws
-        run(ds, ns, 7 if a.quick else draws, 5 if a.quick else a.noise_draws, a.cache)
+        run(ds, ns, 7 if a.quick else draws, 5 if a.quick else a.noise_draws, a.pool_draws, a.cache)
 
 
 if __name__ == "__main__":

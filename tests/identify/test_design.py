@@ -83,9 +83,11 @@ def _mmd2(q, rows, length):
 def test_first_poses_by_information_the_rest_represent_the_candidates(pool):
     """k = ceil(1.3 r/d/s) poses are the greedy's; the others bring the set closer to the
     candidates' distribution than more information-chosen poses would."""
-    s = D.DesignSettings(prior=D.DesignPrior(max_order=1))
+    s = D.DesignSettings(prior=D.DesignPrior(max_order=1, unexplained=1.0))
     res = D.select_poses(ur5(), pool, 40, s)
     k = math.ceil(1.3 * res.identifiable / 6)
+    stated = D.select_poses(ur5(), pool, 40, replace(s, prior=D.DesignPrior(max_order=1)))
+    assert stated.n_information == math.ceil(1.3 * res.identifiable / 6 / 0.5)  # assumed 0.5
     assert (res.n_information, res.n_spread) == (k, 40 - k) and 0 < k < 40
     pure = D.select_poses(ur5(), pool, 40, replace(s, spread=False))
     assert (pure.n_information, pure.n_spread) == (40, 0)
