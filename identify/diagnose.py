@@ -674,7 +674,10 @@ def _prefer_simpler_form(
     more parameters (a joint's lumped compliance: it estimates the moments, an unknown payload
     included) only counts where it explains significantly more than each form with fewer
     parameters tested (nested χ² test at ``alpha``); otherwise it is marked not significant,
-    so the simpler form (the known masses) is ranked and suggested."""
+    so the simpler form (the known masses) is ranked and suggested.  A form with as many
+    parameters as the plain one (``compliance:j2:torque`` beside ``compliance:j2``) is held
+    to the same test with one degree of freedom: the two regressors are nearly the same where
+    the model's masses are right, and which one comes first must not be a coin toss."""
     from scipy import stats
 
     forms: dict[str, list[Candidate]] = {}
@@ -682,12 +685,21 @@ def _prefer_simpler_form(
         forms.setdefault(effects[c.effect].physical, []).append(c)
     out = []
     for logp, c in raw:
-        n = effects[c.effect].n_params
-        simpler = [s for s in forms[effects[c.effect].physical] if effects[s.effect].n_params < n]
+        e = effects[c.effect]
+        n = e.n_params
+        simpler = [
+            s
+            for s in forms[e.physical]
+            if effects[s.effect].n_params < n
+            or (effects[s.effect].n_params == n and s.effect == e.physical != c.effect)
+        ]
         for s in simpler if c.significant else ():
             extra = c.lm_statistic - s.lm_statistic
-            k = c.dof - s.dof
-            p = float(stats.chi2.sf(max(extra, 0.0), k)) if k > 0 else 1.0
+            # a form with as many parameters as the plain one (the measured torque for the
+            # model's gravity torque) must explain as much more as one added parameter would
+            # have to: a lower bound of the encompassing test with both regressors
+            k = max(c.dof - s.dof, 1)
+            p = float(stats.chi2.sf(max(extra, 0.0), k))
             if p >= alpha:
                 c = replace(c, significant=False)
                 break
