@@ -345,11 +345,10 @@ class CheckSequence:
 
 
 @dataclass(frozen=True, eq=False)
-class CheckResult:
-    """What :func:`quick_check` did and wrote."""
+class CheckOutcome:
+    """What a check decided and wrote (check.json's ``document``), live or replayed."""
 
     out: Path
-    run: RunResult
     status: qc.CheckStatus | None
     document: dict[str, Any]
 
@@ -366,6 +365,13 @@ class CheckResult:
     def summary(self) -> list[str]:
         """The lines every door shows."""
         return summary_lines(self.document)
+
+
+@dataclass(frozen=True, eq=False)
+class CheckResult(CheckOutcome):
+    """What :func:`quick_check` did and wrote, with the run that measured the poses."""
+
+    run: RunResult | None = None
 
 
 def quick_check(
@@ -473,7 +479,7 @@ def _finish(
     if run is None:
         run = RunResult(out, len(plan.poses), 0 if meas is None else meas.n_poses, 0, None,
                         None, None, None, out / "measurements.csv")  # fmt: skip
-    return CheckResult(out, run, seq.status, doc)
+    return CheckResult(out, seq.status, doc, run)
 
 
 def check_document(
@@ -651,6 +657,7 @@ def _test_json(status: qc.CheckStatus | None, model: qc.ChangeModel) -> dict[str
 
 __all__ = [
     "Baseline",
+    "CheckOutcome",
     "CheckResult",
     "CheckSequence",
     "Progress",

@@ -48,36 +48,17 @@ from .checking import (
     CHECK_FILE,
     FIRST_DWELL_EXTRA_S,
     Baseline,
+    CheckOutcome,
     baseline_json,
     decision_document,
     dwell_s,
-    summary_lines,
 )
 
 F = NDArray[np.float64]
 
 
-@dataclass(frozen=True, eq=False)
-class ReplayResult:
-    """What :func:`replay_check` decided and wrote."""
-
-    out: Path
-    status: qc.CheckStatus | None
-    document: dict[str, Any]
-
-    @property
-    def verdict(self) -> str:
-        """``"unchanged"`` or ``"changed"``."""
-        return str(self.document["verdict"])
-
-    @property
-    def changed(self) -> bool:
-        """True when the check found a change."""
-        return self.verdict == qc.Decision.CHANGED.value
-
-    def summary(self) -> list[str]:
-        """The lines every door shows (:func:`~.checking.summary_lines`)."""
-        return summary_lines(self.document)
+#: What :func:`replay_check` decided and wrote (the live check's outcome, without a run).
+ReplayResult = CheckOutcome
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,7 +182,7 @@ def replay_check(
     doc = _document(rec, baseline, model, run, order, q_start, stop)
     Path(out).mkdir(parents=True, exist_ok=True)
     write_text_atomic(Path(out) / CHECK_FILE, json.dumps(doc, indent=1) + "\n")
-    return ReplayResult(Path(out), run.status, doc)
+    return CheckOutcome(Path(out), run.status, doc)
 
 
 def _name(rec: Recorded, k: int) -> str:
