@@ -30,3 +30,18 @@ def test_parse_degradation_and_its_errors() -> None:
         parse_degradation("j2.ex.c0")
     with pytest.raises(InputError, match="not a coefficient"):
         degrade_truth(build_world("reference", twin_seed=1).twin.truth, {"j9.ex.c0": 1e-4})
+
+
+def test_the_demo_names_the_wear_by_the_fault_it_is() -> None:
+    from quickhealth.station.demo import DEFAULT_DEGRADATION, worn_faults
+
+    # a constant twist of the link from joint 2 to joint 3 about x is joint 3's axis tilt
+    assert worn_faults("reference", DEFAULT_DEGRADATION) == ["joint 3 tilt about x"]
+    assert worn_faults("reference", {"j2.ez.c0": -3e-4, "compliance:j2": 2e-5}) == [
+        "joint 2 zero offset",
+        "joint 2 compliance",
+    ]
+    assert worn_faults("ur10e", {"j3.ez.c0": 3e-4}) == ["joint 3 zero offset"]
+    # a radial motion of joint 1 along x is no single fault: the story could not check it
+    with pytest.raises(InputError, match="no single physical fault"):
+        worn_faults("reference", {"j1.dx.c0": 1e-4})
