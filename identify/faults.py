@@ -600,9 +600,17 @@ class NamedChange:
         return DISPLAY.get(self.unit, (self.unit, 1.0))[1]
 
     def size_words(self) -> str:
-        """``+0.300 ± 0.010 mrad``."""
+        """``+0.300 ± 0.010 mrad``: the size to the decimal of its σ's second digit, with at
+        most four significant digits (``+0.5000 ± 0.0008 mrad``, not ``+0.5 ± 0.00079``)."""
         k = self.display_scale
-        return f"{self.size * k:+.3g} ± {self.sigma * k:.2g} {self.display_unit}"
+        size, sigma = self.size * k, abs(self.sigma * k)
+        dec = []
+        if np.isfinite(sigma) and sigma > 0:
+            dec.append(1 - int(np.floor(np.log10(sigma))))
+        if np.isfinite(size) and size != 0:
+            dec.append(3 - int(np.floor(np.log10(abs(size)))))
+        d = max(min(dec), 0) if dec else 3
+        return f"{size:+.{d}f} ± {sigma:.{d}f} {self.display_unit}"
 
     def line(self) -> str:
         """One line for people, technician first, statistics after: ``joint 2 zero offset
