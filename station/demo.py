@@ -88,6 +88,7 @@ class DemoResult:
     runs: list[DemoRunResult]
     expected_flag_ok: bool
     seconds: float
+    worn_faults: list[str] = field(default_factory=list)  # the faults the worn run carries
 
 
 def demo_runs(degrade: dict[str, float] | None = None) -> list[DemoRun]:
@@ -192,7 +193,7 @@ def run_demo(
     finally:
         log.close()
     flagged_ok = _story_holds(results, worn)
-    return DemoResult(out, plan_summary, results, flagged_ok, time.monotonic() - t_start)
+    return DemoResult(out, plan_summary, results, flagged_ok, time.monotonic() - t_start, worn)
 
 
 def _plan(

@@ -110,7 +110,10 @@ def _demo(args: argparse.Namespace) -> int:
         f"  archive: {res.out / 'archive'}   log of every command: {res.out / 'demo.log'}"
     )
     if res.expected_flag_ok:
-        console.print("the trend flagged the worn run, naming the joint and motion, and only it.")
+        console.print(
+            f"the trend flagged the worn run, naming the fault it carries first "
+            f"({', '.join(res.worn_faults)}), and only it."
+        )
         return 0
     console.print("[bold red]the trend did not single out the worn run as expected[/]")
     return 1
