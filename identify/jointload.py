@@ -9,8 +9,9 @@ Torque.  At rest a joint's drive holds the arm, its payload included, against gr
 ``τ_drive = −τ_gravity`` (:func:`~quickhealth.identify.robot.gravity_torques` of the robot
 carrying the payload; N·m about the joint axis).  A controller that reports currents gives
 ``τ = I · k_t`` with the joint's torque constant at its output (motor constant times gear
-ratio, :data:`TORQUE_CONSTANT`; UR publishes none: 13 N·m/A for the three large joints and
-9.3 for the wrist joints of every built-in arm is an estimate).  An error in ``k_t`` of joint
+ratio: a robot file states them per joint, ``torque_constant`` in each ``[[joint]]``; UR
+publishes none for its arms, so the built-in arms use the estimate :data:`TORQUE_CONSTANT`,
+13 N·m/A for the three large joints and 9.3 for the wrist joints).  An error in ``k_t`` of joint
 K only rescales joint K's torques, which a compliance driven by them absorbs into its ``c``.
 
 Temperature.  Each joint is a first-order thermal system: its winding's ``R · I²``, the
@@ -50,8 +51,16 @@ THERMAL_TAU_S = np.array([1500.0, 1500.0, 1200.0, 700.0, 700.0, 700.0])
 IDLE_W = 2.5  # W of electronics in every powered joint
 
 
-def torque_constant(n_joints: int) -> F:
-    """Torque constants (N·m/A) of an arm's ``n_joints`` joints (:data:`TORQUE_CONSTANT`)."""
+def torque_constant(robot: RobotModel | int) -> F:
+    """Torque constants (N·m/A) of an arm's joints: those its robot file states
+    (:attr:`~quickhealth.identify.robot.RobotModel.torque_constant`), else the estimate
+    :data:`TORQUE_CONSTANT` (``robot`` may be just the number of joints)."""
+    if isinstance(robot, RobotModel):
+        if robot.torque_constant is not None:
+            return np.asarray(robot.torque_constant, dtype=float).copy()
+        n_joints = robot.n_joints
+    else:
+        n_joints = int(robot)
     if n_joints == TORQUE_CONSTANT.size:
         return TORQUE_CONSTANT.copy()
     # another arm: the large joints' value for the first half, the wrists' for the rest

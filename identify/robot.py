@@ -103,6 +103,10 @@ class RobotModel:
     controller: str = ""  # "CB3", "e-Series" or "" (not a UR arm)
     control_hz: float | None = None  # the controller's real-time rate (125 Hz CB3, 500 Hz e)
     nominal: Nominal | None = None
+    #: (n,) N·m/A: each joint's torque per A of motor current at its output (motor constant
+    #: times gear ratio), as the robot file states it; None: the built-in estimate
+    #: (:func:`~quickhealth.identify.jointload.torque_constant`)
+    torque_constant: F | None = None
 
     @property
     def n_joints(self) -> int:

@@ -37,6 +37,7 @@ import math
 import os
 import re
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -338,18 +339,33 @@ def _dh_from_doc(p: Path, doc: dict[str, Any]) -> RobotModel:
     names = tuple(str(j.get("name", f"j{i + 1}")) for i, j in enumerate(joints))
     if any(h <= l for l, h in zip(lo, hi, strict=True)):
         raise InputError(f"{p}: every joint needs q_max > q_min")
-    return from_dh(
-        str(head.get("name", p.stem)),
-        a,
-        d,
-        alpha,
-        theta_offset=off,
-        q_min=lo,
-        q_max=hi,
-        masses=masses,
-        coms=coms,
-        modified=conv == "mdh",
-        joint_names=names,
+    has_kt = ["torque_constant" in j for j in joints]
+    kt = None
+    if any(has_kt):
+        if not all(has_kt):
+            raise InputError(f"{p}: give torque_constant (N·m/A) for every joint or for none")
+        kt = np.array([get(i, "torque_constant") for i in range(n)])
+        if np.any(kt <= 0) or np.any(kt > 1e4):
+            i = int(np.flatnonzero((kt <= 0) | (kt > 1e4))[0])
+            raise InputError(
+                f"{p}: joint {i + 1}: torque_constant = {kt[i]:g} N·m/A is not a motor's "
+                "(positive, the motor constant times the gear ratio: about 5-30 on a UR)"
+            )
+    return replace(
+        from_dh(
+            str(head.get("name", p.stem)),
+            a,
+            d,
+            alpha,
+            theta_offset=off,
+            q_min=lo,
+            q_max=hi,
+            masses=masses,
+            coms=coms,
+            modified=conv == "mdh",
+            joint_names=names,
+        ),
+        torque_constant=kt,
     )
 
 
@@ -477,6 +493,9 @@ def robot_to_json(robot: RobotModel) -> dict[str, Any]:
         "controller": robot.controller,
         "control_hz": robot.control_hz,
         "nominal": None if robot.nominal is None else robot.nominal.as_dict(),
+        "torque_constant": (
+            None if robot.torque_constant is None else robot.torque_constant.tolist()
+        ),
     }
 
 
@@ -512,6 +531,9 @@ def robot_from_json(d: dict[str, Any]) -> RobotModel:
         raise InputError(f"robot.joint_names must list {nj} names")
     qd_max = _shaped(d, "qd_max", (nj,), optional=True)
     qdd_max = _shaped(d, "qdd_max", (nj,), optional=True)
+    kt = _shaped(d, "torque_constant", (nj,), optional=True)
+    if kt is not None and not np.all(np.isfinite(kt) & (kt > 0)):
+        raise InputError("robot.torque_constant must be positive numbers (N·m/A)")
     hz = d.get("control_hz")
     if hz is not None and (isinstance(hz, bool) or not isinstance(hz, int | float)):
         raise InputError("robot.control_hz is not a number")
@@ -540,4 +562,5 @@ def robot_from_json(d: dict[str, Any]) -> RobotModel:
         controller=str(d.get("controller") or ""),
         control_hz=None if hz is None else float(hz),
         nominal=nominal,
+        torque_constant=kt,
     )

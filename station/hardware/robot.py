@@ -532,7 +532,8 @@ class UrRobot:
 
     def joint_sensors(self) -> JointSensors:
         """RTDE ``joint_temperatures`` and ``actual_current`` times each joint's torque
-        constant (:func:`~quickhealth.identify.jointload.torque_constant`: ur-rtde 1.6 reads
+        constant (the robot file's, else the estimate:
+        :func:`~quickhealth.identify.jointload.torque_constant`; ur-rtde 1.6 reads
         no measured torque; an error in a joint's constant only rescales a compliance fitted
         on its torques)."""
         s = self._fresh()
@@ -541,7 +542,7 @@ class UrRobot:
         nj = self.model.n_joints
         return JointSensors(
             temps if temps.shape == (nj,) else None,
-            current * torque_constant(nj) if current.shape == (nj,) else None,
+            current * torque_constant(self.model) if current.shape == (nj,) else None,
             TORQUE_FROM_CURRENT,
         )
 

@@ -156,7 +156,7 @@ class FakeRobot:
             dt = t - t0
             if dt > 0:
                 held = tau if tau is not None else np.zeros_like(q)
-                kt = torque_constant(len(q))
+                kt = torque_constant(self.model)
                 power = joint_power(held / kt, held, (q - q0) / dt)
                 self._thermal.advance(dt, power, AMBIENT_C)
                 self._thermal_at = (t, q)

@@ -464,3 +464,28 @@ def test_joint_temperature_and_torque_columns_roundtrip_and_refusals(tmp_path):
     )  # fmt: skip
     with pytest.raises(InputError, match=r"j\.csv:3:\d+: column 'temp_j2': 300 °C is outside"):
         formats.parse_measurements(hot, "j.csv", 6)
+
+
+def test_a_robot_file_states_its_torque_constants(tmp_path):
+    from quickhealth.identify.jointload import TORQUE_CONSTANT, torque_constant
+    from quickhealth.station.formats.robot import robot_from_json, robot_to_json
+
+    text = (FIXTURES / "robots" / "ur5.toml").read_text()
+    builtin = formats.load_robot(str(FIXTURES / "robots" / "ur5.toml"))
+    assert builtin.torque_constant is None  # unstated: the estimate, for every built-in arm
+    np.testing.assert_array_equal(torque_constant(builtin), TORQUE_CONSTANT)
+    kt = [12.6, 12.6, 12.6, 9.1, 9.1, 9.1]
+    stated = text.replace("q_max = 360.0\n", "q_max = 360.0\ntorque_constant = {}\n")
+    p = tmp_path / "ur5kt.toml"
+    p.write_text(stated.format(*kt))
+    robot = formats.load_robot(str(p))
+    np.testing.assert_array_equal(torque_constant(robot), kt)
+    # model.json carries them, so a fit's robot converts currents as the file said
+    again = robot_from_json(json.loads(json.dumps(robot_to_json(robot))))
+    np.testing.assert_array_equal(again.torque_constant, kt)
+    p.write_text(stated.replace("{}", "12.6", 5).replace("{}", "-3"))
+    with pytest.raises(InputError, match="joint 6: torque_constant = -3 N·m/A is not a motor's"):
+        formats.load_robot(str(p))
+    p.write_text(stated.replace("torque_constant = {}\n", "", 1).replace("{}", "9"))
+    with pytest.raises(InputError, match="torque_constant .N·m/A. for every joint or for none"):
+        formats.load_robot(str(p))
