@@ -40,6 +40,7 @@ from ...identify.jointload import torque_constant
 from ...identify.robot import RobotModel, ur5
 from ...identify.transforms import exp_so3, make_T
 from .legs import Leg
+from .line_trigger import Pulse
 from .ur_client import FAREWELL_ID
 from .urtypes import RobotMode, SafetyMode
 
@@ -52,6 +53,13 @@ MAX_TOOL_ACCEL = 150.0  # m/s²
 
 #: Where a UR's joint torques come from (RTDE ``actual_current`` × the torque constant).
 TORQUE_FROM_CURRENT = "RTDE actual_current × the joints' torque constants (an estimate)"
+
+#: The arm is at rest when every joint stays within REST_TOL_RAD peak to peak for
+#: REST_WINDOW_S of controller time: the run's settle criterion, and what a trigger pulse
+#: checks before it is sent.
+REST_WINDOW_S = 0.15
+REST_TOL_RAD = 2e-5
+REST_WAIT_S = 2.0  # s a trigger pulse waits for the arm to come to rest after a move
 
 
 def _enum(cls: type[Enum], v: int) -> Enum:
@@ -666,6 +674,61 @@ class UrRobot:
         """Allow moves again after :meth:`stop` (the start of a run)."""
         with self._gate:
             self._halted = False
+
+    # -- digital outputs -------------------------------------------------------------------
+    def pulse_digital_out(self, output: int, width_s: float) -> Pulse:
+        """A pulse on standard digital output ``output`` (0..7) through ur-rtde's
+        ``RTDEIOInterface.setStandardDigitalOut``, owned by the client's io thread
+        (:mod:`.ur_io`): sent only with the arm at rest (no move under way, the joints within
+        :data:`REST_TOL_RAD` over :data:`REST_WINDOW_S`; after a move it waits for that at
+        most :data:`REST_WAIT_S`), each edge confirmed on the stream; ``width_s`` of
+        controller time, at least two controller cycles.
+
+        Raises HardwareError (one line) when the pulse was refused or not confirmed, and
+        ConnectionLost / StreamFrozen when the link is gone (the client is then replaced at
+        the next :meth:`reconnect`)."""
+        output, width_s = int(output), float(width_s)
+        if not 0 <= output <= 7:
+            raise InputError(f"digital output {output}: a UR has standard outputs 0..7")
+        if not (2.0 * self.sample_period <= width_s <= 1.0):
+            raise InputError(
+                f"a pulse of {width_s * 1e3:.0f} ms: at least two controller cycles "
+                f"({2e3 * self.sample_period:.0f} ms at {self.frequency:.0f} Hz), at most 1 s"
+            )
+        child = self._live()
+        rid = child.send(
+            "pulse",
+            output=output,
+            width=width_s,
+            rest_window=REST_WINDOW_S,
+            rest_tol=REST_TOL_RAD,
+            rest_wait=REST_WAIT_S,
+        )
+        limit = width_s + REST_WAIT_S + self.COMMAND_TIMEOUT
+        msg = child.wait(rid, limit)
+        if msg is None:
+            child.forget(rid)
+            self._discard(child)
+            raise HardwareError(
+                f"the trigger pulse on digital output {output}: the controller did not answer "
+                f"within {limit:.0f} s (client killed); restart it, then rerun "
+                "with --resume"
+            )
+        if not msg["ok"]:
+            err = _ERRORS.get(str(msg.get("error")), HardwareError)
+            if err in (ConnectionLost, StreamFrozen):
+                self._discard(child)
+            raise err(str(msg.get("message", "the pulse failed")))
+        v = msg["value"]
+        return Pulse(
+            output,
+            float(v["rise_t"]),
+            float(v["fall_t"]),
+            float(v["latency_s"]),
+            float(v["rest_p2p_rad"]),
+            float(v["rise_after_t"]),
+            float(v["fall_after_t"]),
+        )
 
     def close(self) -> None:
         with self._gate:

@@ -11,6 +11,9 @@ thread, and nothing else ever calls into it:
 - the **commander** thread constructs ``RTDEControlInterface`` and executes commands from a
   priority queue, one at a time: ``move`` (sent asynchronously, then watched from the
   snapshots until the controller says it ended), ``stop`` and ``close``;
+- the **io** thread constructs ``RTDEIOInterface`` (at the first ``pulse``) and executes the
+  pulses on a standard digital output one at a time (:meth:`Client.pulse`: the arm at rest,
+  rise, hold, fall, each edge confirmed on the receive stream);
 - the **main** thread reads requests.  ``state`` is answered at once from the latest
   snapshot; ``stop`` is queued ahead of everything else and also flags the move being
   watched, which stops the arm within one 4 ms watch cycle (the wait for a re-uploaded
@@ -46,9 +49,11 @@ import queue
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from .ur_io import IoOwner, Refused
 from .urtypes import RobotMode, RuntimeState, SafetyMode
 
 POLL_S = 0.004  # receiver and move-watch period, s
@@ -56,6 +61,7 @@ ACT_WITHIN_S = 0.05  # s the commander has to begin acting on a stop before the 
 STOP_STALE_S = 0.1  # s without new RTDE data after which stopJ cannot be confirmed over RTDE
 STOP_DECEL = 4.0  # rad/s², stopJ's deceleration
 STOP_CONFIRM_S = 0.5  # s after stopJ returned for the stream to show the target joints still
+HISTORY = 512  # joint samples kept for the rest check before a pulse (~2 s at the 4 ms poll)
 FAREWELL_ID = -2  # the id of the last line the process writes (its threads' states)
 RECOVERY_HINT = "clear the cause, release the stop on the teach pendant, then rerun with --resume"
 
@@ -76,6 +82,7 @@ class Snapshot:
     runtime_state: int = -1
     joint_temperatures: tuple[float, ...] = ()  # °C, RTDE joint_temperatures
     actual_current: tuple[float, ...] = ()  # A, RTDE actual_current (each joint's motor)
+    digital_out: int = 0  # RTDE actual_digital_output_bits (0-7 standard, 8-15 configurable)
     busy: str = ""  # the C++ call the commander is inside, "" when none
     busy_for: float = 0.0  # s it has been inside it
 
@@ -90,14 +97,6 @@ class Snapshot:
     @property
     def program_running(self) -> bool:
         return self.runtime_state == RuntimeState.PLAYING
-
-
-class Refused(Exception):
-    """A command ended without success; ``kind`` names the driver's exception class."""
-
-    def __init__(self, kind: str, message: str) -> None:
-        super().__init__(message)
-        self.kind = kind
 
 
 @dataclass(order=True)
@@ -133,6 +132,11 @@ class Client:
         self._busy: tuple[str, float] = ("", 0.0)
         self.rc: Any = None
         self._closed_receiver: Any = None  # the receive interface once disconnected
+        self.io_jobs: queue.Queue[dict[str, Any]] = queue.Queue()
+        self.io: Any = None  # RTDEIOInterface, built by the io thread at its first pulse
+        # (controller time, joints) of the receive stream's packets, for the rest check
+        self._history: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=HISTORY)
+        self._history_lock = threading.Lock()
 
     # -- output -------------------------------------------------------------------------
     def reply(self, rid: int, value: Any = None, *, error: Refused | None = None) -> None:
@@ -170,14 +174,17 @@ class Client:
             busy, since = self._busy
             if rr.isConnected():
                 ts = float(rr.getTimestamp())
+                q = tuple(rr.getActualQ())
                 if ts != last_ts:
                     last_ts, changed = ts, now
+                    with self._history_lock:
+                        self._history.append((ts, q))
                 self.snap = Snapshot(
                     polled=now,
                     connected=True,
                     timestamp=ts,
                     still_for=now - changed,
-                    q=tuple(rr.getActualQ()),
+                    q=q,
                     target_q=tuple(rr.getTargetQ()),
                     tcp_pose=tuple(rr.getActualTCPPose()),
                     robot_mode=int(rr.getRobotMode()),
@@ -185,6 +192,7 @@ class Client:
                     runtime_state=int(rr.getRuntimeState()),
                     joint_temperatures=tuple(rr.getJointTemperatures()),
                     actual_current=tuple(rr.getActualCurrent()),
+                    digital_out=int(rr.getActualDigitalOutputBits()),
                     busy=busy,
                     busy_for=now - since if busy else 0.0,
                 )
@@ -519,10 +527,14 @@ class Client:
                 self.jobs.put(_Job(0, n, req))
                 self._answer_if_not_acted(n, rid, req)
             elif op == "close":
+                self.io_jobs.put({"op": "close", "id": -1})
                 self.jobs.put(_Job(2, n, req))
                 return 0
+            elif op == "pulse":
+                self.io_jobs.put(req)  # the io thread's queue: pulses never wait for a move
             else:
                 self.jobs.put(_Job(1, n, req))
+        self.io_jobs.put({"op": "close", "id": -1})
         self.jobs.put(_Job(2, next(seq), {"op": "close", "id": -1}))  # the parent is gone
         return 0
 
@@ -559,9 +571,12 @@ def main(argv: list[str] | None = None) -> int:
         c.closing.set()
         rx.join(2.0)
         return 3
+    io = threading.Thread(target=IoOwner(c).run, name="ur-rtde-io", daemon=True)
+    io.start()
     c.reply(0, {"pid": _pid()})
     c.serve(sys.stdin)
     cx.join(5.0)  # a commander stuck inside the client is not waited for: the process ends
+    io.join(2.0)
     c.closing.set()
     rx.join(2.0)
     # Last words: which threads are still alive (inside a client) as the process ends.

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..hardware.robot import REST_TOL_RAD, REST_WINDOW_S
+
 
 @dataclass(frozen=True)
 class RunSettings:
@@ -29,8 +31,8 @@ class RunSettings:
         Disk needed per pose (None: estimated from the image size).
     """
 
-    settle_window_s: float = 0.15
-    settle_tol_rad: float = 2e-5
+    settle_window_s: float = REST_WINDOW_S
+    settle_tol_rad: float = REST_TOL_RAD
     settle_timeout_s: float = 10.0
     capture_attempts: int = 3
     min_markers: int = 6

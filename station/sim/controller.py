@@ -50,6 +50,7 @@ from .arm import (
     pose_from_T,
 )
 from .dynamics import TORQUE_CONSTANT, ArmDynamics, Thermal
+from .io import DigitalOutputs
 from .kinematics import JointLimits, check_joint_move, check_path
 from .states import Delays, PowerStates
 from .wire import CB3_VERSION, CONTROL_PORT, HOST, max_stream_hz
@@ -228,7 +229,7 @@ class Controller:
         self.messages: list[dict[str, Any]] = []  # robot messages (textmsg, runtime exceptions)
         self.on_message: Callable[[dict[str, Any]], None] | None = None  # primary clients
         self.input_owners: dict[str, Any] = {}  # input field -> the RTDE session writing it
-        self.digital_out = 0  # standard digital outputs, bits 0..7
+        self.io = DigitalOutputs()  # the digital output terminal (RTDE masks, URScript)
         self.unknown_command_pending = False
         # Dynamics: the real arm carries the true payload; the controller's model only the
         # payload it was told (set_payload), none at start.
@@ -381,7 +382,7 @@ class Controller:
             tcp_offset=pose_from_T(self.arm.tcp),
             payload=self.dyn_model.payload_kg,
             payload_cog=list(map(float, self.dyn_model.payload_com)),
-            actual_digital_output_bits=self.digital_out,
+            actual_digital_output_bits=self.io.bits,
             _running=mode == RobotMode.RUNNING,
             _powered=self.power.powered,
         )
@@ -466,16 +467,30 @@ class Controller:
             d += self._rng.normal(0.0, 0.05, 6)
         return list(map(float, d))
 
+    @property
+    def digital_out(self) -> int:
+        """The digital outputs now (``actual_digital_output_bits``)."""
+        return self.io.bits
+
+    def next_cycle(self, t: float) -> float:
+        """The start of the controller cycle after the one ``t`` falls in: where an input
+        received at ``t`` takes effect."""
+        return (math.floor(t / self.step_s + 1e-6) + 1) * self.step_s  # as the stream stamps it
+
     def set_inputs(self, values: dict[str, Any]) -> None:
-        """Merge a client's input-recipe packet into the register bank and run one cycle."""
+        """Merge a client's input-recipe packet into the register bank and run one cycle;
+        digital output masks and levels take effect at the next cycle (:mod:`.io`)."""
         with self.lock:
             self.inputs.update(values)
-            self._step(self.now())
+            t = self.now()
+            self.io.request(values, self.next_cycle(t))
+            self._step(t)
 
     # -- the script main loop (register protocol) --------------------------------------
     def _step(self, t: float) -> None:
         """Advance the emulated ``rtde_control`` script by one cycle (microseconds)."""
         self.power.advance(t)
+        self.io.advance(t)
         self._fire_due_faults(t)
         self._report_async(t)
         if (
@@ -1035,6 +1050,7 @@ class Controller:
         self.runtime_state = RuntimeState.STOPPED
         self.inputs = {}
         self.outputs = {"output_int_register_0": 0}
+        self.io.reset(self.cycle_time(self.now()))  # the outputs go low as the box reboots
         self.executing = False
         self.current_cmd = CMD_NONE
         self.sync_motion = None

@@ -9,7 +9,8 @@
   (``rtde_control`` emulated, anything else interpreted: :mod:`.urscript_program`); robot
   messages to the primary and secondary clients.
 - the control port (default 30090): JSON lines for tests and the simulated cell (fault
-  injection, true target pose, state, shutdown); see :class:`~.process.SimControllerHandle`.
+  injection, true target pose, state, shutdown, the digital output terminal as a stream of
+  changes: ``watch_outputs``); see :class:`~.process.SimControllerHandle`.
 
 The stream
 ----------
@@ -27,6 +28,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import queue
 import socket
 import struct
 import threading
@@ -294,6 +296,9 @@ def control(ctrl: Controller, conn: socket.socket) -> None:
             req: Any = None
             try:
                 req = json.loads(raw)
+                if isinstance(req, dict) and req.get("cmd") == "watch_outputs":
+                    watch_outputs(ctrl, f)  # this connection now carries the terminal's changes
+                    break
                 out = control_request(ctrl, req)
                 out["ok"] = True
             except (ValueError, KeyError, TypeError) as exc:
@@ -307,6 +312,33 @@ def control(ctrl: Controller, conn: socket.socket) -> None:
         close_socket(conn)
 
 
+def watch_outputs(ctrl: Controller, f: Any) -> None:
+    """Stream the digital output terminal's changes on a control connection: first the
+    outputs now, then one line per change, ``{"t": controller time of the cycle it took effect
+    (s), "bits": actual_digital_output_bits, "at_monotonic": the same moment on the host's
+    CLOCK_MONOTONIC}``, until the simulator stops or the other end goes away.  The simulated
+    cell's trigger cable listens here (:mod:`.cable`)."""
+    with ctrl.lock:
+        w = ctrl.io.watch()
+        t = ctrl.cycle_time(ctrl.now())
+        bits = ctrl.io.bits
+    try:
+        f.write((json.dumps({"ok": True, "t": t, "bits": bits}) + "\n").encode())
+        while not ctrl.stop_event.is_set():
+            try:
+                change = w.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            if change is None:
+                return
+            te, bits = change
+            line = {"t": te, "bits": bits, "at_monotonic": ctrl.t_start + te}
+            f.write((json.dumps(line) + "\n").encode())
+    finally:
+        with ctrl.lock:
+            ctrl.io.unwatch(w)
+
+
 def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
     """Answer one control-channel request (raises ValueError/KeyError/TypeError on bad ones)."""
     cmd = req["cmd"]
@@ -318,6 +350,7 @@ def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
     if cmd == "state":
         with ctrl.lock:
             t = ctrl.now()
+            ctrl.io.advance(ctrl.cycle_time(t))  # the cycles passed since the last one
             q = ctrl.arm.actual(t)
             return {
                 "t": t,
@@ -330,7 +363,8 @@ def control_request(ctrl: Controller, req: dict[str, Any]) -> dict[str, Any]:
                 "program": ctrl.program_name if ctrl.program_kind else None,
                 "program_error": ctrl.program_error,
                 "loaded": ctrl.loaded,
-                "digital_out": ctrl.digital_out,
+                "digital_out": ctrl.io.bits,
+                "digital_out_changes": ctrl.io.changes,
                 "messages": ctrl.messages[-20:],
                 "n_moves": ctrl.n_moves,
                 "n_restarts": ctrl.n_restarts,

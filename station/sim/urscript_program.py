@@ -247,11 +247,8 @@ class ProgramHost:
             time.sleep(0.01)
 
     def digital_out(self, index: int, value: bool) -> None:
-        with self.ctrl.lock:
-            bit = 1 << index
-            self.ctrl.digital_out = (
-                (self.ctrl.digital_out | bit) if value else (self.ctrl.digital_out & ~bit)
-            )
+        with self.ctrl.lock:  # at the next controller cycle, as an RTDE input would
+            self.ctrl.io.set(index, value, self.ctrl.next_cycle(self.ctrl.now()))
 
     def register(self, kind: str, index: int, value: Any = None) -> Any:
         name = {

@@ -14,8 +14,9 @@ import time
 import numpy as np
 import pytest
 
-from quickhealth.identify.errors import HardwareError
+from quickhealth.identify.errors import HardwareError, InputError
 from quickhealth.station.hardware.robot import (
+    REST_TOL_RAD,
     ConnectionLost,
     Leg,
     MoveStopped,
@@ -398,3 +399,29 @@ def test_two_simulators_at_once_each_on_its_own_loopback_address(sim, robot):
             assert np.max(np.abs(np.asarray(sim.state()["q"]) - q_before)) < 1e-3
     finally:
         other.stop()
+
+
+def test_a_trigger_pulse_goes_out_only_with_the_arm_at_rest(sim, robot):
+    """The cameras' line trigger: ``setStandardDigitalOut`` from the client's io thread.
+    While a move is under way the pulse is refused in one line and the output never moves;
+    at rest it rises and falls, each edge confirmed on the stream at a controller cycle, no
+    shorter than asked, and the output is left low."""
+    robot.move(Q1, Leg.JOINT, speed=1.0, accel=1.4)
+    changes = sim.state()["digital_out_changes"]
+    th, box = _move_in_thread(robot, FAR, 0.3)
+    _wait_moving(sim)
+    with pytest.raises(HardwareError) as err:
+        robot.pulse_digital_out(3, 0.02)
+    th.join(30.0)
+    assert "move is under way" in str(err.value) and "\n" not in str(err.value)
+    assert "error" not in box and sim.state()["digital_out_changes"] == changes  # nothing set
+    p = robot.pulse_digital_out(3, 0.02)
+    assert p.output == 3 and p.width_s >= 0.02 - 1e-9 and p.rest_p2p_rad <= REST_TOL_RAD
+    assert p.rise_after_t < p.rise_t and p.fall_after_t < p.fall_t  # each edge bracketed
+    k = np.array([p.rise_t, p.rise_after_t, p.fall_t]) / robot.sample_period
+    assert np.allclose(k, np.round(k), atol=1e-3)
+    st = sim.state()
+    assert st["digital_out"] == 0 and st["digital_out_changes"] == changes + 2
+    for bad in ((8, 0.02), (3, 0.01)):  # no output 8; 10 ms is under two 8 ms cycles
+        with pytest.raises(InputError):
+            robot.pulse_digital_out(*bad)

@@ -90,6 +90,9 @@ class CameraConfig:
         The cameras' input line (``Line1``) for LINE and EXTERNAL.
     robot_output : int
         The robot's standard digital output wired to that line (LINE).
+    pulse_s : float
+        The width of the robot's trigger pulse (LINE; controller time, at least two
+        controller cycles: 16 ms on a CB3, 4 ms on an e-Series).
     timeout_s : float
         Longest wait for a frame after its trigger.
     max_skew_s : float
@@ -110,6 +113,7 @@ class CameraConfig:
     trigger: Trigger = Trigger.SOFTWARE
     trigger_line: str = "Line1"
     robot_output: int = 0
+    pulse_s: float = 0.02
     timeout_s: float = 1.0
     max_skew_s: float = 0.001
     attempts: int = 3
@@ -137,7 +141,10 @@ class CameraConfig:
             who = ",".join(i or "?" for i in self.ids)
         else:
             who = "the first two cameras"
-        return f"{self.backend}:{who} {self.pixel_format}, trigger {self.trigger.value}"
+        how = self.trigger.value
+        if self.trigger is Trigger.LINE:
+            how += f" (robot output {self.robot_output}, {self.pulse_s * 1e3:.0f} ms pulse)"
+        return f"{self.backend}:{who} {self.pixel_format}, trigger {how}"
 
 
 def parse_cameras_option(text: str) -> tuple[str, tuple[str, str] | None]:
@@ -205,6 +212,12 @@ def from_cell_table(t: Any) -> CameraConfig:
         raise t.err(
             "trigger", f"{trig!r}: choose one of {', '.join(x.value for x in Trigger)}"
         ) from None
+    if trigger in (Trigger.LINE, Trigger.EXTERNAL) and backend in ("opencv", "files"):
+        raise t.err(
+            "trigger",
+            f"{trig!r} needs cameras with a trigger input (backend pylon or aravis); "
+            f"{backend!r} has none: choose trigger = 'software' or 'free'",
+        )
     exposure = _exposure(t, "exposure_us", None)
     gain = t.num("gain_db", 0.0, 0.0, 48.0)
     specs = []
@@ -229,6 +242,7 @@ def from_cell_table(t: Any) -> CameraConfig:
         trigger=trigger,
         trigger_line=t.text("trigger_line", "Line1", pattern=r"Line[0-9]{1,2}"),
         robot_output=t.integer("robot_output", 0, 0, 7),
+        pulse_s=t.num("pulse_ms", 20.0, 4.0, 1000.0) / 1e3,
         timeout_s=t.num("timeout_ms", 1000.0, 1.0, 60_000.0) / 1e3,
         max_skew_s=t.num("max_skew_us", 1000.0, 0.0, 1e6) / 1e6,
         attempts=t.integer("attempts", 3, 1, 20),
