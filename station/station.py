@@ -33,6 +33,7 @@ from .hardware.cameras import identities as camera_identities
 from .hardware.cameras.config import CameraConfig
 from .hardware.cameras.config import choose as choose_cameras
 from .hardware.cameras.registry import open_cameras
+from .hardware.line_trigger import line_trigger
 from .hardware.motor import PanMotor, SerialPanMotor
 from .hardware.owner import DeviceOwner, owned
 from .hardware.robot import Robot, UrRobot
@@ -214,7 +215,8 @@ def real_station(config: HardwareConfig) -> Station:
         closers.append(robot.close)
         motor = SerialPanMotor(config.motor_port)
         closers.append(motor.close)
-        camera = open_cameras(config.cameras, rig)
+        # trigger = "line": the robot's digital output fires both cameras
+        camera = open_cameras(config.cameras, rig, fire=line_trigger(robot, config.cameras))
         closers.append(camera.close)
     except BaseException:
         for f in reversed(closers):

@@ -22,6 +22,7 @@ SERIAL_MODULES = frozenset(
         "test_sim_urscript.py",  # the plan's loop program run on the simulator, handshakes
         "test_run.py",  # faults mid-run on the in-process cell
         "test_run_sim.py",  # the simulated cell with the real client, kill -9 and --resume
+        "test_line_trigger.py",  # the robot's digital output triggers the emulated cameras
         "test_ur10e_sim.py",  # a UR10e end to end on its simulated cell (500 Hz stream)
         "test_run_cli.py",  # two runs at once, the run lock
         "test_check.py",  # the quick check on the simulated cell, kill -9 and --resume

@@ -107,6 +107,9 @@ def camera_record(frame: StereoFrame, exposure: dict[str, Any]) -> dict[str, Any
         got = info.to_json()
         if got:
             rec[side] = got
+    edge = frame.meta.get("edge")
+    if edge:  # the robot's trigger pulse, as the controller's stream confirmed it
+        rec["edge"] = dict(edge)
     problems = frame.meta.get("attempt_problems")
     if problems:
         rec["recaptured"] = list(problems)

@@ -35,8 +35,9 @@ from ...identify.errors import InputError
 from ...identify.transforms import inv_T
 from ...vision.render import Imaging
 from ..hardware.cameras import StereoCamera
-from ..hardware.cameras.config import CameraConfig, CameraSpec
+from ..hardware.cameras.config import CameraConfig, CameraSpec, Trigger
 from ..hardware.cameras.registry import open_cameras
+from ..hardware.line_trigger import line_trigger
 from ..hardware.motor import PanMotor, SerialPanMotor
 from ..hardware.robot import Robot, UrRobot
 from ..hardware.target import T_target_plate
@@ -44,6 +45,7 @@ from ..planning import load_cell
 from ..planning.cell import Cell
 from ..station import Station
 from .arm import controller_arm
+from .cable import Cable
 from .cameras import EmulatorFeed, SimStereoCamera, scaled_rig
 from .fake_robot import FakeRobot
 from .motor_emulator import MotorEmulator
@@ -63,6 +65,7 @@ class SimCell:
     motor: SerialPanMotor
     camera: StereoCamera  # the renderer, or the backend that sees it (emulated cameras)
     extra: dict[str, Any] = field(default_factory=dict)
+    cable: Cable | None = None  # trigger = "line": the controller's output to the cameras
 
     def true_plate(self) -> np.ndarray:
         """True ``T_instr_plate`` right now (arm and pan as they really are)."""
@@ -83,10 +86,11 @@ class SimCell:
 
         A :class:`~quickhealth.station.station.Station` built by :func:`sim_station` calls this
         after its device owners closed the pan motor and the camera."""
-        try:
-            self.robot.close()
-        except Exception:  # noqa: BLE001 - best effort while tearing down
-            pass
+        for f in (self.robot.close, *([self.cable.close] if self.cable else [])):
+            try:
+                f()
+            except Exception:  # noqa: BLE001 - best effort while tearing down
+                pass
         self.controller.stop()
         self.emulator.stop()
 
@@ -128,7 +132,8 @@ def start_sim_cell(
         ``controller_version``, ``powered_off``, ``programs``, ``payload_kg``.
     cameras : CameraConfig, optional
         The camera backend the station sees through (:func:`emulated_cameras`); None: the
-        rendered pair directly.
+        rendered pair directly.  With ``trigger = "line"`` the robot's digital output fires
+        the emulated cameras through the cell's trigger cable (:mod:`.cable`).
     """
     world = build_world(cell, twin_seed=twin_seed, degrade=degrade)
     sim = start_sim_controller(
@@ -141,7 +146,7 @@ def start_sim_cell(
         **(sim_options or {}),
     )
     emu = MotorEmulator().start()
-    robot = motor = None
+    robot = motor = cable = None
     try:
         arm = controller_arm(world.twin.robot)  # the cell's arm, its own limits, its rate
         robot = UrRobot(sim.host, model=arm, frequency=arm.control_hz or 125.0)
@@ -162,8 +167,14 @@ def start_sim_cell(
         )
         camera: StereoCamera = renderer
         if cameras is not None:
-            camera = emulated_cameras(cameras, renderer)
+            if cameras.trigger is Trigger.LINE:
+                cable = Cable(sim, cameras.robot_output)
+            camera = emulated_cameras(
+                cameras, renderer, fire=line_trigger(robot, cameras), cable=cable
+            )
     except BaseException:
+        if cable is not None:
+            cable.close()
         if robot is not None:
             robot.close()
         if motor is not None:
@@ -171,22 +182,42 @@ def start_sim_cell(
         sim.stop()
         emu.stop()
         raise
-    return SimCell(world, sim, emu, robot, motor, camera)
+    return SimCell(world, sim, emu, robot, motor, camera, cable=cable)
 
 
-def emulated_cameras(cfg: CameraConfig, renderer: SimStereoCamera) -> StereoCamera:
+def emulated_cameras(
+    cfg: CameraConfig,
+    renderer: SimStereoCamera,
+    *,
+    fire: Callable[[], dict[str, Any] | None] | None = None,
+    cable: Cable | None = None,
+) -> StereoCamera:
     """The simulated cell seen through a real camera backend: the renderer's pair is put in
     front of the SDK's own emulated cameras (:class:`~.cameras.EmulatorFeed`), which the
     backend triggers and checks as real ones (``pylon``: pypylon's camera emulation;
     ``aravis``: Aravis' in-process fake cameras, which speak its GenICam protocol without a
     network), or a recorded folder (``files``).  The camera faults of
-    :class:`~.cameras.EmulatorFeed` act on pylon's emulated cameras."""
+    :class:`~.cameras.EmulatorFeed` act on pylon's emulated cameras.
+
+    ``trigger = "line"`` (pylon only): ``fire`` pulses the robot's digital output
+    (:class:`~quickhealth.station.hardware.line_trigger.LineTrigger`) and ``cable`` carries its
+    rising edge to both emulated cameras' trigger input."""
     if cfg.backend == "opencv":
         raise InputError("--sim cannot see through webcams: choose pylon, aravis or files")
-    if cfg.backend == "pylon":
-        os.environ.setdefault("PYLON_CAMEMU", "2")  # before pylon lists its cameras
     if cfg.backend == "files":
         return open_cameras(cfg, renderer.rig)
+    if cfg.trigger is Trigger.LINE and cfg.backend == "aravis":
+        raise InputError(
+            "--sim: trigger = 'line' reaches pylon's emulated cameras only (Aravis' in-process "
+            "fake cameras run free, they have no trigger input): choose --cameras pylon"
+        )
+    if cfg.trigger is Trigger.LINE and (fire is None or cable is None):
+        raise InputError(
+            "--sim: trigger = 'line' needs the simulated controller's digital output and the "
+            "cell's trigger cable (quickhealth run --sim)"
+        )
+    if cfg.backend == "pylon":
+        os.environ.setdefault("PYLON_CAMEMU", "2")  # before pylon lists its cameras
     feed = EmulatorFeed(renderer)
     if cfg.backend == "aravis":  # Aravis' in-process fake cameras (no network)
         from ..hardware.cameras.aravis import AravisDevice, FakeScreen
@@ -200,6 +231,14 @@ def emulated_cameras(cfg: CameraConfig, renderer: SimStereoCamera) -> StereoCame
 
         return open_cameras(
             cfg, renderer.rig, prepare=feed, wrap_open=lambda _: feed.open_device(fake)
+        )
+    if cable is not None:  # the cameras' trigger input on the cable
+        return open_cameras(
+            cfg,
+            renderer.rig,
+            prepare=feed,
+            fire=fire,
+            wrap_open=lambda opener: feed.open_device(cable.plug(opener)),
         )
     return open_cameras(cfg, renderer.rig, prepare=feed, wrap_open=feed.open_device)
 

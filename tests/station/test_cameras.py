@@ -24,6 +24,7 @@ from quickhealth.station.hardware.cameras.config import (
 )
 from quickhealth.station.hardware.cameras.files import FilesStereoCamera
 from quickhealth.station.hardware.cameras.genicam import TriggeredStereoCamera
+from quickhealth.station.hardware.line_trigger import Pulse, line_trigger
 from quickhealth.station.planning.cell import parse_cell
 from quickhealth.station.sim.cameras import EmulatorFeed, SimStereoCamera, scaled_rig
 from quickhealth.station.sim.cell import emulated_cameras
@@ -167,13 +168,14 @@ CELL = (Path(__file__).resolve().parents[2] / "station/data/reference_cell.toml"
 def test_the_cells_cameras_section() -> None:
     text = CELL + (
         '\n[cameras]\nbackend = "pylon"\npixel_format = "Mono12"\ntrigger = "line"\n'
-        "robot_output = 2\nexposure_us = 8000\ntimeout_ms = 500\n"
+        "robot_output = 2\npulse_ms = 16\nexposure_us = 8000\ntimeout_ms = 500\n"
         '[cameras.left]\nid = "40012345"\n[cameras.right]\nid = "cam-right"\ngain_db = 3\n'
     )
     cell = parse_cell(text.encode(), "cell.toml")
     c = cell.cameras
     assert c is not None and c.backend == "pylon" and c.bits == 12
     assert c.trigger is Trigger.LINE and c.robot_output == 2 and c.timeout_s == 0.5
+    assert c.pulse_s == 0.016 and "robot output 2, 16 ms pulse" in c.describe()
     assert c.ids == ("40012345", "cam-right") and c.right.gain_db == 3.0
     assert c.left.exposure_us == 8000.0
     # --cameras names other cameras of the same backend: the cell's settings stay
@@ -183,8 +185,51 @@ def test_the_cells_cameras_section() -> None:
     assert choose(c, "opencv:0,1").bits == 8
     with pytest.raises(InputError, match=r"cell.toml: cameras.pixel_format: 'Mono11'"):
         parse_cell(text.replace("Mono12", "Mono11").encode(), "cell.toml")
+    with pytest.raises(InputError, match=r"cameras.trigger: 'line' needs cameras with a trigger"):
+        parse_cell(text.replace('"pylon"', '"opencv"').encode(), "cell.toml")  # webcams
+    with pytest.raises(InputError, match=r"cameras.pulse_ms"):  # shorter than any cycle pair
+        parse_cell(text.replace("pulse_ms = 16", "pulse_ms = 1").encode(), "cell.toml")
     with pytest.raises(InputError, match="cameras.left.serial: unknown key"):
         parse_cell(text.replace('id = "40012345"', 'serial = "1"').encode(), "cell.toml")
+
+
+class _Controller:
+    """A robot controller's digital output at the hardware boundary (125 Hz, a CB3)."""
+
+    sample_period = 0.008
+
+    def __init__(self) -> None:
+        self.pulses: list[tuple[int, float]] = []
+
+    def pulse_digital_out(self, output: int, width_s: float) -> Pulse:
+        self.pulses.append((output, width_s))
+        return Pulse(output, 12.0, 12.0 + width_s, 0.004, 3e-6, 11.992, 12.0 + width_s - 0.008)
+
+
+def test_the_line_trigger_is_the_robots_output_or_refused_in_one_line(world) -> None:  # type: ignore[no-untyped-def]
+    cfg = replace(choose(None, "pylon"), trigger=Trigger.LINE, robot_output=2, pulse_s=0.02)
+    assert line_trigger(object(), replace(cfg, trigger=Trigger.SOFTWARE)) is None
+    with pytest.raises(InputError, match="needs a robot whose controller drives") as err:
+        line_trigger(object(), cfg)  # e.g. the in-process fake robot: no digital output
+    assert "\n" not in str(err.value)
+    ur = _Controller()
+    with pytest.raises(InputError, match=r"pulse_ms = 10 is shorter than two controller cycles"):
+        line_trigger(ur, replace(cfg, pulse_s=0.01))  # could begin and end inside one cycle
+    fire = line_trigger(ur, cfg)
+    assert fire is not None and fire()["output"] == 2 and ur.pulses == [(2, 0.02)]
+    assert fire() == {
+        "output": 2,
+        "rise_t": 12.0,
+        "rise_window_ms": 8.0,
+        "width_ms": 20.0,
+        "latency_ms": 4.0,
+        "rest_urad": 3.0,
+    }
+    for backend, words in (("aravis", "pylon's emulated cameras only"), ("pylon", "trigger cable")):
+        with pytest.raises(InputError, match=words):  # --sim: no cable, or free-running fakes
+            emulated_cameras(replace(cfg, backend=backend), renderer(world, 8))
+    with pytest.raises(HardwareError, match="needs the robot's digital output"):
+        TriggeredStereoCamera(object, scaled_rig(world.rig, 0.25), cfg)
 
 
 def test_a_recorded_folder_plays_its_pairs_in_order(tmp_path: Path, world) -> None:  # type: ignore[no-untyped-def]

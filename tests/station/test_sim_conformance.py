@@ -25,6 +25,7 @@ from qh_rtde_guide import RtdeGuideClient
 from quickhealth.identify.robot import gravity_torques, ur5, with_payload
 from quickhealth.station.hardware.urtypes import RobotMode, RuntimeState, SafetyMode
 from quickhealth.station.sim import wire
+from quickhealth.station.sim.cable import OutputWatch
 from quickhealth.station.sim.dynamics import TORQUE_CONSTANT
 from quickhealth.station.sim.process import SMART_TARGET_COM, SMART_TARGET_KG, start_sim_controller
 from quickhealth.station.sim.states import TESTING
@@ -231,6 +232,88 @@ def test_input_registers_read_back_and_in_use_for_another_client(sim):
     with RtdeGuideClient(sim.host) as again:  # the writer left: the fields are free
         assert again.request_protocol_version(2)
         assert again.setup_inputs(["input_int_register_30"])[0] >= 1
+
+
+DIGITAL_INPUTS = [
+    "standard_digital_output_mask",
+    "standard_digital_output",
+    "configurable_digital_output_mask",
+    "configurable_digital_output",
+    "tool_digital_output_mask",
+    "tool_digital_output",
+]
+
+
+def test_digital_outputs_take_the_masked_levels_at_a_controller_cycle(sim):
+    """RTDE guide, "Field names and associated types": the inputs
+    standard_digital_output_mask / standard_digital_output (UINT8, outputs 0..7),
+    configurable_digital_output_mask / _output (8..15), tool_digital_output_mask / _output
+    (the tool's 0..1): only the outputs whose mask bit is set take the level;
+    actual_digital_output_bits (UINT64) reads them back, bits 0-7 standard, 8-15
+    configurable, 16-17 tool.  The controller reads its inputs once a cycle: a change
+    appears at a cycle's timestamp (the terminal's watchers get the same time)."""
+    changes: list[tuple[float, int]] = []
+    watch = OutputWatch(sim.host, sim.control_port, lambda t, bits, at: changes.append((t, bits)))
+    try:
+        with RtdeGuideClient(sim.host) as w, RtdeGuideClient(sim.host) as r:
+            assert w.request_protocol_version(2) and r.request_protocol_version(2)
+            rid, types = w.setup_inputs(DIGITAL_INPUTS)
+            assert rid >= 1 and types == ["UINT8"] * 6
+            r.setup_outputs(["timestamp", "actual_digital_output_bits"], 125.0)
+            assert w.start() and r.start()
+
+            def put(bits: int, **v: int) -> dict:
+                w.write(rid, {n: v.get(n, 0) for n in DIGITAL_INPUTS})
+                t0 = time.monotonic()
+                while True:
+                    pkt = r.read()
+                    if pkt["actual_digital_output_bits"] == bits:
+                        return pkt
+                    assert time.monotonic() - t0 < 2.0, (bits, pkt)
+
+            sdo, sdo_m = "standard_digital_output", "standard_digital_output_mask"
+            first = put(0b100, **{sdo_m: 0b100, sdo: 0b111})  # levels outside the mask: ignored
+            put(0b1101, **{sdo_m: 0b1001, sdo: 0b1001})  # output 2 not in the mask: stays high
+            put(0b1001, **{sdo_m: 0b100, sdo: 0})
+            put(0b1001, **{sdo_m: 0, sdo: 0xFF})  # no mask: nothing changes
+            put(
+                0b10_0000_0001_0000_1001,
+                configurable_digital_output_mask=0b1,
+                configurable_digital_output=0b1,
+                tool_digital_output_mask=0b10,
+                tool_digital_output=0b10,
+            )
+            put(
+                0,
+                **{sdo_m: 0xFF, sdo: 0},
+                configurable_digital_output_mask=0xFF,
+                tool_digital_output_mask=0b11,
+            )
+    finally:
+        watch.close()
+    assert changes[0] == (first["timestamp"], 0b100)  # the watchers see the same cycle
+    k = np.array([t for t, _ in changes]) / 0.008  # CB3: 8 ms cycles
+    assert np.allclose(k, np.round(k), atol=1e-6)
+    assert [b for _, b in changes] == [0b100, 0b1101, 0b1001, 0x20109, 0]
+
+
+def test_ur_rtde_io_sets_a_standard_digital_output(sim):
+    """ur-rtde's RTDEIOInterface.setStandardDigitalOut(n, level) (its input recipe:
+    input_int_register_23, standard_digital_output_mask, standard_digital_output) next to
+    the receive interface's getDigitalOutState(n): the level shows at the next cycles."""
+    import rtde_io
+    import rtde_receive
+
+    r = rtde_receive.RTDEReceiveInterface(sim.host, 125.0)
+    io = rtde_io.RTDEIOInterface(sim.host)
+    try:
+        for level in (True, False):
+            assert io.setStandardDigitalOut(5, level)
+            wait(lambda level=level: r.getDigitalOutState(5) == level, 1.0, "the output")
+        assert r.getActualDigitalOutputBits() == 0
+    finally:
+        io.disconnect()
+        r.disconnect()
 
 
 @pytest.mark.parametrize("version, step", [("3.15.7", 0.008), ("5.11.1", 0.002)])

@@ -27,7 +27,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -123,7 +123,9 @@ class TriggeredStereoCamera:
     rig : StereoRig
     cfg : CameraConfig
     fire : callable, optional
-        Makes the edge on the trigger line (``Trigger.LINE``: the robot's digital output).
+        Makes the edge on the trigger line (``Trigger.LINE``: the robot's digital output,
+        :class:`~quickhealth.station.hardware.line_trigger.LineTrigger`); what it returns (the
+        edge as the robot confirmed it) goes into the frame's ``meta["edge"]``.
     prepare : callable, optional
         Called before each trigger (the simulated cell puts the scene in front of the
         emulated cameras here).
@@ -138,7 +140,7 @@ class TriggeredStereoCamera:
         rig: StereoRig,
         cfg: CameraConfig,
         *,
-        fire: Callable[[], None] | None = None,
+        fire: Callable[[], dict[str, Any] | None] | None = None,
         prepare: Callable[[tuple[GenICamDevice, GenICamDevice]], None] | None = None,
         wrap_open: Callable[
             [Callable[[CameraSpec], GenICamDevice]], Callable[[CameraSpec], GenICamDevice]
@@ -248,12 +250,13 @@ class TriggeredStereoCamera:
             if any(getattr(d, "free_running", False) for d in devs):
                 stray = 0  # frames come by themselves: a waiting one is no evidence
             t_trig = time.monotonic()
+            edge = None
             if cfg.trigger is Trigger.SOFTWARE:
                 for d in devs:
                     d.trigger()
             elif cfg.trigger is Trigger.LINE:
                 assert self._fire is not None
-                self._fire()
+                edge = self._fire()  # a refused pulse (the arm not at rest) stops the capture
         except DeviceLost as exc:
             problems.append(str(exc))
             self._drop_device(0 if exc.camera == "left" else 1)
@@ -295,6 +298,7 @@ class TriggeredStereoCamera:
             {
                 "trigger_to_frame_s": max(fl.t_host, fr.t_host) - t_trig,
                 "attempt_problems": problems[:],
+                **({"edge": edge} if edge else {}),
             },
             bits=cfg.bits,
             trigger=cfg.trigger.value,

@@ -141,6 +141,9 @@ class PylonDevice:
                 src = "Software" if cfg.trigger is Trigger.SOFTWARE else cfg.trigger_line
                 self._set("TriggerSource", src)
                 self._set("TriggerActivation", "RisingEdge")
+                if cfg.trigger is not Trigger.SOFTWARE:  # a GPIO line (Line3/4) may be an output
+                    self._set("LineSelector", cfg.trigger_line)
+                    self._set("LineMode", "Input")
             self._set("ExposureAuto", "Off")
             self._set("GainAuto", "Off")
             if spec.exposure_us is not None:
