@@ -30,7 +30,7 @@ import threading
 import time
 from dataclasses import dataclass
 from enum import Enum
-from typing import Protocol, runtime_checkable
+from typing import NoReturn, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -478,6 +478,14 @@ class UrRobot:
                 self._child = None
         child.kill()
 
+    def _refused(self, child: _Child, msg: dict, default: str) -> NoReturn:
+        """Raise the driver's error for a command the client refused (a lost or frozen link
+        also discards the client: the next :meth:`connect` replaces it)."""
+        err = _ERRORS.get(str(msg.get("error")), HardwareError)
+        if err in (ConnectionLost, StreamFrozen):
+            self._discard(child)
+        raise err(str(msg.get("message", default)))
+
     def _state(self, child: _Child | None = None) -> dict:
         child = child or self._live()
         rid = child.send("state")
@@ -591,10 +599,7 @@ class UrRobot:
                     "(client killed); restart it, then rerun with --resume"
                 )
         if not msg["ok"]:
-            err = _ERRORS.get(str(msg.get("error")), HardwareError)
-            if err in (ConnectionLost, StreamFrozen):
-                self._discard(child)
-            raise err(str(msg.get("message", "the move failed")))
+            self._refused(child, msg, "the move failed")
 
     def stop(self) -> None:
         """Stop the arm now (ahead of anything queued) and refuse moves until :meth:`clear_stop`.
@@ -715,10 +720,7 @@ class UrRobot:
                 "with --resume"
             )
         if not msg["ok"]:
-            err = _ERRORS.get(str(msg.get("error")), HardwareError)
-            if err in (ConnectionLost, StreamFrozen):
-                self._discard(child)
-            raise err(str(msg.get("message", "the pulse failed")))
+            self._refused(child, msg, "the pulse failed")
         v = msg["value"]
         return Pulse(
             output,
