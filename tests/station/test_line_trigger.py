@@ -80,22 +80,34 @@ def carried(edge: dict, edges: list[float]) -> int:
     return inside[0]
 
 
-def test_every_pose_is_measured_on_the_edge_of_the_robots_output(line_cell, tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_each_pair_is_taken_on_one_edge_and_a_pair_out_of_step_is_rejected(
+    line_cell, tmp_path
+) -> None:  # type: ignore[no-untyped-def]
+    """Every pose measured, each pair on one edge of the robot's output sent with the arm at
+    rest.  After pose 2 the next edge reaches the left camera twice (contact bounce, ringing
+    on the cable): the left camera exposes twice, the pair is out of step and rejected; the
+    robot pulses again and pose 3 is measured once, from the clean pair."""
     station, sim, plan = line_cell
     stats = station.camera.device.stats  # type: ignore[attr-defined]
-    n0, pairs0 = len(sim.cable.edges), stats["pairs"]
-    res = run_plan(station, plan, tmp_path / "run", settings=SETTINGS)
+    n0, pairs0, oos0 = len(sim.cable.edges), stats["pairs"], stats["out_of_step"]
+
+    def bounce_after_pose_2(ev):  # type: ignore[no-untyped-def]
+        if ev.kind == "pose" and ev.index == 2:
+            sim.cable.bounce("left")
+
+    res = run_plan(station, plan, tmp_path / "run", settings=SETTINGS, progress=bounce_after_pose_2)
     assert res.complete and res.n_measured == 4, res.stopped
     st = read_journal(tmp_path / "run" / JOURNAL)
     assert sorted(st.measured) == [1, 2, 3, 4]
     edges = [e.t for e in sim.cable.edges[n0:]]
     # one rising edge at the controller's output for every pair the run took (pre-flight,
-    # self-checks, poses), each carried by the cable: no pair without its edge, no spare edge
-    assert len(edges) == stats["pairs"] - pairs0 >= 4 + 2
+    # self-checks, poses), each carried by the cable, and one for the pair rejected
+    assert len(edges) == stats["pairs"] - pairs0 + 1 >= 4 + 2 + 1
+    assert stats["out_of_step"] == oos0 + 1
     rises = []
-    for rec in st.captured.values():
+    for k, rec in sorted(st.captured.items()):
         cam = rec.camera
-        assert cam["trigger"] == "line" and not cam.get("recaptured")
+        assert cam["trigger"] == "line" and bool(cam.get("recaptured")) == (k == 3)
         e = cam["edge"]
         assert e["output"] == 2 and e["width_ms"] >= 20.0  # never shorter than asked
         cycles = np.array([e["rise_t"], e["rise_t"] + e["width_ms"] / 1e3]) / 0.008  # CB3
@@ -104,6 +116,10 @@ def test_every_pose_is_measured_on_the_edge_of_the_robots_output(line_cell, tmp_
         carried(e, edges)  # the edge the cable carried
         rises.append(e["rise_t"])
     assert rises == sorted(rises)
+    again = st.captured[3].camera
+    assert any("out of step" in p for p in again["recaptured"]), again
+    # pose 3's pair is the second pulse after pose 2's: the first one's pair was rejected
+    assert carried(again["edge"], edges) == carried(st.captured[2].camera["edge"], edges) + 2
     assert sim.controller.state()["digital_out"] & (1 << 2) == 0  # the output left low
 
 
@@ -136,32 +152,3 @@ def test_a_cut_cable_times_out_in_one_line_and_nothing_is_measured(line_cell, tm
     assert sorted(caps) == [1, 2]  # nothing lost, nothing captured twice
     st = read_journal(run_dir / JOURNAL)
     assert all(r.camera["edge"]["output"] == 2 for r in st.captured.values())
-
-
-def test_a_bouncing_line_puts_the_pair_out_of_step_and_it_is_taken_again(
-    line_cell, tmp_path
-) -> None:  # type: ignore[no-untyped-def]
-    """After pose 1 the next edge reaches the left camera twice (contact bounce, ringing on
-    the cable): the left camera exposes twice, the pair is out of step and rejected; the
-    robot pulses again and pose 2 is measured once, from the clean pair."""
-    station, sim, plan = line_cell
-    plan = dataclasses.replace(plan, poses=plan.poses[:2])
-    stats = station.camera.device.stats  # type: ignore[attr-defined]
-    n0, pairs0, oos0 = len(sim.cable.edges), stats["pairs"], stats["out_of_step"]
-
-    def bounce_after_pose_1(ev):  # type: ignore[no-untyped-def]
-        if ev.kind == "pose" and ev.index == 1:
-            sim.cable.bounce("left")
-
-    res = run_plan(station, plan, tmp_path / "run", settings=SETTINGS, progress=bounce_after_pose_1)
-    assert res.complete and res.n_measured == 2, res.stopped
-    assert stats["out_of_step"] == oos0 + 1
-    edges = [e.t for e in sim.cable.edges[n0:]]
-    assert len(edges) == stats["pairs"] - pairs0 + 1  # one pulse's pair was rejected
-    st = read_journal(tmp_path / "run" / JOURNAL)
-    assert sorted(st.measured) == [1, 2]
-    assert not st.captured[1].camera.get("recaptured")
-    again = st.captured[2].camera
-    assert any("out of step" in p for p in again["recaptured"]), again
-    # pose 2's pair is the second pulse after pose 1's: the first one's pair was rejected
-    assert carried(again["edge"], edges) == carried(st.captured[1].camera["edge"], edges) + 2

@@ -408,7 +408,7 @@ def test_a_trigger_pulse_goes_out_only_with_the_arm_at_rest(sim, robot):
     shorter than asked, and the output is left low."""
     robot.move(Q1, Leg.JOINT, speed=1.0, accel=1.4)
     changes = sim.state()["digital_out_changes"]
-    th, box = _move_in_thread(robot, FAR, 0.3)
+    th, box = _move_in_thread(robot, Q2, 0.3)
     _wait_moving(sim)
     with pytest.raises(HardwareError) as err:
         robot.pulse_digital_out(3, 0.02)

@@ -297,25 +297,6 @@ def test_digital_outputs_take_the_masked_levels_at_a_controller_cycle(sim):
     assert [b for _, b in changes] == [0b100, 0b1101, 0b1001, 0x20109, 0]
 
 
-def test_ur_rtde_io_sets_a_standard_digital_output(sim):
-    """ur-rtde's RTDEIOInterface.setStandardDigitalOut(n, level) (its input recipe:
-    input_int_register_23, standard_digital_output_mask, standard_digital_output) next to
-    the receive interface's getDigitalOutState(n): the level shows at the next cycles."""
-    import rtde_io
-    import rtde_receive
-
-    r = rtde_receive.RTDEReceiveInterface(sim.host, 125.0)
-    io = rtde_io.RTDEIOInterface(sim.host)
-    try:
-        for level in (True, False):
-            assert io.setStandardDigitalOut(5, level)
-            wait(lambda level=level: r.getDigitalOutState(5) == level, 1.0, "the output")
-        assert r.getActualDigitalOutputBits() == 0
-    finally:
-        io.disconnect()
-        r.disconnect()
-
-
 @pytest.mark.parametrize("version, step", [("3.15.7", 0.008), ("5.11.1", 0.002)])
 def test_timestamps_step_with_the_controller_cycle(version, step, sim):
     """RTDE guide, "Key features" / timestamp: time elapsed since the controller started,
