@@ -79,10 +79,13 @@ def replay(d: Path, base: Path, run: Path, name: str) -> tuple[int, dict]:  # ty
 
 def show(label: str, code: int, changes: list, truth: float | None, key: str | None) -> bool:  # type: ignore[type-arg]
     top = changes[0] if changes else None
-    words = "no change named" if top is None else (
-        f"{top['fault']}: {top['size']:+.3f} ± {top['sigma']:.3f} {top['size_unit']} "
-        f"(z = {top['z']:+.1f}, p = {top['p_value']:.1e})"
-    )  # fmt: skip
+    if top is None:
+        words = "no change named"
+    elif top.get("fault") is None:  # the check's omnibus: a change no single fault describes
+        words = f"{top['words']} ({top['probability']:.0%} of the evidence)"
+    else:
+        words = (f"{top['fault']}: {top['size']:+.3f} ± {top['sigma']:.3f} {top['size_unit']} "
+                 f"(z = {top['z']:+.1f}, p = {top['p_value']:.1e})")  # fmt: skip
     if key is None:
         ok = code == 0 and not changes
     else:

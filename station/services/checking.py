@@ -641,6 +641,7 @@ def _test_json(status: qc.CheckStatus | None, model: qc.ChangeModel) -> dict[str
         "log_lr_unchanged_boundary": s.log_b,
         "families": len(model.families),
         "paired": model.paired,
+        "noise_scale": model.noise_scale,
     }
     if status is None:
         return {**out, "log_lr": None, "log_sup_h1": None, "weakest": None}

@@ -125,13 +125,37 @@ def test_paired_check_ignores_what_the_model_cannot_describe(setup):
     paired = qc.check_status(qc.change_model(poor, qc.CheckSettings(), base), poor, meas)
     model_only = qc.check_status(qc.change_model(poor, qc.CheckSettings()), poor, meas)
     assert paired.decision is qc.Decision.UNCHANGED
-    assert model_only.log_lr > paired.log_lr + 50  # the model error looks like a change
+    # the model error looks like a change (its noise scaled by the fit's chi2/dof, 7: no cure)
+    assert (
+        model_only.log_lr > paired.log_lr + 30
+        and model_only.log_lr > model_only.model.settings.log_a
+    )
     with pytest.raises(InputError, match="did not measure"):
         qc.check_status(
             qc.change_model(poor, qc.CheckSettings(), base),
             poor,
             replace(meas, pose_id=("X",) + meas.pose_id[1:]),
         )
+
+
+def test_check_against_the_model_takes_the_scatter_its_fit_measured(setup):
+    """Compared with the model (no pairing), a pose's noise is the baseline's noise model
+    scaled by what the fit's own residuals showed (its chi2/dof, at least 1): a baseline
+    whose residuals scatter 1.3 times wider than its noise model says holds the check's
+    residuals to that scatter (the shared UR10's sessions read as changed by the omnibus
+    otherwise).  A paired check compares measurements and keeps the noise model."""
+    twin, q, ids, base, fitted, paired_model = setup
+    meas = _measure(twin, q, ids, np.random.default_rng(11))
+    wide = replace(fitted, chi2_data=1.69 * fitted.dof)
+    model = qc.change_model(wide, qc.CheckSettings())
+    assert model.noise_scale == pytest.approx(1.69)
+    narrow = replace(fitted, chi2_data=0.9 * fitted.dof)
+    assert qc.change_model(narrow, qc.CheckSettings()).noise_scale == 1.0  # at least 1
+    assert qc.change_model(wide, qc.CheckSettings(), base).noise_scale == 1.0  # paired
+    scaled = qc.check_status(model, wide, meas)
+    plain = qc.check_status(replace(model, noise_scale=1.0), wide, meas)
+    # the noise scales; the baseline's estimation error integrated out does not
+    assert scaled.chi2 == pytest.approx(plain.chi2 / 1.69, rel=0.02)
 
 
 def test_h1_boundary_moves_the_tcp_by_the_detectable_change(setup):
