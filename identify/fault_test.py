@@ -144,7 +144,9 @@ def name_changes(
     alpha : float
         Family-wise false-alarm probability: each fault is tested at ``alpha / n_faults``.
     floors : mapping of SI unit to float, optional
-        Smallest size that counts, per unit (``{"m": 1e-5, "rad": 2e-5}``).
+        Smallest size that counts, per unit (``{"m": 1e-5, "rad": 2e-5}``); a fault whose
+        unit has none (a joint scale, dimensionless) counts when its TCP displacement
+        (``tcp``) exceeds the length floor.
     tcp : sequence of float, optional
         TCP displacement per unit of each fault (m), reported with each change.
     scale : float
@@ -281,11 +283,15 @@ def _estimate(A, chosen, e, faults, tcp, level, floors, source, j) -> NamedChang
         sigma = float(math.sqrt(max(u @ ck @ u, 0.0)))
         p = _chi2_sf(float(sk @ np.linalg.solve(ck, sk)), kf)
         z = _z_of_p(p)
-    floor = floors.get(f.unit, 0.0)
     t = float(tcp[k]) if tcp is not None else math.nan
+    floor = floors.get(f.unit)
+    if floor is not None:
+        large = abs(size) > floor
+    else:  # a unit without a floor of its own (a joint scale): its TCP displacement counts
+        large = not math.isfinite(t) or abs(size) * t > floors.get("m", 0.0)
     return NamedChange(
         fault=f.key, kind=f.kind.value, joint=f.joint, words=f.words, size=size, sigma=sigma,
-        unit=f.unit, z=z, p_value=p, significant=bool(p < level and abs(size) > floor),
+        unit=f.unit, z=z, p_value=p, significant=bool(p < level and large),
         probability=1.0, prior=f.prior, cause=f.cause, action=f.action,
         tcp=abs(size) * t if math.isfinite(t) else math.nan, source=source,
     )  # fmt: skip

@@ -108,3 +108,21 @@ def test_a_fault_injected_into_the_truth_matches_its_definition():
     q2[:, 2] += 2e-4
     # (the error motions are evaluated at the reading: their slope over 0.2 mrad, < 1 µm)
     np.testing.assert_allclose(tw2.true_pose(q), tw.true_pose(q2), atol=1e-6)
+
+
+def test_a_joint_scale_counts_by_how_far_it_moves_the_tcp():
+    """A joint scale (gear ratio) is dimensionless: it counts when its TCP displacement passes
+    the length floor (the demo's healthy repeat named 'joint 1 scale changed by -0.95 ppm',
+    z = -5.1, a micrometre at the TCP, with no floor for its unit)."""
+    rob = builtin_robot("ur5")
+    faults = [f for f in F.geometric_faults(rob) if f.key in ("j2.scale", "j3.zero")]
+    g = np.eye(4)[:, :2]  # each fault's image: one coordinate of its own
+    blocks = [g[:, [k]] for k in range(2)]
+    S = np.eye(4) * 1e-20  # measured far more sharply than the sizes below
+    tcp = [0.8, 0.9]  # m of TCP per unit of each fault
+    floors = {"m": 1e-5, "rad": 2e-5}
+    for size, counts in ((1e-6, False), (1e-4, True)):  # 0.8 µm and 80 µm at the TCP
+        t = FT.name_changes(g[:, 0] * size, S, blocks, faults, floors=floors, tcp=tcp)
+        c = t.named[0]
+        assert c.fault == "j2.scale" and abs(c.z) > 100
+        assert c.significant is counts, (size, c.tcp)
