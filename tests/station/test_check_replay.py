@@ -8,6 +8,7 @@ import pytest
 import qh_runs as _runs
 
 from quickhealth.station.cli import main
+from quickhealth.station.run.lock import ENV_VAR, RunLock
 
 
 @pytest.fixture(scope="module")
@@ -39,9 +40,18 @@ def test_replay_of_a_changed_run_names_the_fault(runs, tmp_path, capsys):
     assert 0 < doc["robot_time_s"] < doc["full_loop_robot_time_s"]
 
 
-def test_replay_of_a_healthy_run_is_unchanged_with_the_same_document(runs, tmp_path, capsys):
+def test_replay_of_a_healthy_run_is_unchanged_with_the_same_document(
+    runs, tmp_path, capsys, monkeypatch
+):
+    """... while a station's run holds the cell: a replay drives no hardware."""
     base, same, _ = runs
-    code, out, doc = _replay(same, base, tmp_path / "h", capsys)
+    monkeypatch.setenv(ENV_VAR, str(tmp_path / "lock"))
+    (tmp_path / "lock").mkdir(mode=0o700)
+    cell = RunLock.acquire(tmp_path / "a-station-run")
+    try:
+        code, out, doc = _replay(same, base, tmp_path / "h", capsys)
+    finally:
+        cell.release()
     assert code == 0 and out.startswith("UNCHANGED after") and doc["changes"] == []
     keys = {"schema", "verdict", "decided", "poses", "robot_time_s", "full_loop_robot_time_s",
             "changes", "false_alarm", "power", "detect_mm", "test", "baseline", "pose_names"}  # fmt: skip
