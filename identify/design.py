@@ -38,8 +38,12 @@ estimated scatter ``τ`` against its instrument's ``σ``: ``τ² / (τ² + σ²)
 baseline's residuals are the instrument's noise: then every pose is chosen by the information
 criterion; without a baseline 0.5 is assumed, between a model that explains everything and
 the real arms measured, whose models leave 0.997 (UR10) and 0.999 (WAM) unexplained).
-``saturation`` 1.3, ``spread_length`` 0.4 and the assumed 0.5 were tuned on the digital twin
-and on the training part of the shared UR10 series only (docs/plan.md).
+A plan of ``n ≤ k`` poses has no representative part; when the model is expected to miss part
+of the errors (``s > 0``) its information greedy keeps each joint's range covered instead:
+each step chooses among the candidates that fill a quarter of some joint's range holding fewer
+than ``coverage / 4`` of the poses so far, when there are such quarters.
+``saturation`` 1.3, ``spread_length`` 0.4, ``coverage`` 0.8 and the assumed 0.5 were tuned on
+the digital twin and on the training part of the shared UR10 series only (docs/plan.md).
 
 The workspace is the candidates themselves (they are where the robot can be measured).
 Selection is greedy: each step takes the pose with the largest decrease of the criterion,
@@ -148,7 +152,10 @@ class DesignSettings:
 
     ``spread``: choose the poses after the first ``k`` to make the set representative (the
     module docstring); ``spread_length``: the kernel's length in each joint's standard
-    deviation over the candidates; ``saturation``: ``k`` in poses that saturate the model.
+    deviation over the candidates; ``saturation``: ``k`` in poses that saturate the model;
+    ``coverage``: when every pose is chosen by information although the model is expected to
+    miss part of the errors (``k ≥ n``, unexplained share above 0), each quarter of every
+    joint's range holds at least ``coverage / 4`` of the poses chosen so far.
     """
 
     criterion: Criterion = Criterion.I_OPTIMAL
@@ -161,6 +168,7 @@ class DesignSettings:
     spread: bool = True
     spread_length: float = 0.4
     saturation: float = 1.3
+    coverage: float = 0.8
 
 
 @dataclass(frozen=True, eq=False)
@@ -348,7 +356,9 @@ def select_poses(
     J, M, P0 = J[:, :, live], M[np.ix_(live, live)], P0[np.ix_(live, live)]
     r = identifiable(J[ws])
     k = n if not settings.spread else information_poses(n, r, J.shape[1], prior, settings)
-    chosen = _greedy(J, M, P0, k, groups, settings.criterion)
+    cover = settings.spread and k == n and prior.unexplained > 0.0 and settings.coverage > 0.0
+    strata = (_quarters(q), settings.coverage) if cover else None
+    chosen = _greedy(J, M, P0, k, groups, settings.criterion, strata)
     if k < n:
         chosen = _spread(q, n, groups, chosen, ws, settings.spread_length)
     crit = _criterion(J, M, P0, chosen, settings.criterion)
@@ -449,9 +459,26 @@ def _criterion(J: F, M: F, P0: F, rows: list[int], crit: Criterion) -> float:
     return float(np.linalg.slogdet(P)[1])  # log det of the posterior covariance: lower is better
 
 
-def _greedy(J: F, M: F, P0: F, n: int, groups: NDArray[np.int64], crit: Criterion) -> list[int]:
-    """Each step the candidate whose rank-d update lowers the criterion most."""
+def _quarters(q: F, bins: int = 4) -> NDArray[np.int64]:
+    """Which quarter of each joint's range (over the candidates) every candidate is in."""
+    lo, hi = q.min(axis=0), q.max(axis=0)
+    b = np.floor((q - lo) / np.where(hi - lo > 1e-9, hi - lo, 1.0) * bins).astype(np.int64)
+    return np.clip(b, 0, bins - 1)
+
+
+def _greedy(
+    J: F, M: F, P0: F, n: int, groups: NDArray[np.int64], crit: Criterion,
+    strata: tuple[NDArray[np.int64], float] | None = None,
+) -> list[int]:  # fmt: skip
+    """Each step the candidate whose rank-d update lowers the criterion most; with ``strata``
+    (each candidate's bin of every joint's range, and the minimum share), among those that
+    fill a bin holding fewer than its share of the poses when any does."""
     m, d, _ = J.shape
+    if strata is not None:
+        bins, share = strata
+        nj, nb = bins.shape[1], int(bins.max()) + 1
+        counts = np.zeros((nj, nb))
+        joint = np.arange(nj)[None, :]
     P = P0.copy()
     Gp = J @ P  # (m, d, p): J_c P
     Hm = Gp @ M if crit is Criterion.I_OPTIMAL else None  # J_c P M
@@ -467,9 +494,16 @@ def _greedy(J: F, M: F, P0: F, n: int, groups: NDArray[np.int64], crit: Criterio
         else:
             gain = np.linalg.slogdet(S)[1]
         gain[~allowed] = -np.inf
+        if strata is not None:
+            short = counts < np.floor(share * (len(chosen) + 1) / nb)  # (nj, nb)
+            fills = short[joint, bins].any(axis=1) & allowed
+            if fills.any():
+                gain[~fills] = -np.inf
         j = int(np.argmax(gain))
         chosen.append(j)
         allowed &= groups != groups[j]
+        if strata is not None:
+            counts[np.arange(nj), bins[j]] += 1
         Aj = J[j]  # (d, p)
         Gj = Gp[j]  # A_j P
         Sj = S[j]

@@ -142,3 +142,24 @@ def test_prior_from_a_baseline(pool, baseline):
     assert share == pytest.approx(0.09**2 / (0.09**2 + 0.03**2))
     with pytest.raises(InputError, match="7 joints"):
         D.design_spec(ur5(), pool, replace(prior, fitted_orders=((0,) * 6,) * 9))
+
+
+def test_every_pose_by_information_keeps_each_joint_range_covered(pool):
+    """With no representative part (n <= k) and a model expected to miss part of the
+    errors, each quarter of every joint's range holds at least coverage/4 of the poses; the
+    plain greedy crowds the extremes and leaves quarters nearly empty."""
+    s = D.DesignSettings(prior=D.DesignPrior(max_order=1))
+    res = D.select_poses(ur5(), pool, 24, s)
+    assert res.n_information == 24 and res.n_spread == 0  # k = 29 here
+    plain = D.select_poses(ur5(), pool, 24, replace(s, coverage=0.0))
+
+    def fewest(rows):
+        b = D._quarters(pool)[rows]
+        return min(np.sum(b[:, j] == i) for j in range(pool.shape[1]) for i in range(4))
+
+    assert fewest(res.indices) >= math.floor(0.8 * 24 / 4)
+    assert fewest(plain.indices) < math.floor(0.8 * 24 / 4)
+    assert res.band_mm < res.random_band_mm  # still better than random by its criterion
+    # a model that explains everything needs no guard: the plain greedy
+    trusted = replace(s, prior=replace(s.prior, unexplained=0.0))
+    assert D.select_poses(ur5(), pool, 24, trusted).indices.tolist() == plain.indices.tolist()
