@@ -206,16 +206,22 @@ def run_measure(args: argparse.Namespace) -> int:
         )
         for k, pid in enumerate(ids)
     ]  # fmt: skip
+    tty = sys.stderr.isatty()
+
+    def progress(k: int, n: int) -> None:
+        # on a terminal one line overwritten in place; in a log (a nightly job) a line at each
+        # quarter, not 74 progress counts run together on one line
+        if tty:
+            sys.stderr.write(f"\rmeasuring: {k}/{n} pairs")
+        elif n and (4 * k) // n > (4 * (k - 1)) // n:
+            sys.stderr.write(f"measuring: {k}/{n} pairs\n")
+        sys.stderr.flush()
+
     try:
-        results = measure_pairs(
-            rig,
-            target,
-            pairs,
-            workers=args.jobs,
-            progress=lambda k, n: sys.stderr.write(f"\rmeasuring: {k}/{n} pairs"),
-        )
+        results = measure_pairs(rig, target, pairs, workers=args.jobs, progress=progress)
     finally:
-        sys.stderr.write("\n")  # end the progress line (also before an error's one line)
+        if tty:
+            sys.stderr.write("\n")  # end the progress line (also before an error's one line)
     meta = {
         "instrument": "quickhealth 7D stereo camera",
         "calibration": str(cal if cal.exists() else "reference design"),
