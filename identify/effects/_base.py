@@ -116,8 +116,9 @@ class EffectBase:
         return []
 
     def info(self) -> dict[str, Any]:
-        """Nothing beyond the name and the parameters."""
-        return {}
+        """Beside the name and the parameters, the form of an effect that has several
+        (``{"form": "torque"}``); nothing for one with a single form."""
+        return {"form": self.form} if self.form else {}
 
 
 def fitted_estimates(fitted: Any, effect: Any) -> tuple[F, F]:

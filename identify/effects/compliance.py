@@ -125,10 +125,6 @@ class Compliance(EffectBase):
         """By the gravity torque at each target."""
         return f"{self.name} by the gravity torque at each target"
 
-    def info(self) -> dict[str, Any]:
-        """What model.json keeps beside the name: the form used."""
-        return {"form": self.form}
-
     def describe_fit(self, fitted: Any) -> list[str]:
         """The fit summary's line: the form and the estimate."""
         v, s = fitted_estimates(fitted, self)

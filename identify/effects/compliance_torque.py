@@ -93,10 +93,6 @@ class TorqueCompliance(EffectBase):
         """By the torque the program's targets will load the joint with."""
         return f"{self.name} by {conditions['joint_torque']} at each target"
 
-    def info(self) -> dict[str, Any]:
-        """What model.json keeps beside the name: the form."""
-        return {"form": self.form}
-
     def describe_fit(self, fitted: Any) -> list[str]:
         """The fit summary's line: the form and the estimate."""
         v, s = fitted_estimates(fitted, self)
